@@ -1,0 +1,1 @@
+"""Loaders that turn real recordings into Sessions."""

@@ -1,0 +1,91 @@
+"""Absolute attitude (a magnetic tracker's world_R_body): white or slowly varying (Gauss-Markov) error.
+
+White error: ``PriorFactorRot3`` on the state at the SAMPLE time.
+
+Gauss-Markov error (reading = world_R_body * Exp(e), e a first-order Markov process): two helper
+variables per sample, both C++ factors only:
+
+* ``T`` (Rot3), the reading without its white noise: ``PriorFactorRot3(T, reading, white)``;
+* ``e`` (Vector3), tied by ``T = X * Exp(e)``. No built-in factor has this form, but an
+  ``AHRSFactor`` whose preintegration is the identity with d(deltaR)/d(bias) = I predicts exactly
+  ``X_j = X_i * Exp(bias)``: we use it with (X, T, e) as (rot_i, rot_j, bias). Its Jacobians are
+  checked against numerical derivatives in the tests.
+* the AR(1) law ``e_j = phi e_i + w`` is linear in vector variables, so it enters as an exact
+  ``LinearContainerFactor`` (a JacobianFactor linearised at zero).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from ..geometry import FloatArray, rot3_from_quat_wxyz
+
+
+@dataclass(frozen=True)
+class AttitudeNoise:
+    """Error model of an absolute attitude sensor, per axis, in the body frame."""
+
+    white_sigma_deg: float = 0.4
+    """White noise per sample, degrees."""
+    markov_sigma_deg: float = 0.7
+    """Stationary sigma of the slowly varying error, degrees; 0 = white noise only."""
+    markov_tau_s: float = 2.0
+    """Time constant of the slowly varying error, seconds."""
+
+    @property
+    def is_markov(self) -> bool:
+        return self.markov_sigma_deg > 0.0
+
+    @property
+    def total_sigma_rad(self) -> float:
+        return float(np.deg2rad(np.hypot(self.white_sigma_deg, self.markov_sigma_deg)))
+
+
+@dataclass(frozen=True)
+class AttitudeMeasurement:
+    """One absolute attitude sample."""
+
+    t: float
+    """Sample time, seconds."""
+    world_R_body: gtsam.Rot3
+    """Measured attitude."""
+
+    @classmethod
+    def from_quat(cls, t: float, quat_wxyz: FloatArray) -> AttitudeMeasurement:
+        return cls(float(t), rot3_from_quat_wxyz(quat_wxyz))
+
+
+def attitude_prior_factor(key: int, measured: gtsam.Rot3, sigma_rad: float) -> gtsam.PriorFactorRot3:
+    """White-noise attitude measurement on the state ``key``."""
+    return gtsam.PriorFactorRot3(key, measured, gtsam.noiseModel.Isotropic.Sigma(3, sigma_rad))
+
+
+#: Sigma of the T = X * Exp(e) tie, rad: a near-hard constraint that keeps the system well conditioned.
+ERROR_TIE_SIGMA_RAD = 1e-4
+
+
+def error_state_factor(state_key: int, reading_key: int, error_key: int) -> gtsam.AHRSFactor:
+    """``reading = state * Exp(error)`` as an AHRSFactor with an identity preintegration."""
+    params = gtsam.PreintegratedRotationParams()
+    params.setGyroscopeCovariance(np.eye(3))
+    pim = gtsam.PreintegratedAhrsMeasurements(params, np.zeros(3), 0.0, gtsam.Rot3(), np.eye(3), ERROR_TIE_SIGMA_RAD**2 * np.eye(3))
+    return gtsam.AHRSFactor(state_key, reading_key, error_key, pim)
+
+
+def gauss_markov_factor(prev_key: int, next_key: int, dt_s: float, sigma: float, tau_s: float) -> gtsam.LinearContainerFactor:
+    """Exact AR(1) transition e_next = phi * e_prev + w of a 3-vector first-order Markov process."""
+    phi = float(np.exp(-dt_s / tau_s))
+    drive_sigma = sigma * np.sqrt(max(1.0 - phi**2, 1e-12))
+    jacobian = gtsam.JacobianFactor(prev_key, -phi * np.eye(3), next_key, np.eye(3), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, drive_sigma))
+    at_zero = gtsam.Values()
+    at_zero.insert(prev_key, np.zeros(3))
+    at_zero.insert(next_key, np.zeros(3))
+    return gtsam.LinearContainerFactor(jacobian, at_zero)
+
+
+def markov_prior_factor(key: int, sigma: float) -> gtsam.PriorFactorVector:
+    """Stationary prior N(0, sigma^2) on the first state of a Markov process."""
+    return gtsam.PriorFactorVector(key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma))

@@ -1,0 +1,1 @@
+"""Signal processing that makes measurements from raw streams."""

@@ -1,0 +1,69 @@
+"""Metrics: attitude error per Euler axis, RMS, NEES — as result objects that merge across runs."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .estimate import Estimate
+from .geometry import FloatArray, euler_zyx_from_quat, quat_conjugate, quat_multiply, rotvec_from_quat, wrap_angle
+
+AXES = ("azimuth", "elevation", "roll")
+
+
+def euler_errors(estimate_quat: FloatArray, truth_quat: FloatArray) -> FloatArray:
+    """Per-axis error: difference of ZYX Euler angles (estimate - truth), wrapped to [-pi, pi)."""
+    return wrap_angle(euler_zyx_from_quat(estimate_quat) - euler_zyx_from_quat(truth_quat))
+
+
+def body_errors(estimate_quat: FloatArray, truth_quat: FloatArray) -> FloatArray:
+    """Rotation-vector error Log(est^-1 * truth) in the body frame, rad (gtsam's right perturbation)."""
+    return rotvec_from_quat(quat_multiply(quat_conjugate(estimate_quat), truth_quat))
+
+
+def nees(estimate_quat: FloatArray, cov: FloatArray, truth_quat: FloatArray) -> FloatArray:
+    """Normalised estimation error squared per sample (3 dof: about 3 when the covariance is honest)."""
+    delta = body_errors(estimate_quat, truth_quat)
+    return np.einsum("ni,ni->n", delta, np.linalg.solve(cov, delta[..., None])[..., 0])
+
+
+@dataclass(frozen=True)
+class AttitudeScore:
+    """Scores of one estimate against the truth over the scored samples."""
+
+    rms_rad: FloatArray
+    """RMS of the Euler-angle errors (azimuth, elevation, roll), rad."""
+    nees: float | None
+    """Mean NEES of the attitude, None when the method has no covariance."""
+    samples: int
+    """Number of scored samples."""
+    missing: int
+    """Scored instants where the method had no estimate (counted, not hidden)."""
+
+    def as_dict(self) -> dict[str, object]:
+        return {"rms_rad": dict(zip(AXES, (float(v) for v in self.rms_rad), strict=True)), "nees": self.nees, "samples": self.samples, "missing": self.missing}
+
+
+def score_attitude(estimate: Estimate, truth_t: FloatArray, truth_quat: FloatArray, start_s: float = 1.0) -> AttitudeScore:
+    """Score an estimate sampled at the truth's times, from ``start_s`` after the first truth sample."""
+    if estimate.t.shape != truth_t.shape or not np.allclose(estimate.t, truth_t):
+        raise ValueError(f"estimate '{estimate.method}' is not sampled at the truth times")
+    scored = truth_t >= truth_t[0] + start_s
+    have = scored & np.all(np.isfinite(estimate.quat_wxyz), axis=1)
+    errors = euler_errors(estimate.quat_wxyz[have], truth_quat[have])
+    rms = np.sqrt(np.mean(errors**2, axis=0)) if have.any() else np.full(3, np.nan)
+    mean_nees = None
+    if estimate.cov is not None:
+        usable = have & np.all(np.isfinite(estimate.cov.reshape(len(truth_t), -1)), axis=1)
+        if usable.any():
+            mean_nees = float(np.mean(nees(estimate.quat_wxyz[usable], estimate.cov[usable], truth_quat[usable])))
+    return AttitudeScore(rms, mean_nees, int(have.sum()), int((scored & ~have).sum()))
+
+
+def mean_scores(scores: Sequence[AttitudeScore]) -> AttitudeScore:
+    """Mean over runs (seeds) of each RMS and NEES: what ratios between methods compare."""
+    rms = np.mean([s.rms_rad for s in scores], axis=0)
+    nees_values = [s.nees for s in scores if s.nees is not None]
+    return AttitudeScore(rms, float(np.mean(nees_values)) if nees_values else None, sum(s.samples for s in scores), sum(s.missing for s in scores))

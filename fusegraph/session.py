@@ -1,0 +1,311 @@
+"""Session: named, time-stamped sensor streams plus metadata, stored as a directory a person can edit.
+
+Layout of a session directory::
+
+    session.toml     [session] system, description, world_frame; [streams.<name>] kind, file,
+                     latency_s, noise and frame fields; optional [truth] file
+    <stream>.csv     header row, first column ``t`` = SAMPLE time in seconds, then the kind's columns
+    truth.csv        optional ground truth, same rules
+
+A stream's ``latency_s`` says how long after its sample time a sample ARRIVES; online replay orders
+by arrival, factors attach at the sample time. Loading validates everything and raises
+``SessionError`` naming the file, row and problem; gaps in time (dropouts) are legal.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+#: Columns after ``t`` that each stream kind must have, in order.
+KIND_COLUMNS: dict[str, tuple[str, ...]] = {
+    "gyro": ("wx", "wy", "wz"),
+    "accel": ("ax", "ay", "az"),
+    "mag": ("mx", "my", "mz"),
+    "attitude": ("qw", "qx", "qy", "qz"),
+    "position": ("x", "y", "z"),
+}
+
+#: Gap between samples, in multiples of the median period, above which a dropout is reported.
+GAP_FACTOR = 1.5
+
+
+class SessionError(ValueError):
+    """A session directory or stream that cannot be used as it is; the message says where and why."""
+
+
+@dataclass(frozen=True)
+class Stream:
+    """One sensor stream: sample times and values, with its metadata from session.toml."""
+
+    name: str
+    """Stream name, the key under ``[streams]`` (e.g. ``gyro``, ``tracker``)."""
+    kind: str
+    """Measurement kind, a key of ``KIND_COLUMNS``; decides the columns and the factor."""
+    t: FloatArray
+    """Sample times in seconds, strictly increasing, shape (N,)."""
+    values: FloatArray
+    """Samples, shape (N, len(columns)), in SI units of the kind."""
+    columns: tuple[str, ...]
+    """Column names of ``values``."""
+    latency_s: float = 0.0
+    """Arrival time minus sample time, seconds (a late sensor's transport delay)."""
+    meta: Mapping[str, Any] = field(default_factory=dict)
+    """Every other field of the stream's table in session.toml (rates, noise, frames)."""
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def arrival_t(self) -> FloatArray:
+        """When each sample becomes available to an online estimator, seconds."""
+        return self.t + self.latency_s
+
+    def gaps(self) -> list[tuple[float, float]]:
+        """Dropouts: (start, end) sample times of intervals longer than GAP_FACTOR x the median period."""
+        if len(self) < 3:
+            return []
+        dt = np.diff(self.t)
+        median = float(np.median(dt))
+        idx = np.nonzero(dt > GAP_FACTOR * median)[0]
+        return [(float(self.t[i]), float(self.t[i + 1])) for i in idx]
+
+    def select(self, mask: NDArray[np.bool_]) -> Stream:
+        """The same stream restricted to the samples where ``mask`` is true."""
+        return Stream(self.name, self.kind, self.t[mask], self.values[mask], self.columns, self.latency_s, self.meta)
+
+
+@dataclass(frozen=True)
+class Session:
+    """A recording or simulation: streams by name, optional truth, and free metadata."""
+
+    system: str
+    """Which system this session belongs to (``head``, ``attitude9``, ...): picks the graph builder."""
+    streams: Mapping[str, Stream]
+    """Sensor streams by name."""
+    truth: Stream | None = None
+    """Ground truth, if known (an ``attitude`` stream for attitude systems)."""
+    meta: Mapping[str, Any] = field(default_factory=dict)
+    """The ``[session]`` table and any other top-level tables of session.toml."""
+    path: Path | None = None
+    """Directory the session was loaded from, if any."""
+
+    def stream(self, name: str) -> Stream:
+        """The stream called ``name``; a SessionError lists the ones that exist."""
+        try:
+            return self.streams[name]
+        except KeyError:
+            where = f"{self.path / 'session.toml'}: " if self.path else ""
+            raise SessionError(f"{where}no stream '{name}' (have: {', '.join(self.streams)})") from None
+
+    def streams_of_kind(self, kind: str) -> list[Stream]:
+        """All streams of one kind, in declaration order."""
+        return [s for s in self.streams.values() if s.kind == kind]
+
+    @property
+    def duration_s(self) -> float:
+        """Time from the first to the last sample over all streams."""
+        starts = [float(s.t[0]) for s in self.streams.values()]
+        ends = [float(s.t[-1]) for s in self.streams.values()]
+        return max(ends) - min(starts)
+
+    def without(self, *names: str) -> Session:
+        """The same session with some streams removed (for ablations)."""
+        for name in names:
+            self.stream(name)
+        kept = {k: v for k, v in self.streams.items() if k not in names}
+        return Session(self.system, kept, self.truth, self.meta, self.path)
+
+
+@dataclass(frozen=True)
+class ArrivalEvent:
+    """One sample in the order an online estimator receives it."""
+
+    arrival_t: float
+    stream: Stream
+    index: int
+
+    @property
+    def t(self) -> float:
+        """Sample time of the event, seconds."""
+        return float(self.stream.t[self.index])
+
+    @property
+    def values(self) -> FloatArray:
+        return self.stream.values[self.index]
+
+
+def replay_in_arrival_order(session: Session, last_streams: tuple[str, ...] = ()) -> Iterator[ArrivalEvent]:
+    """Every sample of every stream, sorted by arrival time.
+
+    Ties (to a microsecond) go to the streams named in ``last_streams`` last, so that a sample
+    arriving at the same instant as, say, a gyro sample is used in that gyro step's estimate.
+    """
+    keys: list[NDArray[np.int64]] = []
+    order_streams: list[Stream] = list(session.streams.values())
+    for rank, stream in enumerate(order_streams):
+        arrival_us = np.round(stream.arrival_t * 1e6).astype(np.int64)
+        priority = 1 if stream.name in last_streams else 0
+        keys.append(np.stack([arrival_us, np.full(len(stream), priority), np.full(len(stream), rank), np.arange(len(stream))], axis=1))
+    if not keys:
+        return
+    table = np.concatenate(keys)
+    order = np.lexsort((table[:, 3], table[:, 2], table[:, 1], table[:, 0]))
+    for row in table[order]:
+        stream = order_streams[int(row[2])]
+        yield ArrivalEvent(float(stream.arrival_t[row[3]]), stream, int(row[3]))
+
+
+# --------------------------------------------------------------------------------------------- I/O
+
+
+def load_session(directory: str | Path) -> Session:
+    """Read and validate a session directory (see the module docstring for the format)."""
+    root = Path(directory)
+    toml_path = root / "session.toml"
+    if not toml_path.is_file():
+        raise SessionError(f"{toml_path}: not found (a session is a directory with session.toml)")
+    try:
+        spec = tomllib.loads(toml_path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SessionError(f"{toml_path}: not valid TOML: {exc}") from None
+    header = spec.get("session", {})
+    system = header.get("system")
+    if not isinstance(system, str):
+        raise SessionError(f"{toml_path}: [session] needs system = \"<name>\" (e.g. \"head\")")
+    stream_specs = spec.get("streams", {})
+    if not stream_specs:
+        raise SessionError(f"{toml_path}: no [streams.<name>] tables")
+    streams = {}
+    for name, table in stream_specs.items():
+        streams[name] = _load_stream(root, toml_path, name, table)
+    truth = None
+    if "truth" in spec:
+        table = dict(spec["truth"])
+        table.setdefault("kind", "attitude")
+        truth = _load_stream(root, toml_path, "truth", table)
+    meta = {k: v for k, v in spec.items() if k not in ("streams", "truth")}
+    return Session(system, streams, truth, meta, root)
+
+
+def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any]) -> Stream:
+    where = f"{toml_path}: stream '{name}'"
+    kind = table.get("kind")
+    if kind not in KIND_COLUMNS:
+        raise SessionError(f"{where}: kind = {kind!r} is not one of {', '.join(KIND_COLUMNS)}")
+    file = table.get("file", f"{name}.csv")
+    latency = table.get("latency_s", 0.0)
+    if not isinstance(latency, int | float) or not math.isfinite(latency) or latency < 0:
+        raise SessionError(f"{where}: latency_s must be a finite number >= 0 (got {latency!r})")
+    t, values = read_stream_csv(root / file, KIND_COLUMNS[kind], name)
+    meta = {k: v for k, v in table.items() if k not in ("kind", "file", "latency_s")}
+    return Stream(name, kind, t, values, KIND_COLUMNS[kind], float(latency), meta)
+
+
+def read_stream_csv(path: Path, columns: tuple[str, ...], name: str = "", allow_nan: bool = False) -> tuple[FloatArray, FloatArray]:
+    """Read ``t`` plus ``columns`` from a CSV with a header row; validate every row.
+
+    Extra columns are allowed and ignored. Errors name the file, the line and the problem.
+    ``allow_nan`` admits NaN values (never in ``t``): estimates use NaN for "no estimate yet".
+    """
+    label = f"{path}" + (f" (stream '{name}')" if name else "")
+    if not path.is_file():
+        raise SessionError(f"{label}: file not found")
+    with path.open(newline="") as handle:
+        reader = csv.reader(handle)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise SessionError(f"{label}: empty file (expected a header row: t, {', '.join(columns)})") from None
+        wanted = ("t", *columns)
+        missing = [c for c in wanted if c not in header]
+        if missing:
+            raise SessionError(f"{label}: column{'s' if len(missing) > 1 else ''} {', '.join(repr(c) for c in missing)} missing (have: {', '.join(header)})")
+        if header[0] != "t":
+            raise SessionError(f"{label}: first column must be 't' (sample time in seconds), found {header[0]!r}")
+        idx = [header.index(c) for c in wanted]
+        rows: list[list[float]] = []
+        for line_no, row in enumerate(reader, start=2):
+            if not row or all(not cell.strip() for cell in row):
+                continue
+            if len(row) < len(header):
+                raise SessionError(f"{label}: line {line_no}: {len(row)} fields, header has {len(header)}")
+            try:
+                values = [float(row[i]) for i in idx]
+            except ValueError:
+                bad = next(wanted[j] for j, i in enumerate(idx) if not _is_float(row[i]))
+                raise SessionError(f"{label}: line {line_no}: column '{bad}' is not a number ({row[header.index(bad)]!r})") from None
+            for col, v in zip(wanted, values, strict=True):
+                if not math.isfinite(v) and not (allow_nan and col != "t" and math.isnan(v)):
+                    raise SessionError(f"{label}: line {line_no}: column '{col}' is {v} (NaN/inf not allowed; leave the row out for a dropout)")
+            if rows:
+                previous = rows[-1][0]
+                if values[0] == previous:
+                    raise SessionError(f"{label}: line {line_no}: duplicate time t = {values[0]!r} (same as line {line_no - 1})")
+                if values[0] < previous:
+                    raise SessionError(f"{label}: line {line_no}: time goes backwards (t = {values[0]!r} after {previous!r})")
+            rows.append(values)
+    if not rows:
+        raise SessionError(f"{label}: no samples (the stream is empty)")
+    table = np.asarray(rows, dtype=float)
+    return table[:, 0].copy(), table[:, 1:].copy()
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def save_session(session: Session, directory: str | Path) -> Path:
+    """Write a session directory that ``load_session`` reads back exactly (values to 17 digits)."""
+    root = Path(directory)
+    root.mkdir(parents=True, exist_ok=True)
+    lines = ["[session]", f"system = {_toml_value(session.system)}"]
+    header = dict(session.meta.get("session", {}))
+    header.pop("system", None)
+    lines += [f"{k} = {_toml_value(v)}" for k, v in header.items()]
+    for table_name, table in session.meta.items():
+        if table_name == "session" or not isinstance(table, Mapping):
+            continue
+        lines += ["", f"[{table_name}]"] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+    for stream in session.streams.values():
+        lines += ["", f"[streams.{stream.name}]", f"kind = {_toml_value(stream.kind)}", f"file = \"{stream.name}.csv\"", f"latency_s = {_toml_value(stream.latency_s)}"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in stream.meta.items()]
+        write_stream_csv(root / f"{stream.name}.csv", stream.t, stream.values, stream.columns)
+    if session.truth is not None:
+        lines += ["", "[truth]", f"kind = {_toml_value(session.truth.kind)}", "file = \"truth.csv\""]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in session.truth.meta.items()]
+        write_stream_csv(root / "truth.csv", session.truth.t, session.truth.values, session.truth.columns)
+    (root / "session.toml").write_text("\n".join(lines) + "\n")
+    return root
+
+
+def write_stream_csv(path: Path, t: FloatArray, values: FloatArray, columns: tuple[str, ...]) -> None:
+    """One stream as CSV: header ``t,<columns>``, full float precision."""
+    data = np.column_stack([t, values])
+    np.savetxt(path, data, delimiter=",", header=",".join(("t", *columns)), comments="", fmt="%.17g")
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(float(value)) if isinstance(value, float) else str(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to session.toml")

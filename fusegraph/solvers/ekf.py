@@ -1,0 +1,171 @@
+"""EKF baselines of the head-tracking paper, on ZYX Euler angles + body rates (the paper's state).
+
+State x = (azimuth, elevation, roll, p, q, r). Time update at the gyro rate T:
+
+    angles' = angles + T * E^-1(angles) @ omega,   omega' = omega          (state equation)
+
+with process noise w1 on the angles and w2 on the rates. Gyro: z = omega + v, H = (0, I).
+Tracker, sampled d seconds before it arrives: z = angles(t - d) ~ angles - d * E^-1 omega, so the
+paper's H = (I, -d F') with F' = E^-1 (the first-order extrapolation of the delay).
+
+* Method I: every measurement its own sequential update (gyro at each sample, tracker on arrival).
+* Method II: one joint update with the stacked H at tracker arrivals; gyro-only update in between.
+* Kalman (tracker only): the same model without the gyro updates.
+
+Updates use the Joseph form, which keeps P symmetric and positive definite in long runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ..geometry import FloatArray, euler_rate_matrix, euler_zyx_from_quat, quat_from_euler_zyx, wrap_angle
+
+EkfMode = Literal["method1", "method2", "kalman"]
+
+
+@dataclass(frozen=True)
+class HeadEkfConfig:
+    """Noise figures of the paper (defaults) and the delay the filter assumes."""
+
+    process_angle_sigma_rad: float = 0.01
+    """w1: process noise on the angles per step, rad."""
+    process_rate_sigma_rad_s: float = 0.15
+    """w2: process noise on the body rates per step, rad/s."""
+    gyro_sigma_rad_s: float = 0.15
+    """Gyro measurement noise, rad/s."""
+    tracker_sigma_rad: float = 0.0268
+    """Tracker measurement noise, rad (the paper folds the latency error into it)."""
+    tracker_latency_s: float = 0.1
+    """Delay d the filter assumes for the tracker, seconds."""
+
+
+class HeadEkf:
+    """One of the paper's filters; feed it samples in arrival order and read ``x``, ``P``."""
+
+    def __init__(self, mode: EkfMode, config: HeadEkfConfig | None = None):
+        if mode not in ("method1", "method2", "kalman"):
+            raise ValueError(f"unknown EKF mode {mode!r}")
+        self.mode = mode
+        self.cfg = config or HeadEkfConfig()
+        self.x = np.zeros(6)
+        self.P = np.eye(6)
+        self.started = False
+        self._t = float("nan")
+        self._pending_tracker: FloatArray | None = None
+
+    def start(self, t: float, angles: FloatArray, omega: FloatArray | None = None) -> None:
+        """Initialise from a first tracker fix (and a gyro sample when there is one)."""
+        self.x = np.concatenate([angles, np.zeros(3) if omega is None else omega])
+        self.P = np.diag([self.cfg.tracker_sigma_rad**2] * 3 + [self.cfg.gyro_sigma_rad_s**2 if omega is not None else 1.0] * 3)
+        self._t = t
+        self.started = True
+
+    def predict(self, t: float) -> None:
+        """Time update from the last step to ``t``."""
+        dt = t - self._t
+        if dt <= 0:
+            return
+        angles, omega = self.x[:3], self.x[3:]
+        rate_matrix = euler_rate_matrix(angles)
+        F = np.eye(6)
+        F[:3, 3:] = dt * rate_matrix
+        F[:3, :3] += dt * _d_rate_d_angles(angles, omega)
+        self.x = np.concatenate([wrap_angle(angles + dt * rate_matrix @ omega), omega])
+        Q = np.diag([self.cfg.process_angle_sigma_rad**2] * 3 + [self.cfg.process_rate_sigma_rad_s**2] * 3)
+        self.P = F @ self.P @ F.T + Q
+        self._t = t
+
+    def gyro(self, t: float, omega: FloatArray) -> None:
+        """A gyro sample at t: time update, then (unless tracker-only) the update(s) of this step."""
+        self.predict(t)
+        tracker, self._pending_tracker = self._pending_tracker, None
+        if self.mode == "kalman":
+            if tracker is not None:
+                self._update(*self._tracker_model(tracker))
+            return
+        H_g = np.hstack([np.zeros((3, 3)), np.eye(3)])
+        residual_g = np.asarray(omega) - self.x[3:]
+        R_g = self.cfg.gyro_sigma_rad_s**2 * np.eye(3)
+        if tracker is None:
+            self._update(residual_g, H_g, R_g)
+        elif self.mode == "method1":
+            self._update(residual_g, H_g, R_g)
+            self._update(*self._tracker_model(tracker))
+        else:  # method2: one joint update
+            residual_t, H_t, R_t = self._tracker_model(tracker)
+            R = np.zeros((6, 6))
+            R[:3, :3], R[3:, 3:] = R_t, R_g
+            self._update(np.concatenate([residual_t, residual_g]), np.vstack([H_t, H_g]), R)
+
+    def tracker(self, angles: FloatArray) -> None:
+        """A tracker sample ARRIVED; it is used with the next gyro step (same instant in the paper)."""
+        self._pending_tracker = np.asarray(angles, dtype=float)
+
+    def _tracker_model(self, angles: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        d = self.cfg.tracker_latency_s
+        rate_matrix = euler_rate_matrix(self.x[:3])
+        predicted = self.x[:3] - d * rate_matrix @ self.x[3:]
+        H = np.hstack([np.eye(3), -d * rate_matrix])
+        return wrap_angle(angles - predicted), H, self.cfg.tracker_sigma_rad**2 * np.eye(3)
+
+    def _update(self, residual: FloatArray, H: FloatArray, R: FloatArray) -> None:
+        S = H @ self.P @ H.T + R
+        K = np.linalg.solve(S, H @ self.P).T
+        self.x = self.x + K @ residual
+        self.x[:3] = wrap_angle(self.x[:3])
+        I_KH = np.eye(6) - K @ H
+        self.P = I_KH @ self.P @ I_KH.T + K @ R @ K.T  # Joseph form
+
+    def attitude_cov_body(self) -> FloatArray:
+        """Covariance of the attitude as a body-frame rotation vector (for NEES against gtsam's)."""
+        angles = self.x[:3]
+        el, roll = angles[1], angles[2]
+        # body rates = M @ euler rates, so a small angle change maps to Exp(M @ d_angles) on the right
+        M = np.array(
+            [
+                [-np.sin(el), 0.0, 1.0],
+                [np.cos(el) * np.sin(roll), np.cos(roll), 0.0],
+                [np.cos(el) * np.cos(roll), -np.sin(roll), 0.0],
+            ]
+        )
+        return M @ self.P[:3, :3] @ M.T
+
+
+def _d_rate_d_angles(angles: FloatArray, omega: FloatArray, step: float = 1e-6) -> FloatArray:
+    """Jacobian of E^-1(angles) @ omega with respect to the angles (central differences)."""
+    out = np.empty((3, 3))
+    for j in range(3):
+        delta = np.zeros(3)
+        delta[j] = step
+        out[:, j] = (euler_rate_matrix(angles + delta) @ omega - euler_rate_matrix(angles - delta) @ omega) / (2 * step)
+    return out
+
+
+def run_head_ekf(mode: EkfMode, t_gyro: FloatArray, omega: FloatArray, t_tracker: FloatArray, quat_tracker: FloatArray, config: HeadEkfConfig | None = None, latency_s: float = 0.1) -> tuple[FloatArray, FloatArray]:
+    """Run a filter over a session; attitude quaternions (N, 4) and covariances (N, 3, 3) at gyro times.
+
+    Rows before the first tracker sample has arrived are NaN (no estimate yet).
+    """
+    ekf = HeadEkf(mode, config)
+    arrival = t_tracker + latency_s
+    angles_tracker = euler_zyx_from_quat(quat_tracker)
+    quats = np.full((len(t_gyro), 4), np.nan)
+    covs = np.full((len(t_gyro), 3, 3), np.nan)
+    j = 0
+    for i, t in enumerate(t_gyro):
+        while j < len(arrival) and arrival[j] <= t + 1e-9:
+            if not ekf.started:
+                ekf.start(t, angles_tracker[j], None if mode == "kalman" else omega[i])
+            else:
+                ekf.tracker(angles_tracker[j])
+            j += 1
+        if not ekf.started:
+            continue
+        ekf.gyro(t, omega[i])
+        quats[i] = quat_from_euler_zyx(ekf.x[:3])
+        covs[i] = ekf.attitude_cov_body()
+    return quats, covs

@@ -1,0 +1,1 @@
+"""End-to-end pipelines per system: Session -> Estimate for every method (ours and the baselines)."""
