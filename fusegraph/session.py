@@ -151,19 +151,19 @@ def replay_in_arrival_order(session: Session, last_streams: tuple[str, ...] = ()
     Ties (to a microsecond) go to the streams named in ``last_streams`` last, so that a sample
     arriving at the same instant as, say, a gyro sample is used in that gyro step's estimate.
     """
-    keys: list[NDArray[np.int64]] = []
-    order_streams: list[Stream] = list(session.streams.values())
-    for rank, stream in enumerate(order_streams):
-        arrival_us = np.round(stream.arrival_t * 1e6).astype(np.int64)
-        priority = 1 if stream.name in last_streams else 0
-        keys.append(np.stack([arrival_us, np.full(len(stream), priority), np.full(len(stream), rank), np.arange(len(stream))], axis=1))
-    if not keys:
+    streams: list[Stream] = list(session.streams.values())
+    if not streams:
         return
-    table = np.concatenate(keys)
+    arrivals = [s.arrival_t for s in streams]
+    table = np.concatenate(
+        [
+            np.stack([np.round(a * 1e6).astype(np.int64), np.full(len(a), int(s.name in last_streams)), np.full(len(a), rank), np.arange(len(a))], axis=1)
+            for rank, (s, a) in enumerate(zip(streams, arrivals, strict=True))
+        ]
+    )
     order = np.lexsort((table[:, 3], table[:, 2], table[:, 1], table[:, 0]))
-    for row in table[order]:
-        stream = order_streams[int(row[2])]
-        yield ArrivalEvent(float(stream.arrival_t[row[3]]), stream, int(row[3]))
+    for rank, index in table[order][:, 2:].tolist():
+        yield ArrivalEvent(float(arrivals[rank][index]), streams[rank], index)
 
 
 # --------------------------------------------------------------------------------------------- I/O

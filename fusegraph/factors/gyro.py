@@ -1,8 +1,13 @@
 """Gyro: rate samples -> preintegrated rotation between keyframes (gtsam ``AHRSFactor``) + bias walk.
 
-The bias is a random-walk chain (one Vector3 per keyframe), which keeps iSAM2 fast (a single shared
-bias key made it 3-6x slower here). ``AHRSFactor`` carries its own covariance from the
-preintegration, so it takes no noise model.
+Sensor model: ``omega_measured = (I + K) omega + b + noise``, K the scale-factor and misalignment
+error (9 numbers, small), b a random-walk bias. Over one keyframe interval K acts as an extra bias
+``K @ mean(omega_measured)``, so each interval's AHRSFactor takes an *effective* bias
+``beta_k = b_k + W(omega_k) @ c`` (c = K row by row, W the 3x9 rate matrix). The bias walk
+b_{k+1} - b_k ~ N(0, q dt) is then linear in (beta_k, beta_{k+1}, c): an exact
+``LinearContainerFactor``, C++ like everything else here. Without calibration it is a plain
+``BetweenFactorVector`` chain (one Vector3 per keyframe: a single shared bias key made iSAM2
+3-6x slower here). ``AHRSFactor`` carries its own covariance, so it takes no noise model.
 """
 
 from __future__ import annotations
@@ -41,6 +46,55 @@ def preintegration_params(noise: GyroNoise) -> gtsam.PreintegratedRotationParams
     return params
 
 
+@dataclass(frozen=True)
+class GyroCalibrationPrior:
+    """Prior on the gyro's scale-factor and misalignment errors (the matrix K), estimated as variables."""
+
+    scale_sigma: float = 0.05
+    """Sigma of each scale-factor error (diagonal of K), as a fraction."""
+    misalignment_sigma: float = 0.03
+    """Sigma of each cross-axis term (off-diagonal of K), rad."""
+
+    @property
+    def sigmas(self) -> FloatArray:
+        """Per-entry sigmas of c = K flattened row by row."""
+        return np.where(np.eye(3, dtype=bool).ravel(), self.scale_sigma, self.misalignment_sigma)
+
+
+def rate_matrix(omega: FloatArray) -> FloatArray:
+    """W(omega), 3x9, with W @ c = K @ omega for c = K flattened row by row."""
+    return np.kron(np.eye(3), np.asarray(omega, dtype=float)[None, :])
+
+
+def calibration_prior_factor(cal_key: int, prior: GyroCalibrationPrior) -> gtsam.PriorFactorVector:
+    """Zero-mean prior on c (9 numbers)."""
+    return gtsam.PriorFactorVector(cal_key, np.zeros(9), gtsam.noiseModel.Diagonal.Sigmas(prior.sigmas))
+
+
+def _linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float) -> gtsam.LinearContainerFactor:
+    """sum_i A_i x_i ~ N(0, sigma^2 I) over vector variables, exact for any value (linearised at 0)."""
+    args: list[object] = []
+    at_zero = gtsam.Values()
+    for key, matrix in blocks:
+        args += [key, matrix]
+        at_zero.insert(key, np.zeros(matrix.shape[1]))
+    rows = blocks[0][1].shape[0]
+    jacobian = gtsam.JacobianFactor(*args, np.zeros(rows), gtsam.noiseModel.Isotropic.Sigma(rows, sigma))
+    return gtsam.LinearContainerFactor(jacobian, at_zero)
+
+
+def calibrated_bias_walk_factor(beta_i: int, beta_j: int, cal_key: int, rate_i: FloatArray, rate_j: FloatArray, dt_s: float, noise: GyroNoise) -> gtsam.LinearContainerFactor:
+    """(beta_j - W_j c) - (beta_i - W_i c) ~ N(0, q dt): the bias walk seen through effective biases."""
+    eye = np.eye(3)
+    sigma = noise.bias_rw_sigma * np.sqrt(max(dt_s, 1e-9))
+    return _linear_factor([(beta_i, -eye), (beta_j, eye), (cal_key, rate_matrix(rate_i) - rate_matrix(rate_j))], sigma)
+
+
+def calibrated_bias_prior_factor(beta_key: int, cal_key: int, rate: FloatArray, noise: GyroNoise) -> gtsam.LinearContainerFactor:
+    """beta_0 - W_0 c ~ N(0, sigma_b0^2): the start-up bias prior seen through the effective bias."""
+    return _linear_factor([(beta_key, np.eye(3)), (cal_key, -rate_matrix(rate))], noise.bias_prior_sigma_rad_s)
+
+
 class GyroInterval:
     """Gyro samples between two keyframes, integrated with the bias estimate known at its start.
 
@@ -54,19 +108,27 @@ class GyroInterval:
         self.t_start = t_start
         self.t_last = t_start
         self.omega_last = np.asarray(omega_start, dtype=float)
+        self._angle_sum = np.zeros(3)
 
     def add(self, t: float, omega: FloatArray) -> None:
         """Integrate up to sample time ``t`` whose measured rate is ``omega`` (rad/s)."""
         dt = t - self.t_last
         omega = np.asarray(omega, dtype=float)
         if dt > 0:
-            self.pim.integrateMeasurement(0.5 * (self.omega_last + omega), dt)
+            midpoint = 0.5 * (self.omega_last + omega)
+            self.pim.integrateMeasurement(midpoint, dt)
+            self._angle_sum += midpoint * dt
         self.t_last = t
         self.omega_last = omega
 
     @property
     def elapsed_s(self) -> float:
         return self.t_last - self.t_start
+
+    @property
+    def mean_rate(self) -> FloatArray:
+        """Mean measured rate over the interval, rad/s (the W of the calibrated bias)."""
+        return self._angle_sum / self.elapsed_s if self.elapsed_s > 0 else self.omega_last
 
     def delta(self, bias: FloatArray | None = None) -> gtsam.Rot3:
         """Rotation from the interval start to the last sample, corrected to ``bias`` to first order."""

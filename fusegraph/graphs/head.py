@@ -1,7 +1,8 @@
 """Head tracking graph: gyro preintegration between keyframes + late tracker attitudes at their sample times.
 
 Variables per keyframe k (one every ``keyframe_period_s``, placed on gyro samples):
-``x(k)`` world_R_head (Rot3), ``b(k)`` gyro bias (Vector3, random-walk chain); per tracker sample
+``x(k)`` world_R_head (Rot3), ``b(k)`` the effective gyro bias of the interval from k to k+1
+(Vector3; see ``factors.gyro``), one ``c`` (9) for the gyro's scale/misalignment; per tracker sample
 at keyframe k, with the Gauss-Markov tracker model: ``e(k)`` tracker error (Vector3, AR(1) chain)
 and ``t(k)`` the reading without white noise (Rot3).
 
@@ -13,7 +14,7 @@ time (nearest keyframe, corrected by the gyro rate for any offset), which the gy
 from __future__ import annotations
 
 import bisect
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -25,10 +26,22 @@ from ..factors.attitude import (
     gauss_markov_factor,
     markov_prior_factor,
 )
-from ..factors.gyro import GyroInterval, GyroNoise, bias_prior_factor, bias_walk_factor, preintegration_params
+from ..factors.gyro import (
+    GyroCalibrationPrior,
+    GyroInterval,
+    GyroNoise,
+    bias_prior_factor,
+    bias_walk_factor,
+    calibrated_bias_prior_factor,
+    calibrated_bias_walk_factor,
+    calibration_prior_factor,
+    preintegration_params,
+)
 from ..geometry import FloatArray, rot3_from_quat_wxyz
 from ..session import Session
 from .increment import GraphIncrement
+
+_EYE3 = np.eye(3)
 
 
 def X(k: int) -> int:
@@ -44,6 +57,10 @@ def B(k: int) -> int:
 def E(k: int) -> int:
     """Key of the tracker's slowly varying error at keyframe k."""
     return int(gtsam.symbol("e", k))
+
+
+C = int(gtsam.symbol("c", 0))
+"""Key of the gyro calibration c (K flattened row by row: scale factors and misalignment)."""
 
 
 def T(k: int) -> int:
@@ -63,6 +80,8 @@ class HeadModel:
     """Tracker error model; ``markov_sigma_deg = 0`` gives plain white-noise priors."""
     tracker_latency_s: float | None = None
     """Tracker delay, seconds; None takes the stream's ``latency_s`` from the session."""
+    gyro_calibration: GyroCalibrationPrior | None = field(default_factory=GyroCalibrationPrior)
+    """Estimate the gyro's scale factors and misalignment as variables (None: assume a perfect gyro)."""
     snap_tolerance_s: float = 5e-4
     """A tracker sample this close to a keyframe attaches to it without gyro correction, seconds."""
 
@@ -79,10 +98,12 @@ class HeadGraphBuilder:
         self.keyframe_t: list[float] = []
         """Time of every keyframe so far, seconds."""
         self._keyframe_omega: list[FloatArray] = []
+        self._partials: dict[int, list[tuple[float, gtsam.Rot3]]] = {}
         self._interval: GyroInterval | None = None
         self._last_error_kf: int | None = None
         self._latest_rot: gtsam.Rot3 | None = None
         self._latest_bias = np.zeros(3)
+        self._previous_rate = np.zeros(3)
         self.oldest_allowed_keyframe = 0
         """Keyframes older than this were marginalised by the online solver; samples for them are too late."""
         self.too_late: list[float] = []
@@ -112,6 +133,8 @@ class HeadGraphBuilder:
         self._interval.add(t, omega)
         if self._interval.elapsed_s >= self.model.keyframe_period_s - 1e-9:
             self._close_keyframe()
+        else:
+            self._partials.setdefault(self.latest_keyframe, []).append((t, self._interval.delta()))
         self._flush_waiting_tracker()
 
     def add_tracker(self, t: float, quat_wxyz: FloatArray) -> None:
@@ -140,11 +163,14 @@ class HeadGraphBuilder:
         return self._interval.t_last, world_R_kf.compose(self._interval.delta(bias))
 
     def predict_cov(self, cov_kf: FloatArray, cov_bias: FloatArray) -> FloatArray:
-        """Covariance of ``predict_now`` (right perturbation): keyframe cov carried over the gyro interval."""
+        """Covariance of ``predict_now`` (right perturbation): keyframe cov grown over the gyro interval.
+
+        The interval is at most one keyframe period, so its rotation (< 2 deg) does not rotate the
+        covariance noticeably; white noise and bias uncertainty add up over the elapsed time.
+        """
         assert self._interval is not None
-        delta = self._interval.delta().matrix()
         dt = self._interval.elapsed_s
-        return delta.T @ cov_kf @ delta + self._interval.pim.preintMeasCov() + dt * dt * cov_bias
+        return cov_kf + dt * self.model.gyro.density**2 * _EYE3 + dt * dt * cov_bias
 
     @property
     def now_s(self) -> float:
@@ -170,8 +196,9 @@ class HeadGraphBuilder:
         self._keyframe_omega.append(omega0)
         self._latest_rot = first_fix.compose(gtsam.Rot3.Expmap(-omega0 * (t_fix - t0)))
         self._pending.values.insert(X(0), self._latest_rot)
-        self._pending.values.insert(B(0), np.zeros(3))
-        self._pending.add(0, bias_prior_factor(B(0), self.model.gyro))
+        if self.model.gyro_calibration is not None:
+            self._pending.values.insert(C, np.zeros(9))
+            self._pending.add(0, calibration_prior_factor(C, self.model.gyro_calibration))
         self._interval = GyroInterval(self._params, self._latest_bias, t0, omega0)
         # tracker samples older than the anchor can never be used: say so, do not drop silently
         while self._tracker_waiting and self._tracker_waiting[0][0] < t0 - self.model.snap_tolerance_s:
@@ -181,17 +208,35 @@ class HeadGraphBuilder:
             self.add_gyro(t, omega)
 
     def _close_keyframe(self) -> None:
+        """End interval k: new keyframe k+1, the interval's effective bias b(k) and its links."""
         assert self._interval is not None and self._latest_rot is not None
         k = self.latest_keyframe
         interval = self._interval
+        gyro, calibration = self.model.gyro, self.model.gyro_calibration
         self._pending.add(k, interval.factor(X(k), X(k + 1), B(k)))
-        self._pending.add(k, bias_walk_factor(B(k), B(k + 1), interval.elapsed_s, self.model.gyro))
+        self._pending.values.insert(B(k), self._latest_bias)
+        if calibration is None:
+            first = bias_prior_factor(B(0), gyro) if k == 0 else None
+            link = None if k == 0 else bias_walk_factor(B(k - 1), B(k), interval.elapsed_s, gyro)
+        else:
+            first = calibrated_bias_prior_factor(B(0), C, interval.mean_rate, gyro) if k == 0 else None
+            link = None if k == 0 else calibrated_bias_walk_factor(B(k - 1), B(k), C, self._previous_rate, interval.mean_rate, interval.elapsed_s, gyro)
+        if first is not None:
+            self._pending.add(0, first)
+        if link is not None:
+            self._pending.add(k - 1, link)
+        self._previous_rate = interval.mean_rate
         self._latest_rot = self._latest_rot.compose(interval.delta(self._latest_bias))
         self._pending.values.insert(X(k + 1), self._latest_rot)
-        self._pending.values.insert(B(k + 1), self._latest_bias)
         self.keyframe_t.append(interval.t_last)
         self._keyframe_omega.append(interval.omega_last)
         self._interval = GyroInterval(self._params, self._latest_bias, interval.t_last, interval.omega_last)
+        for stale in [j for j in self._partials if j < self.oldest_allowed_keyframe]:
+            del self._partials[stale]
+
+    def state_keys(self, k: int) -> tuple[int, int | None]:
+        """Keys of keyframe k's attitude and of the newest effective gyro bias known at k."""
+        return X(k), (B(k - 1) if k >= 1 else None)
 
     def _flush_waiting_tracker(self) -> None:
         """Attach every waiting tracker sample whose keyframe exists."""
@@ -204,15 +249,13 @@ class HeadGraphBuilder:
         i = bisect.bisect_left(self.keyframe_t, t)
         candidates = [j for j in (i - 1, i) if 0 <= j < len(self.keyframe_t)]
         k = min(candidates, key=lambda j: abs(self.keyframe_t[j] - t))
-        if k < self.oldest_allowed_keyframe or (self._last_error_kf is not None and k <= self._last_error_kf):
-            self.too_late.append(t)
+        if k < self.oldest_allowed_keyframe or (self._last_error_kf is not None and k < self._last_error_kf):
+            self.too_late.append(t)  # its state was marginalised, or it came out of order: counted, not hidden
             return
         measured = rot3_from_quat_wxyz(quat_wxyz)
         offset = t - self.keyframe_t[k]
         if abs(offset) > self.model.snap_tolerance_s:
-            # reading at t = X(t_k) * Exp(omega * offset): move it to the keyframe to first order
-            rate = self._keyframe_omega[k] - self._latest_bias
-            measured = measured.compose(gtsam.Rot3.Expmap(-rate * offset))
+            measured = measured.compose(self._gyro_between(k, t).inverse())
         noise = self.model.tracker
         self.tracker_used += 1
         if not noise.is_markov:
@@ -221,6 +264,8 @@ class HeadGraphBuilder:
         white = float(np.deg2rad(noise.white_sigma_deg))
         markov = float(np.deg2rad(noise.markov_sigma_deg))
         self._pending.add(k, attitude_prior_factor(T(k), measured, white))
+        if k == self._last_error_kf:
+            return  # a second sample on this keyframe: its error state exists already
         self._pending.add(k, error_state_factor(X(k), T(k), E(k)))
         self._pending.values.insert(T(k), measured)
         self._pending.values.insert(E(k), np.zeros(3))
@@ -233,15 +278,52 @@ class HeadGraphBuilder:
         self._last_error_kf = k
 
 
+    def _gyro_between(self, k: int, t: float) -> gtsam.Rot3:
+        """Rotation of the body from keyframe k to time t, from the gyro (bias as estimated then).
+
+        A sample on a gyro sample inside the interval uses the stored preintegration; otherwise
+        the keyframe's rate extrapolates to first order.
+        """
+        for t_partial, delta in self._partials.get(k, []):
+            if abs(t_partial - t) <= self.model.snap_tolerance_s:
+                return delta
+        rate = self._keyframe_omega[k] - self._latest_bias
+        return gtsam.Rot3.Expmap(rate * (t - self.keyframe_t[k]))
+
+
 def head_model_for(session: Session, model: HeadModel | None = None) -> HeadModel:
-    """The model with gyro rate filled from the session when the stream declares it."""
-    model = model or HeadModel()
+    """The model completed from what session.toml declares about its sensors.
+
+    Fields a stream declares (gyro: ``rate_hz``, ``noise_sigma_rad_s``, ``bias_rw_sigma``; tracker:
+    ``noise_sigma_deg``, ``markov_sigma_deg``, ``markov_tau_s``) replace the model's defaults unless
+    ``model`` is given explicitly: a sensor's data sheet belongs with its recording.
+    """
+    if model is not None:
+        return _with_gyro_rate(session, model)
+    model = HeadModel()
+    gyro_meta = session.stream("gyro").meta
+    gyro = replace(
+        model.gyro,
+        white_sigma_rad_s=float(gyro_meta.get("noise_sigma_rad_s", model.gyro.white_sigma_rad_s)),
+        bias_rw_sigma=float(gyro_meta.get("bias_rw_sigma", model.gyro.bias_rw_sigma)),
+    )
+    trackers = session.streams_of_kind("attitude")
+    tracker = model.tracker
+    if trackers:
+        meta = trackers[0].meta
+        tracker = AttitudeNoise(
+            white_sigma_deg=float(meta.get("noise_sigma_deg", tracker.white_sigma_deg)),
+            markov_sigma_deg=float(meta.get("markov_sigma_deg", 0.0)),
+            markov_tau_s=float(meta.get("markov_tau_s", tracker.markov_tau_s)),
+        )
+    return _with_gyro_rate(session, replace(model, gyro=gyro, tracker=tracker))
+
+
+def _with_gyro_rate(session: Session, model: HeadModel) -> HeadModel:
     gyro = session.stream("gyro")
     rate = gyro.meta.get("rate_hz")
     if rate is None and len(gyro) > 1:
         rate = 1.0 / float(np.median(np.diff(gyro.t)))
-    if rate is not None and rate != model.gyro.sample_rate_hz:
-        from dataclasses import replace
-
-        model = replace(model, gyro=replace(model.gyro, sample_rate_hz=float(rate)))
-    return model
+    if rate is None or float(rate) == model.gyro.sample_rate_hz:
+        return model
+    return replace(model, gyro=replace(model.gyro, sample_rate_hz=float(rate)))

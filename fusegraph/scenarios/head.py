@@ -113,11 +113,15 @@ def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **ove
         {"rate_hz": cfg.gyro_rate_hz, "frame": "head", "noise_sigma_rad_s": cfg.gyro_white_sigma_rad_s,
          "bias_rw_sigma": cfg.gyro_bias_rw_sigma},
     )
-    tracker_sigma_deg = float(np.hypot(cfg.tracker_white_sigma_realistic_deg, cfg.tracker_gm_sigma_deg)) if realistic else cfg.tracker_white_sigma_deg
-    tracker = Stream(
-        "tracker", "attitude", t_gyro[tracker_idx][keep], quat_tracker[keep], KIND_COLUMNS["attitude"], cfg.tracker_latency_s,
-        {"rate_hz": cfg.tracker_rate_hz, "frame": "world_R_head", "noise_sigma_deg": tracker_sigma_deg},
-    )
+    # the tracker's data sheet: white noise, and for the realistic sensor its slowly varying error
+    # (what a static Allan-variance test of the tracker shows); the gyro's scale and misalignment
+    # are NOT declared: the graph estimates them.
+    tracker_meta: dict[str, object] = {"rate_hz": cfg.tracker_rate_hz, "frame": "world_R_head"}
+    if realistic:
+        tracker_meta.update(noise_sigma_deg=cfg.tracker_white_sigma_realistic_deg, markov_sigma_deg=cfg.tracker_gm_sigma_deg, markov_tau_s=cfg.tracker_gm_tau_s)
+    else:
+        tracker_meta.update(noise_sigma_deg=cfg.tracker_white_sigma_deg)
+    tracker = Stream("tracker", "attitude", t_gyro[tracker_idx][keep], quat_tracker[keep], KIND_COLUMNS["attitude"], cfg.tracker_latency_s, tracker_meta)
     truth = Stream("truth", "attitude", t_gyro, quat_true, KIND_COLUMNS["attitude"], 0.0, {"frame": "world_R_head"})
     meta = {
         "session": {

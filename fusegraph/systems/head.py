@@ -9,15 +9,18 @@ paper's EKFs), ``isam2`` (fusegraph online: causal estimate after every gyro sam
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import gtsam
 import numpy as np
 
 from ..estimate import Estimate
 from ..factors.gyro import integrate_gyro
-from ..geometry import quat_from_rotvec, quat_multiply, quat_normalize, quat_wxyz_from_rot3
+from ..geometry import FloatArray, quat_from_rotvec, quat_multiply, quat_normalize, quat_wxyz_from_rot3
 from ..graphs.head import B, HeadGraphBuilder, HeadModel, X, head_model_for
+from ..metrics import AXES, AttitudeScore, mean_scores, score_attitude
 from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
 from ..solvers.ekf import HeadEkfConfig, run_head_ekf
@@ -25,13 +28,6 @@ from ..solvers.online import OnlineConfig, OnlineSmoother
 
 METHODS = ("tracker", "gyro", "kalman", "method1", "method2", "isam2", "batch")
 """Method names in the order of the report's rows."""
-
-
-class HeadBuilder(HeadGraphBuilder):
-    """The head graph builder with the keys the online solver asks for."""
-
-    def state_keys(self, k: int) -> tuple[int, int]:
-        return X(k), B(k)
 
 
 def feed(builder: HeadGraphBuilder, session: Session, on_gyro: Callable[[float], None] | None = None) -> None:
@@ -67,7 +63,8 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     gyro = session.stream("gyro")
     quats = np.full((len(gyro), 4), np.nan)
     covs = np.full((len(gyro), 3, 3), np.nan)
-    builder = HeadBuilder(model)
+    wall = np.zeros(len(gyro))
+    builder = HeadGraphBuilder(model)
     solver = OnlineSmoother(builder, config)
     index = {"i": 0}
 
@@ -75,17 +72,22 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
         i = index["i"]
         index["i"] += 1
         solver.update()
-        if solver.latest_rot is None or not builder.started:
-            return
-        kf_rot = solver.latest_rot
-        _, now_rot = builder.predict_now(kf_rot, solver.latest_bias)
-        quats[i] = quat_wxyz_from_rot3(now_rot)
-        covs[i] = builder.predict_cov(solver.latest_cov, solver.latest_bias_cov)
+        if solver.latest_rot is not None and builder.started:
+            _, now_rot = builder.predict_now(solver.latest_rot, solver.latest_bias)
+            quats[i] = quat_wxyz_from_rot3(now_rot)
+            covs[i] = builder.predict_cov(solver.latest_cov, solver.latest_bias_cov)
+        wall[i] = time.perf_counter()
 
     start = time.perf_counter()
     feed(builder, _with_latency(session, model), on_gyro)
     runtime = time.perf_counter() - start
-    extras = {"reanchors": solver.reanchors, "too_late": len(builder.too_late), "tracker_used": builder.tracker_used, "bias_final": solver.latest_bias.tolist()}
+    extras = {
+        "reanchors": solver.reanchors,
+        "too_late": len(builder.too_late),
+        "tracker_used": builder.tracker_used,
+        "bias_final": solver.latest_bias.tolist(),
+        "wall_s": wall - start,
+    }
     return Estimate("isam2", gyro.t.copy(), quats, covs, runtime, extras)
 
 
@@ -94,14 +96,14 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
     start = time.perf_counter()
-    builder = HeadBuilder(model)
+    builder = HeadGraphBuilder(model)
     feed(builder, _with_latency(session, model))
     increment = builder.take()
     n_kf = len(builder.keyframe_t)
     result = solve_batch(increment.graph(), increment.values, [X(k) for k in range(n_kf)], config)
     kf_t = np.asarray(builder.keyframe_t)
     kf_quat = np.array([quat_wxyz_from_rot3(result.values.atRot3(X(k))) for k in range(n_kf)])
-    kf_bias = np.array([result.values.atVector(B(k)) for k in range(n_kf)])
+    kf_bias = np.array([result.values.atVector(B(min(k, n_kf - 2))) for k in range(n_kf)])
     kf_cov = np.array([result.covariances[X(k)] for k in range(n_kf)]) if result.covariances else None
     quats, covs = interpolate_keyframes(gyro.t, gyro.values, kf_t, kf_quat, kf_bias, kf_cov)
     runtime = time.perf_counter() - start
@@ -189,3 +191,128 @@ def final_values(estimate: Estimate) -> gtsam.Values:  # pragma: no cover - conv
         if np.all(np.isfinite(q)):
             values.insert(X(i), gtsam.Rot3.Quaternion(*q))
     return values
+
+
+# ------------------------------------------------------------------------------------ report
+
+
+@dataclass
+class HeadReport:
+    """The paper's Table 1 for the simulated scenario: per method, mean over seeds of RMS per axis."""
+
+    profile: str
+    seeds: list[int]
+    duration_s: float
+    scores: dict[str, AttitudeScore]
+    ms_per_40ms: dict[str, float]
+    per_seed: dict[str, list[AttitudeScore]]
+
+    def as_json(self) -> dict[str, Any]:
+        """``{"methods": {name: {"rms_rad": {...}, "ms_per_40ms": x, "nees": x}}}`` plus run info."""
+        methods = {
+            name: {"rms_rad": dict(zip(AXES, (float(v) for v in score.rms_rad), strict=True)), "ms_per_40ms": self.ms_per_40ms[name], "nees": score.nees}
+            for name, score in self.scores.items()
+        }
+        return {"methods": methods, "profile": self.profile, "seeds": self.seeds, "duration_s": self.duration_s}
+
+    def ratio_to(self, reference: str = "method2") -> dict[str, list[float]]:
+        """Each method's RMS divided by the reference's, per axis."""
+        ref = self.scores[reference].rms_rad
+        return {name: [float(v) for v in score.rms_rad / ref] for name, score in self.scores.items()}
+
+    def table(self) -> str:
+        """The table as text: RMS in 1e-2 rad, ratio to Method II, time per 40 ms of data, NEES."""
+        ratios = self.ratio_to()
+        lines = [
+            f"head tracking, profile {self.profile}, seeds {_seed_text(self.seeds)}, {self.duration_s:g} s each; RMS after the first second",
+            f"{'method':<10} {'azimuth':>8} {'elev.':>8} {'roll':>8}   {'ratio to Method II (az/el/roll)':<32} {'ms/40ms':>8} {'NEES':>6}",
+            f"{'':<10} {'[1e-2 rad]':>26}",
+        ]
+        for name, score in self.scores.items():
+            rms = score.rms_rad * 100
+            ratio = "/".join(f"{r:.2f}" for r in ratios[name])
+            nees = f"{score.nees:6.2f}" if score.nees is not None else f"{'-':>6}"
+            lines.append(f"{LABELS[name]:<10} {rms[0]:8.3f} {rms[1]:8.3f} {rms[2]:8.3f}   {ratio:<32} {self.ms_per_40ms[name]:8.3f} {nees}")
+        return "\n".join(lines)
+
+
+LABELS = {"tracker": "tracker", "gyro": "gyro", "kalman": "Kalman", "method1": "Method I", "method2": "Method II", "isam2": "iSAM2", "batch": "batch"}
+
+
+def _seed_text(seeds: list[int]) -> str:
+    if seeds and seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 2:
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ",".join(str(s) for s in seeds)
+
+
+def head_report(
+    seeds: Sequence[int],
+    profile: str = "realistic",
+    duration_s: float = 10.0,
+    methods: Sequence[str] = METHODS,
+    model: HeadModel | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> HeadReport:
+    """Simulate each seed, run every method on it, score against the lag-free reference."""
+    from ..scenarios.head import simulate_head
+
+    per_seed: dict[str, list[AttitudeScore]] = {m: [] for m in methods}
+    runtime: dict[str, float] = dict.fromkeys(methods, 0.0)
+    for n, seed in enumerate(seeds):
+        session = simulate_head(seed, profile=profile, duration_s=duration_s)
+        assert session.truth is not None
+        for method in methods:
+            estimate = run_method(session, method, model)
+            per_seed[method].append(score_attitude(estimate, session.truth.t, session.truth.values))
+            runtime[method] += estimate.runtime_s
+        if progress is not None:
+            progress(f"seed {seed} done ({n + 1}/{len(seeds)})")
+    blocks = len(seeds) * duration_s / 0.04
+    return HeadReport(
+        profile,
+        list(seeds),
+        duration_s,
+        {m: mean_scores(per_seed[m]) for m in methods},
+        {m: 1000.0 * runtime[m] / blocks for m in methods},
+        per_seed,
+    )
+
+
+# ------------------------------------------------------------------------------------- bench
+
+
+def head_bench(duration_s: float = 600.0, repeat: int = 3, seed: int = 0, profile: str = "realistic", progress: Callable[[str], None] | None = None) -> dict[str, float]:
+    """Speed of the whole causal loop and of the batch smoother on one long session (median of repeats).
+
+    ``x_realtime_first_minute`` / ``_last_minute``: data seconds per wall second over the first and
+    the last 60 s of the session (replay, factor building, solving, an estimate at every gyro sample).
+    """
+    import resource
+
+    from ..scenarios.head import simulate_head
+
+    session = simulate_head(seed, profile=profile, duration_s=duration_s)
+    first, last, batch = [], [], []
+    for r in range(repeat):
+        estimate = run_isam2(session, None)
+        wall, t = estimate.extras["wall_s"], estimate.t
+        minute = min(60.0, duration_s / 2)
+        first.append(minute / _wall_between(t, wall, t[0], t[0] + minute))
+        last.append(minute / _wall_between(t, wall, t[-1] - minute, t[-1]))
+        batch.append(run_batch(session, None).runtime_s)
+        if progress is not None:
+            progress(f"repeat {r + 1}/{repeat}: first minute {first[-1]:.1f}x, last minute {last[-1]:.1f}x real time, batch {batch[-1]:.2f} s")
+    peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return {
+        "x_realtime_first_minute": float(np.median(first)),
+        "x_realtime_last_minute": float(np.median(last)),
+        "batch_s": float(np.median(batch)),
+        "peak_rss_mb": float(peak_rss_mb),
+        "duration_s": float(duration_s),
+        "repeat": int(repeat),
+    }
+
+
+def _wall_between(t: FloatArray, wall: FloatArray, t0: float, t1: float) -> float:
+    i0, i1 = int(np.searchsorted(t, t0)), int(np.searchsorted(t, t1)) - 1
+    return float(wall[i1] - wall[i0])
