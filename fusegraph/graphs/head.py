@@ -269,7 +269,9 @@ class HeadGraphBuilder:
         self._pending.add(k, error_state_factor(X(k), T(k), E(k)))
         self._pending.values.insert(T(k), measured)
         self._pending.values.insert(E(k), np.zeros(3))
-        if self._last_error_kf is None:
+        if self._last_error_kf is None or self._last_error_kf < self.oldest_allowed_keyframe:
+            # first sample, or the previous error state was marginalised during a long dropout:
+            # restart the process from its stationary law (what is lost is < e^-(gap/tau) of it)
             self._pending.add(k, markov_prior_factor(E(k), markov))
         else:
             prev = self._last_error_kf

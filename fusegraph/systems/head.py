@@ -57,35 +57,86 @@ def _with_latency(session: Session, model: HeadModel) -> Session:
     return replace(session, streams=streams)
 
 
+@dataclass(frozen=True)
+class AttitudeNow:
+    """The online estimate at one instant."""
+
+    t: float
+    """Time of the newest gyro sample, seconds."""
+    world_R_head: gtsam.Rot3
+    """Attitude at that instant (tracker latency cancelled by the gyro)."""
+    cov: FloatArray
+    """Covariance of the attitude (right perturbation, rad^2)."""
+
+    @property
+    def quat_wxyz(self) -> FloatArray:
+        return quat_wxyz_from_rot3(self.world_R_head)
+
+
+class OnlineHeadTracker:
+    """Live use: push samples as they arrive, read the causal estimate after each gyro sample.
+
+    >>> tracker = OnlineHeadTracker(HeadModel())
+    >>> tracker.add_tracker(t_sample, quat_wxyz)   # whenever a (late) tracker sample arrives
+    >>> now = tracker.add_gyro(t, omega)          # AttitudeNow, or None before the first fix
+    """
+
+    def __init__(self, model: HeadModel | None = None, config: OnlineConfig | None = None):
+        self.model = model or HeadModel()
+        cfg = config or OnlineConfig()
+        if self.model.tracker_latency_s is not None and cfg.window_s <= self.model.tracker_latency_s + self.model.keyframe_period_s:
+            raise ValueError(f"online window_s = {cfg.window_s} s must exceed the tracker latency ({self.model.tracker_latency_s} s) plus one keyframe")
+        self.builder = HeadGraphBuilder(self.model)
+        self.solver = OnlineSmoother(self.builder, cfg)
+
+    def add_tracker(self, t_sample: float, quat_wxyz: FloatArray) -> None:
+        """A tracker sample taken at ``t_sample`` has arrived (now, possibly much later)."""
+        self.builder.add_tracker(t_sample, quat_wxyz)
+
+    def add_gyro(self, t: float, omega: FloatArray) -> AttitudeNow | None:
+        """A gyro sample at ``t`` (rad/s): update and return the estimate at ``t``."""
+        self.builder.add_gyro(t, omega)
+        self.solver.update()
+        return self.latest()
+
+    def latest(self) -> AttitudeNow | None:
+        """The causal estimate at the newest gyro sample, None before the first tracker fix."""
+        if self.solver.latest_rot is None or not self.builder.started:
+            return None
+        t, rot = self.builder.predict_now(self.solver.latest_rot, self.solver.latest_bias)
+        return AttitudeNow(t, rot, self.builder.predict_cov(self.solver.latest_cov, self.solver.latest_bias_cov))
+
+
 def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineConfig | None = None) -> Estimate:
-    """fusegraph online: replay in arrival order, iSAM2 update per keyframe, causal estimate per gyro sample."""
+    """fusegraph online: replay in arrival order through ``OnlineHeadTracker``; causal estimate per gyro sample."""
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
+    latency = max((s.latency_s for s in session.streams_of_kind("attitude")), default=0.0)
+    cfg = config or OnlineConfig()
+    if cfg.window_s <= latency + model.keyframe_period_s:
+        raise ValueError(f"online window_s = {cfg.window_s} s must exceed the largest tracker latency ({latency} s) plus one keyframe")
     quats = np.full((len(gyro), 4), np.nan)
     covs = np.full((len(gyro), 3, 3), np.nan)
     wall = np.zeros(len(gyro))
-    builder = HeadGraphBuilder(model)
-    solver = OnlineSmoother(builder, config)
-    index = {"i": 0}
-
-    def on_gyro(t: float) -> None:
-        i = index["i"]
-        index["i"] += 1
-        solver.update()
-        if solver.latest_rot is not None and builder.started:
-            _, now_rot = builder.predict_now(solver.latest_rot, solver.latest_bias)
-            quats[i] = quat_wxyz_from_rot3(now_rot)
-            covs[i] = builder.predict_cov(solver.latest_cov, solver.latest_bias_cov)
-        wall[i] = time.perf_counter()
-
+    live = OnlineHeadTracker(model, cfg)
+    i = 0
     start = time.perf_counter()
-    feed(builder, _with_latency(session, model), on_gyro)
+    for event in replay_in_arrival_order(_with_latency(session, model), last_streams=("gyro",)):
+        if event.stream.kind == "attitude":
+            live.add_tracker(event.t, event.values)
+        elif event.stream.kind == "gyro":
+            now = live.add_gyro(event.t, event.values)
+            if now is not None:
+                quats[i] = now.quat_wxyz
+                covs[i] = now.cov
+            wall[i] = time.perf_counter()
+            i += 1
     runtime = time.perf_counter() - start
     extras = {
-        "reanchors": solver.reanchors,
-        "too_late": len(builder.too_late),
-        "tracker_used": builder.tracker_used,
-        "bias_final": solver.latest_bias.tolist(),
+        "reanchors": live.solver.reanchors,
+        "too_late": len(live.builder.too_late),
+        "tracker_used": live.builder.tracker_used,
+        "bias_final": live.solver.latest_bias.tolist(),
         "wall_s": wall - start,
     }
     return Estimate("isam2", gyro.t.copy(), quats, covs, runtime, extras)

@@ -1,0 +1,38 @@
+# fusegraph: `make demo` and `make test` build everything they need from nothing.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: venv install demo test lint bench clean
+
+venv: $(STAMP)
+
+# one environment for tests, reports and benches; re-installed when pyproject.toml changes
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	mkdir -p out
+	$(BIN)/fusegraph report head --seeds 0-9 --plot out/head_tracking.png
+	@echo "figure: out/head_tracking.png (reference, tracker, Method II and iSAM2 per axis)"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check fusegraph tests
+	$(BIN)/mypy fusegraph
+
+bench: $(STAMP)
+	$(BIN)/fusegraph report head --seeds 0-9 --profile ideal
+	$(BIN)/fusegraph report head --seeds 0-9 --profile realistic
+	$(BIN)/fusegraph bench head --duration 600 --repeat 3
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache *.egg-info

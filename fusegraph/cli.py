@@ -1,0 +1,204 @@
+"""``fusegraph`` command line: a thin layer over the library (every command calls one library function)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from . import __version__
+
+EPILOG = """examples:
+  fusegraph simulate head --seed 0 --out sessions/head0        write a session directory
+  fusegraph run sessions/head0 --solver online --out est.csv   estimate (metrics if truth is known)
+  fusegraph report head --seeds 0-9 --plot out/head.png        the paper's Table 1, ours beside it
+  fusegraph bench head --duration 600 --repeat 3               speed on a 10-minute session
+"""
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0-9`` or ``0,3,5`` or ``0-4,8`` -> list of seeds."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        if "-" in part[1:]:
+            lo, hi = part.split("-", 1) if not part.startswith("-") else (part, part)
+            seeds.extend(range(int(lo), int(hi) + 1))
+        else:
+            seeds.append(int(part))
+    if not seeds:
+        raise argparse.ArgumentTypeError(f"no seeds in {text!r} (use e.g. 0-9 or 0,2,5)")
+    return seeds
+
+
+def _seeds_arg(text: str) -> list[int]:
+    try:
+        return parse_seeds(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"bad seed list {text!r} (use e.g. 0-9 or 0,2,5)") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fusegraph",
+        description="Factor-graph smoothing for human motion: every sensor a factor in one GTSAM graph; "
+        "iSAM2 online, batch smoothing offline, and the papers' EKFs beside them.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"fusegraph {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    sim = sub.add_parser("simulate", help="write a simulated session directory (session.toml + CSVs + truth)",
+                         description="Simulate a scenario and write it as a session directory you can read and edit.")
+    sim.add_argument("scenario", choices=["head"], help="which system to simulate")
+    sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    sim.add_argument("--out", type=Path, required=True, help="directory to write (created)")
+    sim.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
+    sim.add_argument("--duration", type=float, default=10.0, help="seconds of data (default 10)")
+
+    run = sub.add_parser("run", help="estimate a session with one solver; metrics when it has truth",
+                         description="Run one solver over a session directory and write the estimate as CSV "
+                         "(t, quaternion, azimuth/elevation/roll in degrees, covariance).")
+    run.add_argument("session", type=Path, help="session directory (with session.toml)")
+    run.add_argument("--solver", choices=["online", "batch", "ekf"], default="online",
+                     help="online = iSAM2 causal estimate at every gyro sample; batch = smoother over the whole session; ekf = the paper's Method II")
+    run.add_argument("--out", type=Path, help="CSV to write (default: <session>/estimate_<solver>.csv)")
+    run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
+    run.add_argument("--json", action="store_true", help="print the metrics as JSON")
+
+    rep = sub.add_parser("report", help="the paper's comparison table over seeds (accuracy, time, NEES)",
+                         description="Simulate each seed, run every method, print RMS per axis (1e-2 rad), ratio to Method II, "
+                         "processing time per 40 ms of data and NEES.")
+    rep.add_argument("system", choices=["head"])
+    rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default) or 0,3,7")
+    rep.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
+    rep.add_argument("--duration", type=float, default=10.0, help="seconds per session (default 10, like the paper)")
+    rep.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    rep.add_argument("--plot", type=Path, help="write a figure like the paper's Fig. 3/4 (first seed) to this PNG")
+
+    ben = sub.add_parser("bench", help="speed of the online loop and the batch smoother on a long session",
+                         description="Real-time factor of the whole causal loop in the first and last minute, batch time, peak memory.")
+    ben.add_argument("system", choices=["head"])
+    ben.add_argument("--duration", type=float, default=600.0, help="seconds of data (default 600)")
+    ben.add_argument("--repeat", type=int, default=3, help="repeats; the median is printed (default 3)")
+    ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic")
+    ben.add_argument("--json", action="store_true", help="print JSON")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(COMMANDS[args.command](args) or 0)
+    except Exception as exc:  # user-facing: one clear line, not a traceback
+        from .session import SessionError
+
+        if isinstance(exc, SessionError | FileNotFoundError | ValueError):
+            print(f"fusegraph {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        raise
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .scenarios import SCENARIOS
+    from .session import save_session
+
+    session = SCENARIOS[args.scenario](args.seed, profile=args.profile, duration_s=args.duration)
+    path = save_session(session, args.out)
+    files = ", ".join(sorted(p.name for p in path.iterdir()))
+    print(f"wrote {path}/ ({files})")
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .metrics import score_attitude
+    from .session import load_session
+    from .systems import head
+
+    session = load_session(args.session)
+    if session.system != "head":
+        raise ValueError(f"{args.session}/session.toml: system '{session.system}' has no solver yet (available: head)")
+    method = {"online": "isam2", "batch": "batch", "ekf": "method2"}[args.solver]
+    estimate = head.run_method(session, method)
+    out = args.out or args.session / f"estimate_{args.solver}.csv"
+    estimate.save_csv(out)
+    print(f"wrote {out} ({len(estimate.t)} rows, {session.duration_s:.1f} s of data in {estimate.runtime_s:.2f} s)")
+    if session.truth is not None:
+        score = score_attitude(estimate, session.truth.t, session.truth.values) if _same_times(estimate, session) else None
+        if score is not None:
+            if args.json:
+                print(json.dumps({"method": method, **score.as_dict()}, indent=2))
+            else:
+                rms = score.rms_rad * 100
+                nees = f", NEES {score.nees:.2f}" if score.nees is not None else ""
+                print(f"RMS after 1 s [1e-2 rad]: azimuth {rms[0]:.3f}, elevation {rms[1]:.3f}, roll {rms[2]:.3f}{nees}")
+    if args.plot:
+        from .plots import plot_attitude_axes
+
+        truth_t = session.truth.t if session.truth is not None else estimate.t
+        truth_q = session.truth.values if session.truth is not None else estimate.quat_wxyz
+        print(f"wrote {plot_attitude_axes(truth_t, truth_q, [estimate], args.plot, title=str(args.session))}")
+    return 0
+
+
+def _same_times(estimate: object, session: object) -> bool:
+    import numpy as np
+
+    truth = session.truth  # type: ignore[attr-defined]
+    t = estimate.t  # type: ignore[attr-defined]
+    return bool(truth is not None and t.shape == truth.t.shape and np.allclose(t, truth.t))
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .systems import head
+
+    progress = None if args.json else (lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+    report = head.head_report(args.seeds, args.profile, args.duration, progress=progress)
+    if args.json:
+        print(json.dumps(report.as_json(), indent=2))
+    else:
+        print(report.table())
+    if args.plot:
+        path = head_figure(args.seeds[0], args.profile, args.duration, args.plot)
+        print(f"wrote {path}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
+def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
+    """The paper's Fig. 3/4 for one seed: reference, tracker, Method II and iSAM2 per axis."""
+    from .plots import plot_attitude_axes
+    from .scenarios import simulate_head
+    from .systems import head
+
+    session = simulate_head(seed, profile=profile, duration_s=duration_s)
+    assert session.truth is not None
+    estimates = [head.run_method(session, m) for m in ("tracker", "method2", "isam2")]
+    title = f"head tracking, {profile} profile, seed {seed}: tracker (100 ms late), Method II, fusegraph iSAM2 (causal)"
+    return plot_attitude_axes(session.truth.t, session.truth.values, estimates, path, title, head.LABELS)
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from .systems import head
+
+    progress = lambda msg: print(f"  {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    result = head.head_bench(args.duration, args.repeat, profile=args.profile, progress=progress)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(f"head bench, {args.profile} profile, {args.duration:g} s session, median of {args.repeat}:")
+        print(f"  online loop, first minute : {result['x_realtime_first_minute']:8.1f} x real time")
+        print(f"  online loop, last minute  : {result['x_realtime_last_minute']:8.1f} x real time")
+        print(f"  batch smoother            : {result['batch_s']:8.2f} s")
+        print(f"  peak memory (RSS)         : {result['peak_rss_mb']:8.0f} MB")
+    return 0
+
+
+COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench}
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,64 @@
+"""Figures a person can look at: estimates against the reference, per axis, with 3-sigma bands."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: figures go to files
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .estimate import Estimate  # noqa: E402
+from .geometry import FloatArray, euler_zyx_from_quat, wrap_angle  # noqa: E402
+from .metrics import AXES  # noqa: E402
+
+
+def plot_attitude_axes(
+    t_truth: FloatArray,
+    quat_truth: FloatArray,
+    estimates: Sequence[Estimate],
+    path: str | Path,
+    title: str = "",
+    labels: dict[str, str] | None = None,
+) -> Path:
+    """Per axis: the angles over time (top) and each method's error with its 3-sigma band (bottom).
+
+    Like the head-tracking paper's Fig. 3/4: the reference and every estimate, azimuth, elevation, roll.
+    """
+    labels = labels or {}
+    truth = np.rad2deg(euler_zyx_from_quat(quat_truth))
+    fig, axes = plt.subplots(2, 3, figsize=(15, 7), sharex=True)
+    for a, axis_name in enumerate(AXES):
+        top, bottom = axes[0, a], axes[1, a]
+        top.plot(t_truth, truth[:, a], color="black", lw=2.0, label="reference (lag-free)")
+        for estimate in estimates:
+            name = labels.get(estimate.method, estimate.method)
+            angles = np.rad2deg(estimate.euler_zyx[:, a])
+            (line,) = top.plot(estimate.t, angles, lw=1.0, label=name)
+            error = np.rad2deg(wrap_angle(estimate.euler_zyx[:, a] - euler_zyx_from_quat(quat_truth)[:, a]))
+            bottom.plot(estimate.t, error, lw=0.8, color=line.get_color(), label=name)
+            if estimate.cov is not None:
+                # body z, y, x are close to azimuth, elevation, roll at the moderate tilts of these scenes
+                body = (2, 1, 0)[a]
+                sigma = 3.0 * np.rad2deg(np.sqrt(np.clip(estimate.cov[:, body, body], 0.0, None)))
+                bottom.fill_between(estimate.t, -sigma, sigma, color=line.get_color(), alpha=0.12, lw=0)
+        top.set_title(axis_name)
+        top.set_ylabel("angle [deg]")
+        bottom.set_ylabel("error [deg] (band: 3 sigma)")
+        bottom.set_xlabel("time [s]")
+        bottom.axhline(0.0, color="black", lw=0.5)
+        bottom.set_ylim(-4, 4)
+        for ax in (top, bottom):
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
