@@ -63,7 +63,9 @@ class GyroCalibrationPrior:
 
 def rate_matrix(omega: FloatArray) -> FloatArray:
     """W(omega), 3x9, with W @ c = K @ omega for c = K flattened row by row."""
-    return np.kron(np.eye(3), np.asarray(omega, dtype=float)[None, :])
+    out = np.zeros((3, 9))
+    out[0, 0:3] = out[1, 3:6] = out[2, 6:9] = omega
+    return out
 
 
 def calibration_prior_factor(cal_key: int, prior: GyroCalibrationPrior) -> gtsam.PriorFactorVector:

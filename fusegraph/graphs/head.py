@@ -296,7 +296,8 @@ class HeadGraphBuilder:
 def head_model_for(session: Session, model: HeadModel | None = None) -> HeadModel:
     """The model completed from what session.toml declares about its sensors.
 
-    Fields a stream declares (gyro: ``rate_hz``, ``noise_sigma_rad_s``, ``bias_rw_sigma``; tracker:
+    Fields a stream declares (gyro: ``rate_hz``, ``noise_sigma_rad_s``, ``bias_rw_sigma``, ``calibrated``
+    = true when its scale factors and axes are already calibrated, otherwise they are estimated; tracker:
     ``noise_sigma_deg``, ``markov_sigma_deg``, ``markov_tau_s``) replace the model's defaults unless
     ``model`` is given explicitly: a sensor's data sheet belongs with its recording.
     """
@@ -318,7 +319,8 @@ def head_model_for(session: Session, model: HeadModel | None = None) -> HeadMode
             markov_sigma_deg=float(meta.get("markov_sigma_deg", 0.0)),
             markov_tau_s=float(meta.get("markov_tau_s", tracker.markov_tau_s)),
         )
-    return _with_gyro_rate(session, replace(model, gyro=gyro, tracker=tracker))
+    calibration = None if gyro_meta.get("calibrated", False) else model.gyro_calibration
+    return _with_gyro_rate(session, replace(model, gyro=gyro, tracker=tracker, gyro_calibration=calibration))
 
 
 def _with_gyro_rate(session: Session, model: HeadModel) -> HeadModel:

@@ -111,7 +111,7 @@ def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **ove
     gyro = Stream(
         "gyro", "gyro", t_gyro, omega_meas, KIND_COLUMNS["gyro"], 0.0,
         {"rate_hz": cfg.gyro_rate_hz, "frame": "head", "noise_sigma_rad_s": cfg.gyro_white_sigma_rad_s,
-         "bias_rw_sigma": cfg.gyro_bias_rw_sigma},
+         "bias_rw_sigma": cfg.gyro_bias_rw_sigma, "calibrated": not realistic},
     )
     # the tracker's data sheet: white noise, and for the realistic sensor its slowly varying error
     # (what a static Allan-variance test of the tracker shows); the gyro's scale and misalignment

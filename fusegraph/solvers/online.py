@@ -49,6 +49,10 @@ class OnlineConfig:
     """Re-anchor after this many new keyframes (100 = 2 s at 50 Hz): a small tree keeps updates fast."""
     relinearize_threshold: float = 0.1
     """iSAM2 relinearisation threshold (rad for rotations); 0.01 was 2x slower with the same accuracy here."""
+    relinearize_skip: int = 1
+    """Check for relinearisation every this many updates."""
+    wildfire_threshold: float = 0.001
+    """Back-substitution stops where the solution changes less than this (gtsam's default 0.001)."""
     covariance: bool = True
     """Compute the newest keyframe's marginal covariance after each update."""
     bias_covariance_every: int = 10
@@ -76,7 +80,11 @@ class OnlineSmoother:
     def _new_isam(self) -> gtsam.ISAM2:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.config.relinearize_threshold)
-        params.relinearizeSkip = 1
+        params.relinearizeSkip = self.config.relinearize_skip
+        params.enablePartialRelinearizationCheck = True
+        gauss_newton = gtsam.ISAM2GaussNewtonParams()
+        gauss_newton.setWildfireThreshold(self.config.wildfire_threshold)
+        params.setOptimizationParams(gauss_newton)
         return gtsam.ISAM2(params)
 
     def update(self) -> bool:
