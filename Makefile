@@ -24,6 +24,8 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+	$(BIN)/ruff check fusegraph tests
+	$(BIN)/mypy fusegraph
 
 lint: $(STAMP)
 	$(BIN)/ruff check fusegraph tests

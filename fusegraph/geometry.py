@@ -7,6 +7,8 @@ long sessions without a Python call per sample.
 
 from __future__ import annotations
 
+from typing import Any
+
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +24,7 @@ def rot3_from_quat_wxyz(quat_wxyz: FloatArray) -> gtsam.Rot3:
 
 def quat_wxyz_from_rot3(rotation: gtsam.Rot3) -> FloatArray:
     """A gtsam rotation as a unit quaternion (w, x, y, z) with w >= 0."""
-    q = rotation.toQuaternion()
+    q: Any = rotation.toQuaternion()  # gtsam's stubs do not type the quaternion accessors
     out = np.array([q.w(), q.x(), q.y(), q.z()])
     return out if out[0] >= 0 else -out
 

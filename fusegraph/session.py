@@ -282,7 +282,8 @@ def save_session(session: Session, directory: str | Path) -> Path:
             continue
         lines += ["", f"[{table_name}]"] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
     for stream in session.streams.values():
-        lines += ["", f"[streams.{stream.name}]", f"kind = {_toml_value(stream.kind)}", f"file = \"{stream.name}.csv\"", f"latency_s = {_toml_value(stream.latency_s)}"]
+        lines += ["", f"[streams.{stream.name}]", f"kind = {_toml_value(stream.kind)}", f"file = \"{stream.name}.csv\""]
+        lines += [f"latency_s = {_toml_value(stream.latency_s)}"]
         lines += [f"{k} = {_toml_value(v)}" for k, v in stream.meta.items()]
         write_stream_csv(root / f"{stream.name}.csv", stream.t, stream.values, stream.columns)
     if session.truth is not None:

@@ -81,11 +81,13 @@ def _linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float) -> gtsam.
         args += [key, matrix]
         at_zero.insert(key, np.zeros(matrix.shape[1]))
     rows = blocks[0][1].shape[0]
-    jacobian = gtsam.JacobianFactor(*args, np.zeros(rows), gtsam.noiseModel.Isotropic.Sigma(rows, sigma))
+    jacobian = gtsam.JacobianFactor(*args, np.zeros(rows), gtsam.noiseModel.Isotropic.Sigma(rows, sigma))  # type: ignore[call-overload]
     return gtsam.LinearContainerFactor(jacobian, at_zero)
 
 
-def calibrated_bias_walk_factor(beta_i: int, beta_j: int, cal_key: int, rate_i: FloatArray, rate_j: FloatArray, dt_s: float, noise: GyroNoise) -> gtsam.LinearContainerFactor:
+def calibrated_bias_walk_factor(
+    beta_i: int, beta_j: int, cal_key: int, rate_i: FloatArray, rate_j: FloatArray, dt_s: float, noise: GyroNoise
+) -> gtsam.LinearContainerFactor:
     """(beta_j - W_j c) - (beta_i - W_i c) ~ N(0, q dt): the bias walk seen through effective biases."""
     eye = np.eye(3)
     sigma = noise.bias_rw_sigma * np.sqrt(max(dt_s, 1e-9))

@@ -215,6 +215,8 @@ class HeadGraphBuilder:
         gyro, calibration = self.model.gyro, self.model.gyro_calibration
         self._pending.add(k, interval.factor(X(k), X(k + 1), B(k)))
         self._pending.values.insert(B(k), self._latest_bias)
+        first: gtsam.NonlinearFactor | None
+        link: gtsam.NonlinearFactor | None
         if calibration is None:
             first = bias_prior_factor(B(0), gyro) if k == 0 else None
             link = None if k == 0 else bias_walk_factor(B(k - 1), B(k), interval.elapsed_s, gyro)

@@ -145,7 +145,15 @@ def _d_rate_d_angles(angles: FloatArray, omega: FloatArray, step: float = 1e-6) 
     return out
 
 
-def run_head_ekf(mode: EkfMode, t_gyro: FloatArray, omega: FloatArray, t_tracker: FloatArray, quat_tracker: FloatArray, config: HeadEkfConfig | None = None, latency_s: float = 0.1) -> tuple[FloatArray, FloatArray]:
+def run_head_ekf(
+    mode: EkfMode,
+    t_gyro: FloatArray,
+    omega: FloatArray,
+    t_tracker: FloatArray,
+    quat_tracker: FloatArray,
+    config: HeadEkfConfig | None = None,
+    latency_s: float = 0.1,
+) -> tuple[FloatArray, FloatArray]:
     """Run a filter over a session; attitude quaternions (N, 4) and covariances (N, 3, 3) at gyro times.
 
     Rows before the first tracker sample has arrived are NaN (no estimate yet).

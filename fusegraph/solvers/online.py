@@ -149,10 +149,10 @@ class OnlineSmoother:
         separator_values = _subset(values, separator)
         prior: list[tuple[int, gtsam.NonlinearFactor]] = []
         for i in range(marginal.size()):
-            factor = marginal.at(i)
-            if factor is None:
+            gaussian = marginal.at(i)
+            if gaussian is None:
                 continue
-            container = gtsam.LinearContainerFactor(factor, separator_values)
+            container = gtsam.LinearContainerFactor(gaussian, separator_values)
             prior.append((anchor, container))
         for _, factor in prior + kept:
             new_graph.add(factor)
