@@ -54,7 +54,7 @@ def test_final_isam2_equals_batch_on_the_same_graph() -> None:
     online_builder = HeadGraphBuilder(model)
     solver = OnlineSmoother(online_builder, OnlineConfig(reanchor_every=10**9, relinearize_threshold=1e-4))
     feed(online_builder, session, lambda t: solver.update())
-    solver.update()
+    solver.update(force=True)
     batch_builder = HeadGraphBuilder(model)
     feed(batch_builder, session)
     increment = batch_builder.take()

@@ -67,12 +67,18 @@ def attitude_prior_factor(key: int, measured: gtsam.Rot3, sigma_rad: float) -> g
 ERROR_TIE_SIGMA_RAD = 1e-4
 
 
-def error_state_factor(state_key: int, reading_key: int, error_key: int) -> gtsam.AHRSFactor:
-    """``reading = state * Exp(error)`` as an AHRSFactor with an identity preintegration."""
+def _identity_preintegration() -> gtsam.PreintegratedAhrsMeasurements:
     params = gtsam.PreintegratedRotationParams()
     params.setGyroscopeCovariance(np.eye(3))
-    pim = gtsam.PreintegratedAhrsMeasurements(params, np.zeros(3), 0.0, gtsam.Rot3(), np.eye(3), ERROR_TIE_SIGMA_RAD**2 * np.eye(3))
-    return gtsam.AHRSFactor(state_key, reading_key, error_key, pim)
+    return gtsam.PreintegratedAhrsMeasurements(params, np.zeros(3), 0.0, gtsam.Rot3(), np.eye(3), ERROR_TIE_SIGMA_RAD**2 * np.eye(3))
+
+
+_IDENTITY_PIM = _identity_preintegration()  # the factor copies it; one instance serves every factor
+
+
+def error_state_factor(state_key: int, reading_key: int, error_key: int) -> gtsam.AHRSFactor:
+    """``reading = state * Exp(error)`` as an AHRSFactor with an identity preintegration."""
+    return gtsam.AHRSFactor(state_key, reading_key, error_key, _IDENTITY_PIM)
 
 
 def gauss_markov_factor(prev_key: int, next_key: int, dt_s: float, sigma: float, tau_s: float) -> gtsam.LinearContainerFactor:

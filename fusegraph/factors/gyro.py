@@ -162,17 +162,23 @@ def bias_prior_factor(bias_key: int, noise: GyroNoise, mean: FloatArray | None =
 def integrate_gyro(t: FloatArray, omega: FloatArray, start_quat_wxyz: FloatArray, bias: FloatArray | None = None) -> FloatArray:
     """Dead reckoning: attitude quaternions at every sample from a start attitude at t[0].
 
-    Same midpoint rule as ``GyroInterval``; ``bias`` (3,) or (N, 3) is subtracted first.
+    Same midpoint rule as ``GyroInterval``; ``bias`` (3,) or (N, 3) is subtracted first. The
+    increments are computed vectorised; their running product is a scalar loop (a sequential
+    dependency), which in plain floats is ~10x faster than numpy on 4-vectors.
     """
-    from ..geometry import quat_from_rotvec, quat_multiply, quat_normalize
+    from ..geometry import quat_from_rotvec, quat_normalize
 
     rates = np.asarray(omega, dtype=float) - (0.0 if bias is None else np.asarray(bias, dtype=float))
     steps = 0.5 * (rates[1:] + rates[:-1]) * np.diff(t)[:, None]
-    increments = quat_from_rotvec(steps)
-    out = np.empty((len(t), 4))
-    out[0] = quat_normalize(start_quat_wxyz)
-    q = out[0]
-    for i, dq in enumerate(increments, start=1):
-        q = quat_multiply(q, dq)
-        out[i] = q
-    return quat_normalize(out)
+    increments = quat_from_rotvec(steps).tolist()
+    out = [tuple(quat_normalize(start_quat_wxyz).tolist())]
+    w, x, y, z = out[0]
+    for bw, bx, by, bz in increments:
+        w, x, y, z = (
+            w * bw - x * bx - y * by - z * bz,
+            w * bx + x * bw + y * bz - z * by,
+            w * by - x * bz + y * bw + z * bx,
+            w * bz + x * by - y * bx + z * bw,
+        )
+        out.append((w, x, y, z))
+    return quat_normalize(np.array(out))

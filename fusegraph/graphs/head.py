@@ -104,12 +104,18 @@ class HeadGraphBuilder:
         self._latest_rot: gtsam.Rot3 | None = None
         self._latest_bias = np.zeros(3)
         self._previous_rate = np.zeros(3)
+        self._solved_keyframe = 0
         self.oldest_allowed_keyframe = 0
         """Keyframes older than this were marginalised by the online solver; samples for them are too late."""
         self.too_late: list[float] = []
         """Sample times of tracker samples that arrived after their keyframe was marginalised."""
         self.tracker_used = 0
         """Number of tracker samples turned into factors."""
+
+    @property
+    def linear_keys(self) -> tuple[int, ...]:
+        """Variables that appear only in linear factors (the gyro calibration)."""
+        return (C,) if self.model.gyro_calibration is not None else ()
 
     # ------------------------------------------------------------------ pushing measurements
 
@@ -149,6 +155,7 @@ class HeadGraphBuilder:
         """Feed back the solver's estimate of the newest keyframe (initial guesses, predictions)."""
         self._latest_rot = world_R_head
         self._latest_bias = np.asarray(bias, dtype=float)
+        self._solved_keyframe = self.latest_keyframe
 
     def take(self) -> GraphIncrement:
         """Factors and values built since the last call."""
@@ -157,19 +164,23 @@ class HeadGraphBuilder:
 
     # ------------------------------------------------------------------ predictions
 
-    def predict_now(self, world_R_kf: gtsam.Rot3, bias: FloatArray) -> tuple[float, gtsam.Rot3]:
-        """Attitude at the newest gyro sample from the newest keyframe's estimate (time, rotation)."""
-        assert self._interval is not None
-        return self._interval.t_last, world_R_kf.compose(self._interval.delta(bias))
+    def predict_now(self) -> tuple[float, gtsam.Rot3]:
+        """Attitude at the newest gyro sample: the newest keyframe's estimate carried on by the gyro.
+
+        The newest keyframe's estimate is the solver's, or (between solver updates) the solver's
+        last one carried forward over the newer intervals with the estimated bias.
+        """
+        assert self._interval is not None and self._latest_rot is not None
+        return self._interval.t_last, self._latest_rot.compose(self._interval.delta(self._latest_bias))
 
     def predict_cov(self, cov_kf: FloatArray, cov_bias: FloatArray) -> FloatArray:
-        """Covariance of ``predict_now`` (right perturbation): keyframe cov grown over the gyro interval.
+        """Covariance of ``predict_now`` (right perturbation): the solved keyframe's, grown since then.
 
-        The interval is at most one keyframe period, so its rotation (< 2 deg) does not rotate the
-        covariance noticeably; white noise and bias uncertainty add up over the elapsed time.
+        The time since the solved keyframe is a few keyframe periods, over which the body turns a few
+        degrees: too little to rotate the covariance noticeably; gyro noise and bias uncertainty add up.
         """
         assert self._interval is not None
-        dt = self._interval.elapsed_s
+        dt = self._interval.t_last - self.keyframe_t[self._solved_keyframe]
         return cov_kf + dt * self.model.gyro.density**2 * _EYE3 + dt * dt * cov_bias
 
     @property
@@ -233,8 +244,8 @@ class HeadGraphBuilder:
         self.keyframe_t.append(interval.t_last)
         self._keyframe_omega.append(interval.omega_last)
         self._interval = GyroInterval(self._params, self._latest_bias, interval.t_last, interval.omega_last)
-        for stale in [j for j in self._partials if j < self.oldest_allowed_keyframe]:
-            del self._partials[stale]
+        while self._partials and next(iter(self._partials)) < self.oldest_allowed_keyframe:
+            del self._partials[next(iter(self._partials))]  # keys are in keyframe order
 
     def state_keys(self, k: int) -> tuple[int, int | None]:
         """Keys of keyframe k's attitude and of the newest effective gyro bias known at k."""

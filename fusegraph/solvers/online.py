@@ -49,6 +49,10 @@ class OnlineConfig:
     """Re-anchor after this many new keyframes (100 = 2 s at 50 Hz): a small tree keeps updates fast."""
     relinearize_threshold: float = 0.1
     """iSAM2 relinearisation threshold (rad for rotations); 0.01 was 2x slower with the same accuracy here."""
+    relinearize: bool = True
+    """Let iSAM2 relinearise; re-anchoring relinearises the kept factors at the estimate anyway."""
+    update_every: int = 1
+    """Run iSAM2 once every this many new keyframes (the gyro carries the estimate in between)."""
     relinearize_skip: int = 1
     """Check for relinearisation every this many updates."""
     wildfire_threshold: float = 0.001
@@ -71,6 +75,11 @@ class OnlineSmoother:
         self._known_keyframe = -1
         self.reanchors = 0
         self._updates = 0
+        # variables that enter only linear factors (exact at any point) never need relinearising;
+        # relinearising a key shared by every factor would re-eliminate the whole tree each time
+        self._no_relin = gtsam.KeyList()
+        for key in getattr(builder, "linear_keys", ()):
+            self._no_relin.push_back(key)
         """How many times the solver re-anchored."""
         self.latest_rot: gtsam.Rot3 | None = None
         self.latest_bias = np.zeros(3)
@@ -81,18 +90,20 @@ class OnlineSmoother:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.config.relinearize_threshold)
         params.relinearizeSkip = self.config.relinearize_skip
-        params.enablePartialRelinearizationCheck = True
+        params.enableRelinearization = self.config.relinearize
         gauss_newton = gtsam.ISAM2GaussNewtonParams()
         gauss_newton.setWildfireThreshold(self.config.wildfire_threshold)
         params.setOptimizationParams(gauss_newton)
         return gtsam.ISAM2(params)
 
-    def update(self) -> bool:
-        """Take the builder's new factors into iSAM2; False when there was nothing new."""
+    def update(self, force: bool = False) -> bool:
+        """Take the builder's new factors into iSAM2; False when there was nothing new (or not yet due)."""
+        if not force and self.config.update_every > 1 and self.builder.latest_keyframe - self._known_keyframe < self.config.update_every:
+            return False  # factors wait in the builder; the estimate is carried on by the gyro
         increment = self.builder.take()
         if not increment:
             return False
-        self._isam.update(increment.graph(), increment.values)
+        self._isam.update(increment.graph(), increment.values, [], None, self._no_relin)
         self._window.extend(increment.factors)
         k = self.builder.latest_keyframe
         self._keyframes_since_anchor += k - self._known_keyframe
