@@ -22,6 +22,7 @@ import gtsam
 import numpy as np
 
 from ..geometry import FloatArray, rot3_from_quat_wxyz
+from .linear import linear_factor
 
 
 @dataclass(frozen=True)
@@ -85,11 +86,7 @@ def gauss_markov_factor(prev_key: int, next_key: int, dt_s: float, sigma: float,
     """Exact AR(1) transition e_next = phi * e_prev + w of a 3-vector first-order Markov process."""
     phi = float(np.exp(-dt_s / tau_s))
     drive_sigma = sigma * np.sqrt(max(1.0 - phi**2, 1e-12))
-    jacobian = gtsam.JacobianFactor(prev_key, -phi * np.eye(3), next_key, np.eye(3), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, drive_sigma))
-    at_zero = gtsam.Values()
-    at_zero.insert(prev_key, np.zeros(3))
-    at_zero.insert(next_key, np.zeros(3))
-    return gtsam.LinearContainerFactor(jacobian, at_zero)
+    return linear_factor([(prev_key, -phi * np.eye(3)), (next_key, np.eye(3))], drive_sigma)
 
 
 def markov_prior_factor(key: int, sigma: float) -> gtsam.PriorFactorVector:

@@ -18,6 +18,7 @@ import gtsam
 import numpy as np
 
 from ..geometry import FloatArray
+from .linear import linear_factor
 
 
 @dataclass(frozen=True)
@@ -73,30 +74,18 @@ def calibration_prior_factor(cal_key: int, prior: GyroCalibrationPrior) -> gtsam
     return gtsam.PriorFactorVector(cal_key, np.zeros(9), gtsam.noiseModel.Diagonal.Sigmas(prior.sigmas))
 
 
-def _linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float) -> gtsam.LinearContainerFactor:
-    """sum_i A_i x_i ~ N(0, sigma^2 I) over vector variables, exact for any value (linearised at 0)."""
-    args: list[object] = []
-    at_zero = gtsam.Values()
-    for key, matrix in blocks:
-        args += [key, matrix]
-        at_zero.insert(key, np.zeros(matrix.shape[1]))
-    rows = blocks[0][1].shape[0]
-    jacobian = gtsam.JacobianFactor(*args, np.zeros(rows), gtsam.noiseModel.Isotropic.Sigma(rows, sigma))  # type: ignore[call-overload]
-    return gtsam.LinearContainerFactor(jacobian, at_zero)
-
-
 def calibrated_bias_walk_factor(
     beta_i: int, beta_j: int, cal_key: int, rate_i: FloatArray, rate_j: FloatArray, dt_s: float, noise: GyroNoise
 ) -> gtsam.LinearContainerFactor:
     """(beta_j - W_j c) - (beta_i - W_i c) ~ N(0, q dt): the bias walk seen through effective biases."""
     eye = np.eye(3)
     sigma = noise.bias_rw_sigma * np.sqrt(max(dt_s, 1e-9))
-    return _linear_factor([(beta_i, -eye), (beta_j, eye), (cal_key, rate_matrix(rate_i) - rate_matrix(rate_j))], sigma)
+    return linear_factor([(beta_i, -eye), (beta_j, eye), (cal_key, rate_matrix(rate_i) - rate_matrix(rate_j))], sigma)
 
 
 def calibrated_bias_prior_factor(beta_key: int, cal_key: int, rate: FloatArray, noise: GyroNoise) -> gtsam.LinearContainerFactor:
     """beta_0 - W_0 c ~ N(0, sigma_b0^2): the start-up bias prior seen through the effective bias."""
-    return _linear_factor([(beta_key, np.eye(3)), (cal_key, -rate_matrix(rate))], noise.bias_prior_sigma_rad_s)
+    return linear_factor([(beta_key, np.eye(3)), (cal_key, -rate_matrix(rate))], noise.bias_prior_sigma_rad_s)
 
 
 class GyroInterval:

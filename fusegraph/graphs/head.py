@@ -37,6 +37,14 @@ from ..factors.gyro import (
     calibration_prior_factor,
     preintegration_params,
 )
+from ..factors.latency import (
+    LatencyPrior,
+    apparent_markov_factor,
+    apparent_markov_prior_factor,
+    apparent_white_factor,
+    offset_prior_factor,
+    offset_walk_factor,
+)
 from ..geometry import FloatArray, rot3_from_quat_wxyz
 from ..session import Session
 from .increment import GraphIncrement
@@ -58,6 +66,14 @@ def E(k: int) -> int:
     """Key of the tracker's slowly varying error at keyframe k."""
     return int(gtsam.symbol("e", k))
 
+
+def D(j: int = 0) -> int:
+    """Key of the tracker's latency error delta = true - assumed latency, seconds (one number), segment j."""
+    return int(gtsam.symbol("d", j))
+
+
+#: Length of one segment of a drifting latency (one variable per segment), seconds.
+LATENCY_SEGMENT_S = 1.0
 
 C = int(gtsam.symbol("c", 0))
 """Key of the gyro calibration c (K flattened row by row: scale factors and misalignment)."""
@@ -82,6 +98,8 @@ class HeadModel:
     """Tracker delay, seconds; None takes the stream's ``latency_s`` from the session."""
     gyro_calibration: GyroCalibrationPrior | None = field(default_factory=GyroCalibrationPrior)
     """Estimate the gyro's scale factors and misalignment as variables (None: assume a perfect gyro)."""
+    latency: LatencyPrior | None = None
+    """Estimate the tracker latency as a variable around this prior (None: the stamps are exact)."""
     snap_tolerance_s: float = 5e-4
     """A tracker sample this close to a keyframe attaches to it without gyro correction, seconds."""
 
@@ -105,6 +123,8 @@ class HeadGraphBuilder:
         self._latest_bias = np.zeros(3)
         self._previous_rate = np.zeros(3)
         self._solved_keyframe = 0
+        self._latency_segment = 0
+        self._latency_t0 = 0.0
         self.oldest_allowed_keyframe = 0
         """Keyframes older than this were marginalised by the online solver; samples for them are too late."""
         self.too_late: list[float] = []
@@ -115,7 +135,8 @@ class HeadGraphBuilder:
     @property
     def linear_keys(self) -> tuple[int, ...]:
         """Variables that appear only in linear factors (the gyro calibration)."""
-        return (C,) if self.model.gyro_calibration is not None else ()
+        keys = (C,) if self.model.gyro_calibration is not None else ()
+        return keys + ((D(0),) if self.model.latency is not None else ())
 
     # ------------------------------------------------------------------ pushing measurements
 
@@ -192,13 +213,19 @@ class HeadGraphBuilder:
 
     def _try_start(self) -> None:
         """Anchor keyframe 0 on the gyro sample nearest the first tracker sample."""
+        tol = self.model.snap_tolerance_s
         if not self._tracker_waiting or not self._gyro_buffer:
             return
+        # a fix stamped before the first gyro sample cannot be placed: counted, not hidden
+        while self._tracker_waiting and self._tracker_waiting[0][0] < self._gyro_buffer[0][0] - tol:
+            self.too_late.append(self._tracker_waiting.pop(0)[0])
+        if not self._tracker_waiting:
+            return
         t_fix = self._tracker_waiting[0][0]
-        times = [t for t, _ in self._gyro_buffer]
-        if times[-1] < t_fix - self.model.snap_tolerance_s:
+        times = np.asarray([t for t, _ in self._gyro_buffer])
+        if times[-1] < t_fix - tol:
             return  # gyro has not reached the fix yet
-        i0 = int(np.argmin(np.abs(np.asarray(times) - t_fix)))
+        i0 = int(np.argmax(times >= t_fix - tol))  # the first gyro sample at or after the fix
         t0, omega0 = self._gyro_buffer[i0]
         later = self._gyro_buffer[i0 + 1 :]
         self._gyro_buffer = []
@@ -207,6 +234,11 @@ class HeadGraphBuilder:
         self._keyframe_omega.append(omega0)
         self._latest_rot = first_fix.compose(gtsam.Rot3.Expmap(-omega0 * (t_fix - t0)))
         self._pending.values.insert(X(0), self._latest_rot)
+        if self.model.latency is not None:
+            self._pending.values.insert(D(0), np.zeros(1))
+            self._pending.add(0, offset_prior_factor(D(0), self.model.latency))
+            self._latency_segment = 0
+            self._latency_t0 = t0
         if self.model.gyro_calibration is not None:
             self._pending.values.insert(C, np.zeros(9))
             self._pending.add(0, calibration_prior_factor(C, self.model.gyro_calibration))
@@ -271,27 +303,56 @@ class HeadGraphBuilder:
             measured = measured.compose(self._gyro_between(k, t).inverse())
         noise = self.model.tracker
         self.tracker_used += 1
-        if not noise.is_markov:
+        if not noise.is_markov and self.model.latency is None:
             self._pending.add(k, attitude_prior_factor(X(k), measured, noise.total_sigma_rad))
             return
+        # reading = X(k) * Exp(e): e is the tracker's slowly varying error or, with the latency as a
+        # variable, the apparent error g = e - omega * delta (see factors.latency)
         white = float(np.deg2rad(noise.white_sigma_deg))
-        markov = float(np.deg2rad(noise.markov_sigma_deg))
         self._pending.add(k, attitude_prior_factor(T(k), measured, white))
         if k == self._last_error_kf:
             return  # a second sample on this keyframe: its error state exists already
         self._pending.add(k, error_state_factor(X(k), T(k), E(k)))
         self._pending.values.insert(T(k), measured)
         self._pending.values.insert(E(k), np.zeros(3))
-        if self._last_error_kf is None or self._last_error_kf < self.oldest_allowed_keyframe:
+        rate = self._keyframe_omega[k] - self._latest_bias
+        offset = self._offset_key(k)
+        restart = self._last_error_kf is None or self._last_error_kf < self.oldest_allowed_keyframe
+        markov = float(np.deg2rad(noise.markov_sigma_deg))
+        if not noise.is_markov:
+            self._pending.add(k, apparent_white_factor(E(k), offset, rate))
+        elif restart:
             # first sample, or the previous error state was marginalised during a long dropout:
             # restart the process from its stationary law (what is lost is < e^-(gap/tau) of it)
-            self._pending.add(k, markov_prior_factor(E(k), markov))
+            factor = markov_prior_factor(E(k), markov) if self.model.latency is None else apparent_markov_prior_factor(E(k), offset, rate, markov)
+            self._pending.add(k, factor)
         else:
             prev = self._last_error_kf
+            assert prev is not None
             dt = self.keyframe_t[k] - self.keyframe_t[prev]
-            self._pending.add(prev, gauss_markov_factor(E(prev), E(k), dt, markov, noise.markov_tau_s))
+            if self.model.latency is None:
+                self._pending.add(prev, gauss_markov_factor(E(prev), E(k), dt, markov, noise.markov_tau_s))
+            else:
+                rate_prev = self._keyframe_omega[prev] - self._latest_bias
+                self._pending.add(prev, apparent_markov_factor(E(prev), E(k), offset, rate_prev, rate, dt, markov, noise.markov_tau_s))
         self._last_error_kf = k
 
+    def latency_key(self) -> int | None:
+        """Key of the newest latency variable (None when the latency is not estimated)."""
+        return D(self._latency_segment) if self.model.latency is not None and self.started else None
+
+    def _offset_key(self, k: int) -> int:
+        """The latency variable of keyframe k: one for the session, or one per segment if it drifts."""
+        prior = self.model.latency
+        if prior is None or prior.random_walk_s_per_sqrt_s <= 0.0:
+            return D(0)
+        segment = int((self.keyframe_t[k] - self._latency_t0) // LATENCY_SEGMENT_S)
+        while self._latency_segment < segment:
+            j = self._latency_segment
+            self._pending.values.insert(D(j + 1), np.zeros(1))
+            self._pending.add(k, offset_walk_factor(D(j), D(j + 1), LATENCY_SEGMENT_S, prior))
+            self._latency_segment = j + 1
+        return D(min(segment, self._latency_segment))
 
     def _gyro_between(self, k: int, t: float) -> gtsam.Rot3:
         """Rotation of the body from keyframe k to time t, from the gyro (bias as estimated then).
@@ -311,7 +372,8 @@ def head_model_for(session: Session, model: HeadModel | None = None) -> HeadMode
 
     Fields a stream declares (gyro: ``rate_hz``, ``noise_sigma_rad_s``, ``bias_rw_sigma``, ``calibrated``
     = true when its scale factors and axes are already calibrated, otherwise they are estimated; tracker:
-    ``noise_sigma_deg``, ``markov_sigma_deg``, ``markov_tau_s``) replace the model's defaults unless
+    ``noise_sigma_deg``, ``markov_sigma_deg``, ``markov_tau_s``, and ``latency_sigma_s`` when its
+    ``latency_s`` is only assumed and should be estimated) replace the model's defaults unless
     ``model`` is given explicitly: a sensor's data sheet belongs with its recording.
     """
     if model is not None:
@@ -333,7 +395,14 @@ def head_model_for(session: Session, model: HeadModel | None = None) -> HeadMode
             markov_tau_s=float(meta.get("markov_tau_s", tracker.markov_tau_s)),
         )
     calibration = None if gyro_meta.get("calibrated", False) else model.gyro_calibration
-    return _with_gyro_rate(session, replace(model, gyro=gyro, tracker=tracker, gyro_calibration=calibration))
+    latency = None
+    if trackers and "latency_sigma_s" in trackers[0].meta:
+        latency = LatencyPrior(
+            assumed_s=trackers[0].latency_s,
+            sigma_s=float(trackers[0].meta["latency_sigma_s"]),
+            random_walk_s_per_sqrt_s=float(trackers[0].meta.get("latency_rw_s_per_sqrt_s", 0.0)),
+        )
+    return _with_gyro_rate(session, replace(model, gyro=gyro, tracker=tracker, gyro_calibration=calibration, latency=latency))
 
 
 def _with_gyro_rate(session: Session, model: HeadModel) -> HeadModel:

@@ -38,7 +38,12 @@ class HeadScenarioConfig:
     tracker_rate_hz: float = 50.0
     """Magnetic tracker sample rate, Hz."""
     tracker_latency_s: float = 0.1
-    """Tracker transport delay: a sample taken at t arrives at t + latency, seconds."""
+    """TRUE tracker transport delay: a sample taken at t arrives at t + latency, seconds."""
+    tracker_latency_assumed_s: float | None = None
+    """If set, the latency the user believes: stamps become arrival - assumed, and the session
+    declares the latency as unknown (``latency_sigma_s``) so that fusegraph estimates it."""
+    tracker_latency_sigma_s: float = 0.05
+    """Prior sigma the session declares for an assumed latency, seconds."""
     max_angle_deg: float = 40.0
     """Bound on azimuth, elevation and roll, degrees."""
     fast_turn_every_s: float = 2.5
@@ -121,7 +126,14 @@ def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **ove
         tracker_meta.update(noise_sigma_deg=cfg.tracker_white_sigma_realistic_deg, markov_sigma_deg=cfg.tracker_gm_sigma_deg, markov_tau_s=cfg.tracker_gm_tau_s)
     else:
         tracker_meta.update(noise_sigma_deg=cfg.tracker_white_sigma_deg)
-    tracker = Stream("tracker", "attitude", t_gyro[tracker_idx][keep], quat_tracker[keep], KIND_COLUMNS["attitude"], cfg.tracker_latency_s, tracker_meta)
+    stamps, declared_latency = t_gyro[tracker_idx][keep], cfg.tracker_latency_s
+    if cfg.tracker_latency_assumed_s is not None:
+        # what a host knows: the arrival time, and a latency it assumes
+        declared_latency = cfg.tracker_latency_assumed_s
+        stamps = stamps + cfg.tracker_latency_s - declared_latency
+        tracker_meta["latency_sigma_s"] = cfg.tracker_latency_sigma_s
+        tracker_meta["latency_true_s"] = cfg.tracker_latency_s  # for scoring only; estimators never read it
+    tracker = Stream("tracker", "attitude", stamps, quat_tracker[keep], KIND_COLUMNS["attitude"], declared_latency, tracker_meta)
     truth = Stream("truth", "attitude", t_gyro, quat_true, KIND_COLUMNS["attitude"], 0.0, {"frame": "world_R_head"})
     meta = {
         "session": {

@@ -123,6 +123,11 @@ class OnlineSmoother:
             self._reanchor()
         return True
 
+    @property
+    def isam(self) -> gtsam.ISAM2:
+        """The current iSAM2 (replaced at every re-anchoring)."""
+        return self._isam
+
     def estimate(self) -> gtsam.Values:
         """Current estimate of every variable in the window."""
         return self._isam.calculateEstimate()

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import gtsam
@@ -48,8 +48,6 @@ def _with_latency(session: Session, model: HeadModel) -> Session:
     """Apply the model's assumed tracker latency (if set) to the replay."""
     if model.tracker_latency_s is None:
         return session
-    from dataclasses import replace
-
     streams = dict(session.streams)
     for name, stream in streams.items():
         if stream.kind == "attitude":
@@ -99,6 +97,15 @@ class OnlineHeadTracker:
         self.solver.update()
         return self.latest()
 
+    def latency(self) -> tuple[float, float] | None:
+        """Current estimate of the tracker latency and its sigma, seconds (None when it is not estimated)."""
+        key, prior = self.builder.latency_key(), self.model.latency
+        if key is None or prior is None:
+            return None
+        delta = float(self.solver.isam.calculateEstimateVector(key)[0])
+        sigma = float(np.sqrt(self.solver.isam.marginalCovariance(key)[0, 0]))
+        return prior.assumed_s + delta, sigma
+
     def latest(self) -> AttitudeNow | None:
         """The causal estimate at the newest gyro sample, None before the first tracker fix."""
         if self.solver.latest_rot is None or not self.builder.started:
@@ -132,7 +139,10 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
             wall[i] = time.perf_counter()
             i += 1
     runtime = time.perf_counter() - start
+    latency = live.latency()
     extras = {
+        "latency_s": None if latency is None else latency[0],
+        "latency_sigma_s": None if latency is None else latency[1],
         "reanchors": live.solver.reanchors,
         "too_late": len(live.builder.too_late),
         "tracker_used": live.builder.tracker_used,
@@ -154,13 +164,23 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
     kf_t = np.asarray(builder.keyframe_t)
     for k, quat in enumerate(tracker_seeded_initial(session, kf_t)):
         increment.values.update(X(k), rot3_from_quat_wxyz(quat))
-    result = solve_batch(increment.graph(), increment.values, [X(k) for k in range(n_kf)], config)
+    latency_key = builder.latency_key()
+    result = solve_batch(increment.graph(), increment.values, [X(k) for k in range(n_kf)] + ([latency_key] if latency_key is not None else []), config)
     kf_quat = np.array([quat_wxyz_from_rot3(result.values.atRot3(X(k))) for k in range(n_kf)])
     kf_bias = np.array([result.values.atVector(B(min(k, n_kf - 2))) for k in range(n_kf)])
     kf_cov = _hold_covariances(result.covariances, n_kf) if result.covariances else None
     quats, covs = interpolate_keyframes(gyro.t, gyro.values, kf_t, kf_quat, kf_bias, kf_cov)
     runtime = time.perf_counter() - start
-    extras = {"iterations": result.iterations, "final_error": result.final_error, "too_late": len(builder.too_late), "bias_final": kf_bias[-1].tolist()}
+    extras: dict[str, Any] = {
+        "iterations": result.iterations,
+        "final_error": result.final_error,
+        "too_late": len(builder.too_late),
+        "bias_final": kf_bias[-1].tolist(),
+    }
+    if latency_key is not None and model.latency is not None:
+        extras["latency_s"] = model.latency.assumed_s + float(result.values.atVector(latency_key)[0])
+        cov = result.covariances.get(latency_key)
+        extras["latency_sigma_s"] = float(np.sqrt(cov[0, 0])) if cov is not None else None
     return Estimate("batch", gyro.t.copy(), quats, covs, runtime, extras)
 
 
@@ -249,7 +269,8 @@ def run_gyro_only(session: Session) -> Estimate:
 def run_ekf(session: Session, mode: str, config: HeadEkfConfig | None = None) -> Estimate:
     """One of the paper's EKFs (``kalman``, ``method1``, ``method2``) over the session."""
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
-    cfg = config or HeadEkfConfig()
+    # the filter's H = (I, -d F') uses the latency the session declares (true, or only assumed)
+    cfg = replace(config or HeadEkfConfig(), tracker_latency_s=tracker.latency_s)
     start = time.perf_counter()
     quats, covs = run_head_ekf(mode, gyro.t, gyro.values, tracker.t, tracker.values, cfg, latency_s=tracker.latency_s)  # type: ignore[arg-type]
     return Estimate(mode, gyro.t.copy(), quats, covs, time.perf_counter() - start)
