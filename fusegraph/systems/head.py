@@ -118,10 +118,12 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     """fusegraph online: replay in arrival order through ``OnlineHeadTracker``; causal estimate per gyro sample."""
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
-    latency = max((s.latency_s for s in session.streams_of_kind("attitude")), default=0.0)
+    max_latency = max((s.latency_s for s in session.streams_of_kind("attitude")), default=0.0)
+    if model.latency is not None:
+        max_latency += 3.0 * model.latency.sigma_s  # the true latency may be this much longer
     cfg = config or OnlineConfig()
-    if cfg.window_s <= latency + model.keyframe_period_s:
-        raise ValueError(f"online window_s = {cfg.window_s} s must exceed the largest tracker latency ({latency} s) plus one keyframe")
+    if cfg.window_s <= max_latency + model.keyframe_period_s:
+        raise ValueError(f"online window_s = {cfg.window_s} s must exceed the largest tracker latency ({max_latency:.3f} s) plus one keyframe")
     quats = np.full((len(gyro), 4), np.nan)
     covs = np.full((len(gyro), 3, 3), np.nan)
     wall = np.zeros(len(gyro))
@@ -139,10 +141,10 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
             wall[i] = time.perf_counter()
             i += 1
     runtime = time.perf_counter() - start
-    latency = live.latency()
+    latency_estimate = live.latency()
     extras = {
-        "latency_s": None if latency is None else latency[0],
-        "latency_sigma_s": None if latency is None else latency[1],
+        "latency_s": None if latency_estimate is None else latency_estimate[0],
+        "latency_sigma_s": None if latency_estimate is None else latency_estimate[1],
         "reanchors": live.solver.reanchors,
         "too_late": len(live.builder.too_late),
         "tracker_used": live.builder.tracker_used,
