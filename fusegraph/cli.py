@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from . import __version__
 
@@ -59,6 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--out", type=Path, required=True, help="directory to write (created)")
     sim.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
     sim.add_argument("--duration", type=float, default=10.0, help="seconds of data (default 10)")
+    sim.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency, seconds (default 0.1)")
+    sim.add_argument("--latency-assumed", type=float, metavar="S",
+                     help="write stamps made with this assumed latency and declare it unknown (latency_sigma_s), so solvers estimate it")
 
     run = sub.add_parser("run", help="estimate a session with one solver; metrics when it has truth",
                          description="Run one solver over a session directory and write the estimate as CSV "
@@ -77,6 +81,10 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default) or 0,3,7")
     rep.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
     rep.add_argument("--duration", type=float, default=10.0, help="seconds per session (default 10, like the paper)")
+    rep.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency in seconds (default: the scenario's 0.1)")
+    rep.add_argument("--latency-assumed", type=float, metavar="S",
+                     help="latency the user believes; adds rows method2_wrong_d (Method II with it) and isam2_td/batch_td "
+                     "(fusegraph estimating the latency from it as a prior); method2/isam2/batch get the true one")
     rep.add_argument("--json", action="store_true", help="print JSON instead of the table")
     rep.add_argument("--plot", type=Path, help="write a figure like the paper's Fig. 3/4 (first seed) to this PNG")
 
@@ -107,7 +115,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .scenarios import SCENARIOS
     from .session import save_session
 
-    session = SCENARIOS[args.scenario](args.seed, profile=args.profile, duration_s=args.duration)
+    extra: dict[str, Any] = {}
+    if args.latency_true is not None:
+        extra["tracker_latency_s"] = args.latency_true
+    if args.latency_assumed is not None:
+        extra["tracker_latency_assumed_s"] = args.latency_assumed
+    session = SCENARIOS[args.scenario](args.seed, profile=args.profile, duration_s=args.duration, **extra)
     path = save_session(session, args.out)
     files = ", ".join(sorted(p.name for p in path.iterdir()))
     print(f"wrote {path}/ ({files})")
@@ -127,6 +140,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     out = args.out or args.session / f"estimate_{args.solver}.csv"
     estimate.save_csv(out)
     print(f"wrote {out} ({len(estimate.t)} rows, {session.duration_s:.1f} s of data in {estimate.runtime_s:.2f} s)")
+    if estimate.extras.get("latency_s") is not None:
+        sigma = estimate.extras.get("latency_sigma_s")
+        print(f"tracker latency estimated: {1000 * estimate.extras['latency_s']:.1f} ms" + (f" (sigma {1000 * sigma:.1f} ms)" if sigma else ""))
     if session.truth is not None:
         score = score_attitude(estimate, session.truth.t, session.truth.values) if _same_times(estimate, session) else None
         if score is not None:
@@ -157,7 +173,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from .systems import head
 
     progress = None if args.json else (lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
-    report = head.head_report(args.seeds, args.profile, args.duration, progress=progress)
+    report = head.head_report(
+        args.seeds, args.profile, args.duration, progress=progress, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed
+    )
     if args.json:
         print(json.dumps(report.as_json(), indent=2))
     else:

@@ -6,8 +6,10 @@ a body turning at ``omega`` (body frame), to first order
 
     reading = X(stamp - delta) * Exp(noise) = X(stamp) * Exp(-omega * delta) * Exp(noise).
 
-The offset enters through an *apparent error* g = e - omega * delta per sample (e the sensor's own
-error), tied to the attitude by the same C++ ``reading = X * Exp(g)`` factor as the tracker error
+The offset enters through an *apparent error* g = e - omega * (delta - delta_hat) per sample (e the
+sensor's own error; delta_hat the offset already applied when the reading was placed on the
+timeline, the running estimate online, so that only the small remainder is first order), tied to
+the attitude by the same C++ ``reading = X * Exp(g)`` factor as the tracker error
 (``factors.attitude.error_state_factor``). Every law on g is linear in (g, delta), so it is an exact
 ``LinearContainerFactor``: the offset's Jacobian is the body rate, and the offset variable (one
 number, key ``d``) appears in linear factors only. A stationary stretch (omega = 0) leaves delta
@@ -54,23 +56,34 @@ def offset_walk_factor(prev_key: int, next_key: int, dt_s: float, prior: Latency
     return gtsam.BetweenFactorVector(prev_key, next_key, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, sigma))
 
 
-def apparent_white_factor(apparent_key: int, offset_key: int, rate: FloatArray) -> gtsam.LinearContainerFactor:
-    """A sensor with white error only: g = -omega * delta exactly (its white noise sits on the reading)."""
-    eye = np.eye(3)
-    # g - (-omega) delta = 0  <=>  g + omega * delta = 0
-    return linear_factor([(apparent_key, eye), (offset_key, -offset_column(rate))], ERROR_TIE_SIGMA_RAD)
+def apparent_white_factor(apparent_key: int, offset_key: int, rate: FloatArray, applied_s: float) -> gtsam.LinearContainerFactor:
+    """A sensor with white error only: g + omega * delta = omega * delta_hat (its white noise sits on the reading)."""
+    rate = np.asarray(rate, dtype=float)
+    return linear_factor([(apparent_key, np.eye(3)), (offset_key, -offset_column(rate))], ERROR_TIE_SIGMA_RAD, rate * applied_s)
 
 
-def apparent_markov_prior_factor(apparent_key: int, offset_key: int, rate: FloatArray, sigma: float) -> gtsam.LinearContainerFactor:
-    """First sample of a Gauss-Markov sensor error: e = g + omega * delta ~ N(0, sigma^2)."""
-    return linear_factor([(apparent_key, np.eye(3)), (offset_key, -offset_column(rate))], sigma)
+def apparent_markov_prior_factor(apparent_key: int, offset_key: int, rate: FloatArray, applied_s: float, sigma: float) -> gtsam.LinearContainerFactor:
+    """First sample of a Gauss-Markov sensor error: e = g + omega * (delta - delta_hat) ~ N(0, sigma^2)."""
+    rate = np.asarray(rate, dtype=float)
+    return linear_factor([(apparent_key, np.eye(3)), (offset_key, -offset_column(rate))], sigma, rate * applied_s)
 
 
 def apparent_markov_factor(
-    prev_key: int, next_key: int, offset_key: int, rate_prev: FloatArray, rate_next: FloatArray, dt_s: float, sigma: float, tau_s: float
+    prev_key: int,
+    next_key: int,
+    offset_key: int,
+    rate_prev: FloatArray,
+    rate_next: FloatArray,
+    applied_prev_s: float,
+    applied_next_s: float,
+    dt_s: float,
+    sigma: float,
+    tau_s: float,
 ) -> gtsam.LinearContainerFactor:
     """AR(1) law of the sensor error seen through apparent errors: e_next - phi e_prev ~ N(0, q)."""
     phi = float(np.exp(-dt_s / tau_s))
     drive_sigma = sigma * np.sqrt(max(1.0 - phi**2, 1e-12))
+    rate_prev, rate_next = np.asarray(rate_prev, dtype=float), np.asarray(rate_next, dtype=float)
     offset_block = -offset_column(rate_next) + phi * offset_column(rate_prev)
-    return linear_factor([(prev_key, -phi * np.eye(3)), (next_key, np.eye(3)), (offset_key, offset_block)], drive_sigma)
+    rhs = rate_next * applied_next_s - phi * rate_prev * applied_prev_s
+    return linear_factor([(prev_key, -phi * np.eye(3)), (next_key, np.eye(3)), (offset_key, offset_block)], drive_sigma, rhs)

@@ -8,13 +8,14 @@ import numpy as np
 from ..geometry import FloatArray
 
 
-def linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float) -> gtsam.LinearContainerFactor:
-    """sum_i A_i x_i ~ N(0, sigma^2 I) over vector variables, exact for any value (linearised at 0)."""
+def linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float, rhs: FloatArray | None = None) -> gtsam.LinearContainerFactor:
+    """sum_i A_i x_i - rhs ~ N(0, sigma^2 I) over vector variables, exact for any value (linearised at 0)."""
     args: list[object] = []
     at_zero = gtsam.Values()
     for key, matrix in blocks:
         args += [key, matrix]
         at_zero.insert(key, np.zeros(matrix.shape[1]))
     rows = blocks[0][1].shape[0]
-    jacobian = gtsam.JacobianFactor(*args, np.zeros(rows), gtsam.noiseModel.Isotropic.Sigma(rows, sigma))  # type: ignore[call-overload]
+    b = np.zeros(rows) if rhs is None else np.asarray(rhs, dtype=float)
+    jacobian = gtsam.JacobianFactor(*args, b, gtsam.noiseModel.Isotropic.Sigma(rows, sigma))  # type: ignore[call-overload]
     return gtsam.LinearContainerFactor(jacobian, at_zero)

@@ -14,6 +14,7 @@ time (nearest keyframe, corrected by the gyro rate for any offset), which the gy
 from __future__ import annotations
 
 import bisect
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import gtsam
@@ -125,6 +126,10 @@ class HeadGraphBuilder:
         self._solved_keyframe = 0
         self._latency_segment = 0
         self._latency_t0 = 0.0
+        self._applied: dict[int, float] = {}
+        self.latency_applied_s = 0.0
+        """Latency correction (true - assumed, s) applied when placing new tracker samples: the running
+        estimate online, a previous pass's in batch."""
         self.oldest_allowed_keyframe = 0
         """Keyframes older than this were marginalised by the online solver; samples for them are too late."""
         self.too_late: list[float] = []
@@ -177,6 +182,12 @@ class HeadGraphBuilder:
         self._latest_rot = world_R_head
         self._latest_bias = np.asarray(bias, dtype=float)
         self._solved_keyframe = self.latest_keyframe
+
+    def feedback(self, vector_estimate: Callable[[int], FloatArray]) -> None:
+        """After a solver update: read the estimates the builder uses to place new measurements."""
+        key = self.latency_key()
+        if key is not None:
+            self.latency_applied_s = float(vector_estimate(key)[0])
 
     def take(self) -> GraphIncrement:
         """Factors and values built since the last call."""
@@ -278,6 +289,8 @@ class HeadGraphBuilder:
         self._interval = GyroInterval(self._params, self._latest_bias, interval.t_last, interval.omega_last)
         while self._partials and next(iter(self._partials)) < self.oldest_allowed_keyframe:
             del self._partials[next(iter(self._partials))]  # keys are in keyframe order
+        while self._applied and next(iter(self._applied)) < self.oldest_allowed_keyframe - 1000:
+            del self._applied[next(iter(self._applied))]
 
     def state_keys(self, k: int) -> tuple[int, int | None]:
         """Keys of keyframe k's attitude and of the newest effective gyro bias known at k."""
@@ -286,28 +299,31 @@ class HeadGraphBuilder:
     def _flush_waiting_tracker(self) -> None:
         """Attach every waiting tracker sample whose keyframe exists."""
         tol = self.model.snap_tolerance_s
-        while self._tracker_waiting and self._tracker_waiting[0][0] <= self.keyframe_t[-1] + tol:
+        while self._tracker_waiting and self._tracker_waiting[0][0] - self.latency_applied_s <= self.keyframe_t[-1] + tol:
             t, quat = self._tracker_waiting.pop(0)
             self._attach_tracker(t, quat)
 
     def _attach_tracker(self, t: float, quat_wxyz: FloatArray) -> None:
-        i = bisect.bisect_left(self.keyframe_t, t)
+        # with an estimated latency the reading is placed where the running estimate says it was taken;
+        # the factors then model only the remainder (see factors.latency)
+        applied = self.latency_applied_s
+        t_place = t - applied
+        i = bisect.bisect_left(self.keyframe_t, t_place)
         candidates = [j for j in (i - 1, i) if 0 <= j < len(self.keyframe_t)]
-        k = min(candidates, key=lambda j: abs(self.keyframe_t[j] - t))
+        k = min(candidates, key=lambda j: abs(self.keyframe_t[j] - t_place))
         if k < self.oldest_allowed_keyframe or (self._last_error_kf is not None and k < self._last_error_kf):
             self.too_late.append(t)  # its state was marginalised, or it came out of order: counted, not hidden
             return
         measured = rot3_from_quat_wxyz(quat_wxyz)
-        offset = t - self.keyframe_t[k]
-        if abs(offset) > self.model.snap_tolerance_s:
-            measured = measured.compose(self._gyro_between(k, t).inverse())
+        if abs(t_place - self.keyframe_t[k]) > self.model.snap_tolerance_s:
+            measured = measured.compose(self._gyro_between(k, t_place).inverse())
         noise = self.model.tracker
         self.tracker_used += 1
         if not noise.is_markov and self.model.latency is None:
             self._pending.add(k, attitude_prior_factor(X(k), measured, noise.total_sigma_rad))
             return
         # reading = X(k) * Exp(e): e is the tracker's slowly varying error or, with the latency as a
-        # variable, the apparent error g = e - omega * delta (see factors.latency)
+        # variable, the apparent error g = e - omega * (delta - applied) (see factors.latency)
         white = float(np.deg2rad(noise.white_sigma_deg))
         self._pending.add(k, attitude_prior_factor(T(k), measured, white))
         if k == self._last_error_kf:
@@ -316,25 +332,32 @@ class HeadGraphBuilder:
         self._pending.values.insert(T(k), measured)
         self._pending.values.insert(E(k), np.zeros(3))
         rate = self._keyframe_omega[k] - self._latest_bias
-        offset = self._offset_key(k)
         restart = self._last_error_kf is None or self._last_error_kf < self.oldest_allowed_keyframe
         markov = float(np.deg2rad(noise.markov_sigma_deg))
-        if not noise.is_markov:
-            self._pending.add(k, apparent_white_factor(E(k), offset, rate))
-        elif restart:
-            # first sample, or the previous error state was marginalised during a long dropout:
-            # restart the process from its stationary law (what is lost is < e^-(gap/tau) of it)
-            factor = markov_prior_factor(E(k), markov) if self.model.latency is None else apparent_markov_prior_factor(E(k), offset, rate, markov)
-            self._pending.add(k, factor)
-        else:
-            prev = self._last_error_kf
-            assert prev is not None
-            dt = self.keyframe_t[k] - self.keyframe_t[prev]
-            if self.model.latency is None:
-                self._pending.add(prev, gauss_markov_factor(E(prev), E(k), dt, markov, noise.markov_tau_s))
+        self._applied[k] = applied
+        if self.model.latency is None:
+            if restart:
+                # first sample, or the previous error state was marginalised during a long dropout:
+                # restart the process from its stationary law (what is lost is < e^-(gap/tau) of it)
+                self._pending.add(k, markov_prior_factor(E(k), markov))
             else:
+                prev = self._last_error_kf
+                assert prev is not None
+                dt = self.keyframe_t[k] - self.keyframe_t[prev]
+                self._pending.add(prev, gauss_markov_factor(E(prev), E(k), dt, markov, noise.markov_tau_s))
+        else:
+            offset_key = self._offset_key(k)
+            if not noise.is_markov:
+                self._pending.add(k, apparent_white_factor(E(k), offset_key, rate, applied))
+            elif restart:
+                self._pending.add(k, apparent_markov_prior_factor(E(k), offset_key, rate, applied, markov))
+            else:
+                prev = self._last_error_kf
+                assert prev is not None
+                dt = self.keyframe_t[k] - self.keyframe_t[prev]
                 rate_prev = self._keyframe_omega[prev] - self._latest_bias
-                self._pending.add(prev, apparent_markov_factor(E(prev), E(k), offset, rate_prev, rate, dt, markov, noise.markov_tau_s))
+                factor = apparent_markov_factor(E(prev), E(k), offset_key, rate_prev, rate, self._applied[prev], applied, dt, markov, noise.markov_tau_s)
+                self._pending.add(prev, factor)
         self._last_error_kf = k
 
     def latency_key(self) -> int | None:
@@ -380,17 +403,18 @@ def head_model_for(session: Session, model: HeadModel | None = None) -> HeadMode
         return _with_gyro_rate(session, model)
     model = HeadModel()
     gyro_meta = session.stream("gyro").meta
+    # a declared zero (a noise-free simulation) is floored: a graph with infinitely stiff factors is singular
     gyro = replace(
         model.gyro,
-        white_sigma_rad_s=float(gyro_meta.get("noise_sigma_rad_s", model.gyro.white_sigma_rad_s)),
-        bias_rw_sigma=float(gyro_meta.get("bias_rw_sigma", model.gyro.bias_rw_sigma)),
+        white_sigma_rad_s=max(float(gyro_meta.get("noise_sigma_rad_s", model.gyro.white_sigma_rad_s)), MIN_GYRO_SIGMA_RAD_S),
+        bias_rw_sigma=max(float(gyro_meta.get("bias_rw_sigma", model.gyro.bias_rw_sigma)), MIN_BIAS_RW_SIGMA),
     )
     trackers = session.streams_of_kind("attitude")
     tracker = model.tracker
     if trackers:
         meta = trackers[0].meta
         tracker = AttitudeNoise(
-            white_sigma_deg=float(meta.get("noise_sigma_deg", tracker.white_sigma_deg)),
+            white_sigma_deg=max(float(meta.get("noise_sigma_deg", tracker.white_sigma_deg)), 1e-3),
             markov_sigma_deg=float(meta.get("markov_sigma_deg", 0.0)),
             markov_tau_s=float(meta.get("markov_tau_s", tracker.markov_tau_s)),
         )
@@ -403,6 +427,11 @@ def head_model_for(session: Session, model: HeadModel | None = None) -> HeadMode
             random_walk_s_per_sqrt_s=float(trackers[0].meta.get("latency_rw_s_per_sqrt_s", 0.0)),
         )
     return _with_gyro_rate(session, replace(model, gyro=gyro, tracker=tracker, gyro_calibration=calibration, latency=latency))
+
+
+#: Floors for declared sensor noise (rad/s per sample; rad/s/sqrt(s)); see ``head_model_for``.
+MIN_GYRO_SIGMA_RAD_S = 1e-4
+MIN_BIAS_RW_SIGMA = 1e-6
 
 
 def _with_gyro_rate(session: Session, model: HeadModel) -> HeadModel:

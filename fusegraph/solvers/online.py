@@ -119,6 +119,9 @@ class OnlineSmoother:
                 # the bias uncertainty changes slowly; refreshing it every few updates halves the cost
                 self.latest_bias_cov = self._isam.marginalCovariance(bias_key)
         self.builder.set_latest(self.latest_rot, self.latest_bias)
+        feedback = getattr(self.builder, "feedback", None)
+        if feedback is not None:
+            feedback(self._isam.calculateEstimateVector)
         if self._keyframes_since_anchor >= self.config.reanchor_every:
             self._reanchor()
         return True

@@ -159,15 +159,23 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
     start = time.perf_counter()
-    builder = HeadGraphBuilder(model)
-    feed(builder, _with_latency(session, model))
-    increment = builder.take()
-    n_kf = len(builder.keyframe_t)
-    kf_t = np.asarray(builder.keyframe_t)
-    for k, quat in enumerate(tracker_seeded_initial(session, kf_t)):
-        increment.values.update(X(k), rot3_from_quat_wxyz(quat))
-    latency_key = builder.latency_key()
-    result = solve_batch(increment.graph(), increment.values, [X(k) for k in range(n_kf)] + ([latency_key] if latency_key is not None else []), config)
+    # with an estimated latency: a first pass finds it, a second places the readings with it so that
+    # the first-order offset model only covers the remainder (as online, where it is the running estimate)
+    applied = 0.0
+    for _ in range(2 if model.latency is not None else 1):
+        builder = HeadGraphBuilder(model)
+        builder.latency_applied_s = applied
+        feed(builder, _with_latency(session, model))
+        increment = builder.take()
+        n_kf = len(builder.keyframe_t)
+        kf_t = np.asarray(builder.keyframe_t)
+        for k, quat in enumerate(tracker_seeded_initial(session, kf_t, applied)):
+            increment.values.update(X(k), rot3_from_quat_wxyz(quat))
+        latency_key = builder.latency_key()
+        marginal_keys = [X(k) for k in range(n_kf)] + ([latency_key] if latency_key is not None else [])
+        result = solve_batch(increment.graph(), increment.values, marginal_keys, config)
+        if latency_key is not None:
+            applied = float(result.values.atVector(latency_key)[0])
     kf_quat = np.array([quat_wxyz_from_rot3(result.values.atRot3(X(k))) for k in range(n_kf)])
     kf_bias = np.array([result.values.atVector(B(min(k, n_kf - 2))) for k in range(n_kf)])
     kf_cov = _hold_covariances(result.covariances, n_kf) if result.covariances else None
@@ -200,17 +208,19 @@ def _hold_covariances(covariances: dict[int, FloatArray], n_kf: int) -> FloatArr
     return out.reshape(n_kf, 3, 3)
 
 
-def tracker_seeded_initial(session: Session, times: FloatArray) -> FloatArray:
+def tracker_seeded_initial(session: Session, times: FloatArray, tracker_shift_s: float = 0.0) -> FloatArray:
     """Initial attitudes for the batch: the last tracker sample before each time, carried to it by the gyro.
 
     Dead reckoning from the start alone drifts by bias x duration (radians after minutes), which
     cost Levenberg-Marquardt ~100 iterations on 2-minute sessions; re-seeding at every tracker
     sample keeps the initial guess within the tracker's error plus the gyro drift over one gap.
+    ``tracker_shift_s`` is subtracted from the tracker stamps (a latency correction).
     """
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     dead_reckoned = integrate_gyro(gyro.t, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]))
-    j = np.clip(np.searchsorted(tracker.t, times + 1e-9, side="right") - 1, 0, len(tracker) - 1)
-    at_fix = np.clip(np.searchsorted(gyro.t, tracker.t[j] - 1e-9), 0, len(gyro) - 1)
+    stamps = tracker.t - tracker_shift_s
+    j = np.clip(np.searchsorted(stamps, times + 1e-9, side="right") - 1, 0, len(tracker) - 1)
+    at_fix = np.clip(np.searchsorted(gyro.t, stamps[j] - 1e-9), 0, len(gyro) - 1)
     at_time = np.clip(np.searchsorted(gyro.t, times - 1e-9), 0, len(gyro) - 1)
     since_fix = quat_multiply(quat_conjugate(dead_reckoned[at_fix]), dead_reckoned[at_time])
     return quat_normalize(quat_multiply(tracker.values[j], since_fix))
@@ -314,6 +324,8 @@ class HeadReport:
     scores: dict[str, AttitudeScore]
     ms_per_40ms: dict[str, float]
     per_seed: dict[str, list[AttitudeScore]]
+    latency: dict[str, float] | None = None
+    """With an assumed latency: true, assumed, and the mean over seeds of fusegraph's final online estimate and sigma."""
 
     def as_json(self) -> dict[str, Any]:
         """``{"methods": {name: {"rms_rad": {...}, "ms_per_40ms": x, "nees": x}}}`` plus run info."""
@@ -321,7 +333,10 @@ class HeadReport:
             name: {"rms_rad": dict(zip(AXES, (float(v) for v in score.rms_rad), strict=True)), "ms_per_40ms": self.ms_per_40ms[name], "nees": score.nees}
             for name, score in self.scores.items()
         }
-        return {"methods": methods, "profile": self.profile, "seeds": self.seeds, "duration_s": self.duration_s}
+        out: dict[str, Any] = {"methods": methods, "profile": self.profile, "seeds": self.seeds, "duration_s": self.duration_s}
+        if self.latency is not None:
+            out["latency"] = self.latency
+        return out
 
     def ratio_to(self, reference: str = "method2") -> dict[str, list[float]]:
         """Each method's RMS divided by the reference's, per axis."""
@@ -331,26 +346,48 @@ class HeadReport:
     def table(self) -> str:
         """The table as text: RMS in 1e-2 rad, ratio to Method II, time per 40 ms of data, NEES."""
         ratios = self.ratio_to()
+        width = max(len(LABELS[name]) for name in self.scores)
         lines = [
             f"head tracking, profile {self.profile}, seeds {_seed_text(self.seeds)}, {self.duration_s:g} s each; RMS after the first second",
-            f"{'method':<10} {'azimuth':>8} {'elev.':>8} {'roll':>8}   {'ratio to Method II (az/el/roll)':<32} {'ms/40ms':>8} {'NEES':>6}",
-            f"{'':<10} {'[1e-2 rad]':>26}",
+            f"{'method':<{width}} {'azimuth':>8} {'elev.':>8} {'roll':>8}   {'ratio to Method II (az/el/roll)':<32} {'ms/40ms':>8} {'NEES':>6}",
+            f"{'':<{width}} {'[1e-2 rad]':>26}",
         ]
         for name, score in self.scores.items():
             rms = score.rms_rad * 100
             ratio = "/".join(f"{r:.2f}" for r in ratios[name])
             nees = f"{score.nees:6.2f}" if score.nees is not None else f"{'-':>6}"
-            lines.append(f"{LABELS[name]:<10} {rms[0]:8.3f} {rms[1]:8.3f} {rms[2]:8.3f}   {ratio:<32} {self.ms_per_40ms[name]:8.3f} {nees}")
+            lines.append(f"{LABELS[name]:<{width}} {rms[0]:8.3f} {rms[1]:8.3f} {rms[2]:8.3f}   {ratio:<32} {self.ms_per_40ms[name]:8.3f} {nees}")
+        if self.latency is not None:
+            lat = self.latency
+            lines.append(
+                f"latency: true {1000 * lat['true']:.1f} ms, assumed {1000 * lat['assumed']:.1f} ms, "
+                f"estimated online at the end {1000 * lat['estimated']:.1f} ms (sigma {1000 * lat['sigma']:.1f} ms, mean over seeds)"
+            )
         return "\n".join(lines)
 
 
-LABELS = {"tracker": "tracker", "gyro": "gyro", "kalman": "Kalman", "method1": "Method I", "method2": "Method II", "isam2": "iSAM2", "batch": "batch"}
+LABELS = {
+    "tracker": "tracker",
+    "gyro": "gyro",
+    "kalman": "Kalman",
+    "method1": "Method I",
+    "method2": "Method II",
+    "isam2": "iSAM2",
+    "batch": "batch",
+    "method2_wrong_d": "Method II, assumed d",
+    "isam2_td": "iSAM2, d estimated",
+    "batch_td": "batch, d estimated",
+}
 
 
 def _seed_text(seeds: list[int]) -> str:
     if seeds and seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 2:
         return f"{seeds[0]}-{seeds[-1]}"
     return ",".join(str(s) for s in seeds)
+
+
+LATENCY_ROWS = ("method2_wrong_d", "isam2_td", "batch_td")
+"""Extra rows when the latency is only assumed: Method II with the wrong d, fusegraph estimating it."""
 
 
 def head_report(
@@ -360,29 +397,57 @@ def head_report(
     methods: Sequence[str] = METHODS,
     model: HeadModel | None = None,
     progress: Callable[[str], None] | None = None,
+    latency_true_s: float | None = None,
+    latency_assumed_s: float | None = None,
 ) -> HeadReport:
-    """Simulate each seed, run every method on it, score against the lag-free reference."""
+    """Simulate each seed, run every method on it, score against the lag-free reference.
+
+    With ``latency_true_s`` and ``latency_assumed_s`` the tracker really lags by the true latency; the
+    paper's rows, ``isam2`` and ``batch`` are given it (oracle), while ``method2_wrong_d`` uses the
+    assumed one and ``isam2_td``/``batch_td`` start from it as a prior and estimate it.
+    """
     from ..scenarios.head import simulate_head
 
-    per_seed: dict[str, list[AttitudeScore]] = {m: [] for m in methods}
-    runtime: dict[str, float] = dict.fromkeys(methods, 0.0)
+    if (latency_true_s is None) != (latency_assumed_s is None):
+        raise ValueError("give both --latency-true and --latency-assumed, or neither")
+    rows = list(methods) + (list(LATENCY_ROWS) if latency_assumed_s is not None else [])
+    per_seed: dict[str, list[AttitudeScore]] = {m: [] for m in rows}
+    runtime: dict[str, float] = dict.fromkeys(rows, 0.0)
+    estimated: list[tuple[float, float]] = []
+    true_kw: dict[str, Any] = {} if latency_true_s is None else {"tracker_latency_s": latency_true_s}
     for n, seed in enumerate(seeds):
-        session = simulate_head(seed, profile=profile, duration_s=duration_s)
-        assert session.truth is not None
-        for method in methods:
-            estimate = run_method(session, method, model)
-            per_seed[method].append(score_attitude(estimate, session.truth.t, session.truth.values))
-            runtime[method] += estimate.runtime_s
+        oracle = simulate_head(seed, profile=profile, duration_s=duration_s, **true_kw)
+        assumed = None
+        if latency_assumed_s is not None:
+            assumed = simulate_head(seed, profile=profile, duration_s=duration_s, tracker_latency_assumed_s=latency_assumed_s, **true_kw)
+        assert oracle.truth is not None
+        for row in rows:
+            session = oracle if row not in LATENCY_ROWS else assumed
+            assert session is not None
+            estimate = run_method(session, row.removesuffix("_wrong_d").removesuffix("_td"), model)
+            per_seed[row].append(score_attitude(estimate, oracle.truth.t, oracle.truth.values))
+            runtime[row] += estimate.runtime_s
+            if row == "isam2_td":
+                estimated.append((estimate.extras["latency_s"], estimate.extras["latency_sigma_s"]))
         if progress is not None:
             progress(f"seed {seed} done ({n + 1}/{len(seeds)})")
     blocks = len(seeds) * duration_s / 0.04
+    latency = None
+    if latency_assumed_s is not None and latency_true_s is not None:
+        latency = {
+            "true": latency_true_s,
+            "assumed": latency_assumed_s,
+            "estimated": float(np.mean([e for e, _ in estimated])),
+            "sigma": float(np.mean([sg for _, sg in estimated])),
+        }
     return HeadReport(
         profile,
         list(seeds),
         duration_s,
-        {m: mean_scores(per_seed[m]) for m in methods},
-        {m: 1000.0 * runtime[m] / blocks for m in methods},
+        {m: mean_scores(per_seed[m]) for m in rows},
+        {m: 1000.0 * runtime[m] / blocks for m in rows},
         per_seed,
+        latency,
     )
 
 
