@@ -47,3 +47,13 @@ def test_help_teaches(capsys: pytest.CaptureFixture[str]) -> None:
 def test_seed_lists() -> None:
     assert parse_seeds("0-3,7") == [0, 1, 2, 3, 7]
     assert parse_seeds("5") == [5]
+
+
+def test_report_with_an_assumed_latency_adds_rows_and_the_latency_block(capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["report", "head", "--seeds", "0", "--duration", "3", "--profile", "ideal", "--latency-true", "0.13", "--latency-assumed", "0.1", "--json"]
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert {"method2", "isam2", "method2_wrong_d", "isam2_td"} <= set(report["methods"])
+    assert set(report["latency"]) == {"true", "assumed", "estimated", "sigma"}
+    assert report["latency"]["true"] == 0.13 and report["latency"]["assumed"] == 0.1
+    assert abs(report["latency"]["estimated"] - 0.13) < 0.01  # 3 s of motion: within 10 ms
