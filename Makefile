@@ -4,12 +4,24 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv install demo test lint bench clean
+.PHONY: venv install sysdeps demo test lint bench clean
+
+# Debian packages open3d's headless renderer needs (open3d-cpu links libusb; offscreen rendering
+# runs on Mesa's Vulkan llvmpipe). Installed when we are root and they are missing; otherwise we say so
+# and `fusegraph view` falls back to a matplotlib render.
+SYSDEPS := libusb-1.0-0 libvulkan1 mesa-vulkan-drivers
+
+sysdeps:
+	@if dpkg -s $(SYSDEPS) >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSDEPS) >/dev/null; \
+	else echo "note: install $(SYSDEPS) (Debian) for open3d's offscreen renderer; fusegraph view falls back to matplotlib"; fi
 
 venv: $(STAMP)
 
 # one environment for tests, reports and benches; re-installed when pyproject.toml changes
 $(STAMP): pyproject.toml
+	$(MAKE) --no-print-directory sysdeps
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e ".[dev]"

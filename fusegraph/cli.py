@@ -15,6 +15,7 @@ EPILOG = """examples:
   fusegraph run sessions/head0 --solver online --out est.csv   estimate (metrics if truth is known)
   fusegraph report head --seeds 0-9 --plot out/head.png        the paper's Table 1, ours beside it
   fusegraph bench head --duration 600 --repeat 3               speed on a 10-minute session
+  fusegraph view sessions/head0 --out out/head0                3D scene, plots, TUM files
 """
 
 
@@ -87,6 +88,15 @@ def build_parser() -> argparse.ArgumentParser:
                      "(fusegraph estimating the latency from it as a prior); method2/isam2/batch get the true one")
     rep.add_argument("--json", action="store_true", help="print JSON instead of the table")
     rep.add_argument("--plot", type=Path, help="write a figure like the paper's Fig. 3/4 (first seed) to this PNG")
+
+    vw = sub.add_parser("view", help="files to look at: 3D scene (PLY/GLB/PNG), 2D plots, TUM and CSV trajectories",
+                        description="Given a session directory (the solver runs first) or an estimate CSV, write a 3D scene "
+                        "(open3d: PLY, GLB and a headless PNG render), a 2D plot against the truth with 3-sigma bands, and the "
+                        "trajectories as CSV and TUM files (readable by evo).")
+    vw.add_argument("source", type=Path, help="session directory or estimate CSV (from fusegraph run)")
+    vw.add_argument("--out", type=Path, required=True, help="directory for the files (created)")
+    vw.add_argument("--solver", choices=["online", "batch", "ekf"], default="batch", help="solver for a bare session (default batch)")
+    vw.add_argument("--truth", type=Path, help="truth for an estimate CSV: a TUM file or a session directory")
 
     ben = sub.add_parser("bench", help="speed of the online loop and the batch smoother on a long session",
                          description="Real-time factor of the whole causal loop in the first and last minute, batch time, peak memory.")
@@ -172,10 +182,7 @@ def _same_times(estimate: object, session: object) -> bool:
 def _cmd_report(args: argparse.Namespace) -> int:
     from .systems import head
 
-    progress = None if args.json else (lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
-    report = head.head_report(
-        args.seeds, args.profile, args.duration, progress=progress, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed
-    )
+    report = head.head_report(args.seeds, args.profile, args.duration, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed)
     if args.json:
         print(json.dumps(report.as_json(), indent=2))
     else:
@@ -202,8 +209,7 @@ def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from .systems import head
 
-    progress = lambda msg: print(f"  {msg}", file=sys.stderr, flush=True)  # noqa: E731
-    result = head.head_bench(args.duration, args.repeat, profile=args.profile, progress=progress)
+    result = head.head_bench(args.duration, args.repeat, profile=args.profile)
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -215,7 +221,15 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench}
+def _cmd_view(args: argparse.Namespace) -> int:
+    from .view import view
+
+    for path in view(args.source, args.out, args.solver, args.truth):
+        print(f"wrote {path}")
+    return 0
+
+
+COMMANDS = {"simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view}
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from ..factors.gyro import integrate_gyro
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, quat_wxyz_from_rot3, rot3_from_quat_wxyz
 from ..graphs.head import B, HeadGraphBuilder, HeadModel, X, head_model_for
 from ..metrics import AXES, AttitudeScore, mean_scores, score_attitude
+from ..progress import progress as progress_bar
 from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
 from ..solvers.ekf import HeadEkfConfig, run_head_ekf
@@ -415,7 +416,7 @@ def head_report(
     runtime: dict[str, float] = dict.fromkeys(rows, 0.0)
     estimated: list[tuple[float, float]] = []
     true_kw: dict[str, Any] = {} if latency_true_s is None else {"tracker_latency_s": latency_true_s}
-    for n, seed in enumerate(seeds):
+    for n, seed in enumerate(progress_bar(seeds, len(seeds), "head report (seeds)")):
         oracle = simulate_head(seed, profile=profile, duration_s=duration_s, **true_kw)
         assumed = None
         if latency_assumed_s is not None:
@@ -468,7 +469,7 @@ def head_bench(
 
     session = simulate_head(seed, profile=profile, duration_s=duration_s)
     first, last, batch = [], [], []
-    for r in range(repeat):
+    for r in progress_bar(range(repeat), repeat, "head bench (repeats)"):
         estimate = run_isam2(session, None)
         wall, t = estimate.extras["wall_s"], estimate.t
         minute = min(60.0, duration_s / 2)

@@ -1,0 +1,64 @@
+"""fusegraph view: every file is written, the 3D render is a real picture, estimate CSVs view with TUM truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusegraph.cli import main
+from fusegraph.scenarios import simulate_head
+from fusegraph.session import save_session
+from fusegraph.tum import read_tum
+
+
+@pytest.fixture(scope="module")
+def head_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return save_session(simulate_head(0, profile="ideal", duration_s=3.0), tmp_path_factory.mktemp("s") / "head")
+
+
+def _image(path: Path) -> np.ndarray:
+    import matplotlib.image
+
+    return np.asarray(matplotlib.image.imread(path))
+
+
+def test_view_of_a_session_writes_every_file(head_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "view"
+    assert main(["view", str(head_session), "--out", str(out)]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert {"estimate_batch.csv", "estimate_batch.tum", "truth.tum", "attitude_batch.png", "scene_head.png"} <= names
+    image = _image(out / "scene_head.png")
+    # a real picture: mostly white background, plus many distinct colours (frames, error colours)
+    assert image.shape[0] > 400 and image.shape[1] > 800
+    assert len(np.unique((image[..., :3] * 255).astype(int).reshape(-1, 3), axis=0)) > 200
+    t, _, quat = read_tum(out / "estimate_batch.tum")
+    assert len(t) > 250 and np.all(np.isfinite(quat))
+
+
+def test_open3d_renders_headless_when_installed(head_session: Path, tmp_path: Path) -> None:
+    pytest.importorskip("open3d", exc_type=ImportError)
+    from fusegraph import load_session
+    from fusegraph.systems.head import run_batch
+    from fusegraph.view import head_scene, write_head_scene
+
+    session = load_session(head_session)
+    assert session.truth is not None
+    scene = head_scene(run_batch(session), session.truth.t, session.truth.values)
+    written = write_head_scene(scene, tmp_path)
+    assert {p.name for p in written} == {"scene_head_points.ply", "scene_head_frames.ply", "scene_head_frames.glb", "scene_head.png"}
+    assert not scene.notes, scene.notes  # no fallback was needed
+
+
+def test_view_of_an_estimate_csv_with_tum_truth(head_session: Path, tmp_path: Path) -> None:
+    first = tmp_path / "first"
+    assert main(["view", str(head_session), "--out", str(first), "--solver", "ekf"]) == 0
+    second = tmp_path / "second"
+    assert main(["view", str(first / "estimate_ekf.csv"), "--out", str(second), "--truth", str(first / "truth.tum")]) == 0
+    assert (second / "scene_head.png").is_file() and (second / "attitude_estimate_ekf.png").is_file()
+
+
+def test_view_of_something_else_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["view", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert "neither a session directory" in capsys.readouterr().err
