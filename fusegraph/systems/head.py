@@ -36,7 +36,10 @@ def feed(builder: HeadGraphBuilder, session: Session, on_gyro: Callable[[float],
 
     ``on_gyro(t)`` runs after each gyro sample (the online solver updates and reads out there).
     """
-    for event in replay_in_arrival_order(session, last_streams=("gyro",)):
+    events = replay_in_arrival_order(session, last_streams=("gyro",))
+    if session.duration_s > 60.0:  # long sessions show progress on a terminal
+        events = progress_bar(events, sum(len(s) for s in session.streams.values()), "building the graph")
+    for event in events:
         if event.stream.kind == "gyro":
             builder.add_gyro(event.t, event.values)
             if on_gyro is not None:
