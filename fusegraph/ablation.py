@@ -1,0 +1,385 @@
+"""Ablation studies: system x variants (sensor subsets dropped, parameter grids) x seeds x solvers.
+
+A study expands into runs, each keyed by its full configuration; results are appended to
+``runs.csv`` as each run finishes, so an interrupted study resumes where it stopped and loses
+nothing. Runs execute in a local process pool (default), or on a Dask cluster
+(``scheduler="local"`` starts a LocalCluster, ``"tcp://host:port"`` joins an existing one). A
+failed run (an exception, or a worker that died) becomes a row with status ``failed`` and its
+error; the study goes on.
+
+Head variants: ``drop tracker`` keeps only the tracker's first sample (the gyro alone, aligned
+once at start-up); ``drop gyro`` leaves the tracker alone (the EKF row becomes the paper's
+tracker-only Kalman filter; fusegraph's head graph needs the gyro, so those runs fail, said in
+their rows). ``vary`` names: see ``HEAD_PARAMETERS``.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import itertools
+import json
+import time
+import tomllib
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .progress import progress
+
+#: ``--vary`` names for the head system -> fields of the head scenario.
+HEAD_PARAMETERS: dict[str, str] = {
+    "latency": "tracker_latency_s",
+    "tracker_rate": "tracker_rate_hz",
+    "tracker_drop_fraction": "tracker_drop_fraction",
+    "gyro_noise": "gyro_white_sigma_rad_s",
+    "gyro_bias_rw": "gyro_bias_rw_sigma",
+    "tracker_markov_sigma_deg": "tracker_gm_sigma_deg",
+}
+SENSORS = {"head": ("tracker", "gyro")}
+SOLVERS = ("ekf", "online", "batch")
+METRIC_COLUMNS = ("rms_azimuth_rad", "rms_elevation_rad", "rms_roll_rad", "nees")
+COLUMNS = ("key", "system", "variant", "drop", "params", "seed", "solver", "profile", "duration_s", "status", "error",
+           *METRIC_COLUMNS, "solver_s", "run_s")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One sensor subset and one point of the parameter grid."""
+
+    drop: tuple[str, ...] = ()
+    """Sensors removed (empty: the full-sensor baseline)."""
+    params: tuple[tuple[str, float], ...] = ()
+    """Parameter values, (name, value) pairs in a fixed order."""
+
+    @property
+    def name(self) -> str:
+        parts = ["full" if not self.drop else "-" + "-".join(self.drop)]
+        parts += [f"{k}={v:g}" for k, v in self.params]
+        return " ".join(parts)
+
+
+@dataclass(frozen=True)
+class Study:
+    """What to run; ``runs()`` expands it."""
+
+    system: str = "head"
+    """Which system (scenario) to study."""
+    drops: tuple[tuple[str, ...], ...] = ()
+    """Each entry is a variant dropping those sensors; the full-sensor baseline is always included."""
+    vary: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    """Parameter grids, crossed with each other and with every sensor variant."""
+    seeds: tuple[int, ...] = (0,)
+    """Seeds of the simulated sessions."""
+    solvers: tuple[str, ...] = SOLVERS
+    """Solvers: ``ekf`` (the paper's Method II for head), ``online`` (iSAM2), ``batch``."""
+    duration_s: float = 10.0
+    """Seconds of data per session."""
+    profile: str = "realistic"
+    """Sensor error profile of the scenario."""
+
+    def __post_init__(self) -> None:
+        if self.system not in SENSORS:
+            raise ValueError(f"no ablation for system {self.system!r} yet (available: {', '.join(SENSORS)})")
+        for drop in self.drops:
+            unknown = [s for s in drop if s not in SENSORS[self.system]]
+            if unknown:
+                raise ValueError(f"cannot drop {', '.join(unknown)}: {self.system} has sensors {', '.join(SENSORS[self.system])}")
+        for name, _ in self.vary:
+            if name not in HEAD_PARAMETERS:
+                raise ValueError(f"unknown parameter {name!r} to vary (known: {', '.join(HEAD_PARAMETERS)})")
+        for solver in self.solvers:
+            if solver not in SOLVERS:
+                raise ValueError(f"unknown solver {solver!r} (known: {', '.join(SOLVERS)})")
+
+    def variants(self) -> list[Variant]:
+        names = [name for name, _ in self.vary]
+        grid = list(itertools.product(*[values for _, values in self.vary])) or [()]
+        drops = [()] + [d for d in self.drops if d]
+        return [Variant(tuple(drop), tuple(zip(names, point, strict=True))) for drop in drops for point in grid]
+
+    def runs(self) -> list[dict[str, Any]]:
+        """Every run as a plain dict (picklable, hashable by ``run_key``)."""
+        out = []
+        for variant in self.variants():
+            for seed in self.seeds:
+                for solver in self.solvers:
+                    spec = {"system": self.system, "drop": list(variant.drop), "params": dict(variant.params), "seed": seed,
+                            "solver": solver, "profile": self.profile, "duration_s": self.duration_s}
+                    spec["key"] = run_key(spec)
+                    spec["variant"] = variant.name
+                    out.append(spec)
+        return out
+
+
+def run_key(spec: Mapping[str, Any]) -> str:
+    """A stable key of a run's full configuration (what it computes, not where or when)."""
+    fields = {k: spec[k] for k in ("system", "drop", "params", "seed", "solver", "profile", "duration_s")}
+    return hashlib.sha1(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def load_study(path: str | Path) -> Study:
+    """A study from a TOML file with a ``[study]`` table (see examples/)."""
+    path = Path(path)
+    try:
+        table = tomllib.loads(path.read_text())["study"]
+    except (OSError, tomllib.TOMLDecodeError, KeyError) as exc:
+        raise ValueError(f"{path}: cannot read a [study] table ({exc})") from None
+    from .cli import parse_seeds
+
+    seeds = table.get("seeds", [0])
+    return Study(
+        system=table.get("system", "head"),
+        drops=tuple(tuple(d.split("+")) for d in table.get("drop", [])),
+        vary=tuple((k, tuple(float(x) for x in v)) for k, v in table.get("vary", {}).items()),
+        seeds=tuple(parse_seeds(seeds) if isinstance(seeds, str) else seeds),
+        solvers=tuple(table.get("solvers", SOLVERS)),
+        duration_s=float(table.get("duration_s", 10.0)),
+        profile=table.get("profile", "realistic"),
+    )
+
+
+# ------------------------------------------------------------------------------------ one run
+
+
+def execute(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """Simulate, drop, solve, score one run; never raises (a failure is a row)."""
+    start = time.perf_counter()
+    row: dict[str, Any] = {c: "" for c in COLUMNS}
+    row.update({k: spec[k] for k in ("key", "system", "variant", "seed", "solver", "profile", "duration_s")})
+    row["drop"] = "+".join(spec["drop"])
+    row["params"] = ";".join(f"{k}={v:g}" for k, v in spec["params"].items())
+    try:
+        estimate, truth_t, truth_q = _solve_head(spec)
+        from .estimate import Estimate
+        from .metrics import score_attitude
+
+        assert isinstance(estimate, Estimate)
+        score = score_attitude(estimate, truth_t, truth_q)
+        row.update(zip(METRIC_COLUMNS[:3], (float(v) for v in score.rms_rad), strict=True))
+        row["nees"] = "" if score.nees is None else score.nees
+        row["solver_s"] = estimate.runtime_s
+        row["status"] = "ok"
+    except Exception as exc:  # noqa: BLE001 - recorded in the row, the study goes on
+        row["status"] = "failed"
+        row["error"] = f"{type(exc).__name__}: {exc}"
+    row["run_s"] = time.perf_counter() - start
+    return row
+
+
+def _solve_head(spec: Mapping[str, Any]) -> tuple[Any, Any, Any]:
+    from .scenarios.head import simulate_head
+    from .systems import head
+
+    overrides = {HEAD_PARAMETERS[k]: v for k, v in spec["params"].items()}
+    session = simulate_head(int(spec["seed"]), profile=spec["profile"], duration_s=float(spec["duration_s"]), **overrides)
+    assert session.truth is not None
+    drop = set(spec["drop"])
+    method = {"ekf": "method2", "online": "isam2", "batch": "batch"}[spec["solver"]]
+    if "tracker" in drop:
+        tracker = session.stream("tracker")
+        session = session.without("tracker")
+        session = type(session)(session.system, {**session.streams, "tracker": tracker.select(np.arange(len(tracker)) == 0)}, session.truth, session.meta)
+    if "gyro" in drop:
+        if method != "method2":
+            raise NotImplementedError("the head graph needs the gyro (a gyro-less motion model is not built yet)")
+        method = "kalman"  # the paper's tracker-only filter; it runs on the gyro's clock only for output times
+    truth = session.truth
+    assert truth is not None
+    return head.run_method(session, method), truth.t, truth.values
+
+
+# ------------------------------------------------------------------------------------ a study
+
+
+@dataclass
+class StudyResult:
+    """All rows of a study (in the study's order) and how its wall time was spent."""
+
+    rows: list[dict[str, Any]]
+    wall_s: float = 0.0
+    workers: int = 1
+    ran: int = 0
+    skipped: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def solver_fraction(self) -> float:
+        """Share of the workers' wall time spent inside the solvers (runs done in this call)."""
+        fresh = [r for r in self.rows if r.get("_fresh") and r["status"] == "ok"]
+        busy = sum(float(r["solver_s"]) for r in fresh)
+        return busy / (self.wall_s * self.workers) if self.wall_s > 0 else float("nan")
+
+
+def run_study(
+    study: Study,
+    out_dir: str | Path,
+    workers: int = 1,
+    scheduler: str | None = None,
+    on_row: Callable[[dict[str, Any]], None] | None = None,
+) -> StudyResult:
+    """Run every run of ``study`` not yet in ``out_dir/runs.csv``; returns all rows in study order."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "study.json").write_text(json.dumps(asdict(study), indent=2))
+    table_path = out / "runs.csv"
+    done = {row["key"]: row for row in read_rows(table_path)}
+    specs = study.runs()
+    todo = [s for s in specs if s["key"] not in done]
+    new_file = not table_path.exists() or table_path.stat().st_size == 0
+    start = time.perf_counter()
+    with table_path.open("a", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=COLUMNS, extrasaction="ignore")
+        if new_file:
+            writer.writeheader()
+        for row in progress(_execute_all(todo, workers, scheduler), len(todo), f"ablation {study.system}"):
+            writer.writerow(row)
+            handle.flush()  # a kill after this line loses nothing
+            row["_fresh"] = True
+            done[row["key"]] = row
+            if on_row is not None:
+                on_row(row)
+    wall = time.perf_counter() - start
+    rows = [done[s["key"]] for s in specs]
+    # for a remote cluster its size is its own; ``workers`` then only scales the overhead figure
+    return StudyResult(rows, wall, max(1, workers), len(todo), len(specs) - len(todo))
+
+
+def _execute_all(specs: Sequence[dict[str, Any]], workers: int, scheduler: str | None) -> Iterable[dict[str, Any]]:
+    if not specs:
+        return
+    if scheduler is not None:
+        yield from _execute_dask(specs, workers, scheduler)
+        return
+    if workers <= 1:
+        for spec in specs:
+            yield execute(spec)
+        return
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = {pool.submit(execute, spec): spec for spec in specs}
+        for future in as_completed(futures):
+            yield _result_or_failure(future, futures[future])
+
+
+def _execute_dask(specs: Sequence[dict[str, Any]], workers: int, scheduler: str) -> Iterable[dict[str, Any]]:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = LocalCluster(n_workers=max(1, workers), threads_per_worker=1, processes=True, dashboard_address=None) if scheduler == "local" else None
+    client = Client(cluster if cluster is not None else scheduler)
+    try:
+        futures = {client.submit(execute, spec, key=f"run-{spec['key']}", pure=False): spec for spec in specs}
+        for future in as_completed(list(futures)):
+            yield _result_or_failure(future, futures[future])
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _result_or_failure(future: Any, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """The run's row, or a failed row when the worker itself died."""
+    try:
+        return dict(future.result())
+    except Exception as exc:  # noqa: BLE001 - e.g. a worker killed mid-run
+        row: dict[str, Any] = {c: "" for c in COLUMNS}
+        row.update({k: spec[k] for k in ("key", "system", "variant", "seed", "solver", "profile", "duration_s")})
+        row.update(drop="+".join(spec["drop"]), params=";".join(f"{k}={v:g}" for k, v in spec["params"].items()))
+        row.update(status="failed", error=f"worker failed: {type(exc).__name__}: {exc}")
+        return row
+
+
+def read_rows(path: str | Path) -> list[dict[str, Any]]:
+    """Rows of a runs.csv (empty when it does not exist yet)."""
+    path = Path(path)
+    if not path.exists() or path.stat().st_size == 0:
+        return []
+    with path.open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+# ------------------------------------------------------------------------------------ summary
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    variant: str
+    solver: str
+    runs: int
+    failed: int
+    mean: tuple[float, float, float]
+    half_width_95: tuple[float, float, float]
+    solver_s: float
+
+
+def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SummaryRow]:
+    """Mean and 95 % confidence interval (Student t over seeds) of each RMS axis per variant and solver."""
+    from scipy import stats
+
+    groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault((row["variant"], row["solver"]), []).append(row)
+    out = []
+    for (variant, solver), members in groups.items():
+        ok = [m for m in members if m["status"] == "ok"]
+        values = np.array([[float(m[c]) for c in METRIC_COLUMNS[:3]] for m in ok]) if ok else np.full((0, 3), np.nan)
+        mean = values.mean(axis=0) if len(ok) else np.full(3, np.nan)
+        half = stats.t.ppf(0.975, len(ok) - 1) * values.std(axis=0, ddof=1) / np.sqrt(len(ok)) if len(ok) > 1 else np.full(3, np.nan)
+        solver_s = float(np.mean([float(m["solver_s"]) for m in ok])) if ok else float("nan")
+        out.append(SummaryRow(variant, solver, len(members), len(members) - len(ok), tuple(mean), tuple(half), solver_s))  # type: ignore[arg-type]
+    return out
+
+
+def summary_table(summary: Sequence[SummaryRow]) -> str:
+    """Text table: RMS per axis in 1e-2 rad, mean +- 95 % half-width."""
+    width = max([len(s.variant) for s in summary] + [7])
+    lines = [f"{'variant':<{width}} {'solver':<7} {'runs':>5} {'failed':>6}  {'azimuth':>15} {'elevation':>15} {'roll':>15}  {'solver s':>8}",
+             f"{'':<{width}} {'':<7} {'':>5} {'':>6}  {'RMS [1e-2 rad], mean +- 95% CI':>47}"]
+    for s in summary:
+        cells = [f"{100 * m:7.3f} +-{100 * h:6.3f}" if np.isfinite(m) else f"{'-':>15}" for m, h in zip(s.mean, s.half_width_95, strict=True)]
+        lines.append(f"{s.variant:<{width}} {s.solver:<7} {s.runs:>5} {s.failed:>6}  {cells[0]:>15} {cells[1]:>15} {cells[2]:>15}  {s.solver_s:8.3f}")
+    return "\n".join(lines)
+
+
+def write_summary(summary: Sequence[SummaryRow], out_dir: str | Path) -> list[Path]:
+    """summary.csv and summary.png (bars with 95 % intervals, one panel per axis)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    csv_path = out / "summary.csv"
+    with csv_path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["variant", "solver", "runs", "failed", "azimuth_mean_rad", "azimuth_ci95_rad", "elevation_mean_rad", "elevation_ci95_rad",
+                         "roll_mean_rad", "roll_ci95_rad", "solver_s"])
+        for s in summary:
+            writer.writerow([s.variant, s.solver, s.runs, s.failed, s.mean[0], s.half_width_95[0], s.mean[1], s.half_width_95[1], s.mean[2],
+                             s.half_width_95[2], s.solver_s])
+    variants = list(dict.fromkeys(s.variant for s in summary))
+    solvers = list(dict.fromkeys(s.solver for s in summary))
+    fig, axes = plt.subplots(1, 3, figsize=(5 + 1.2 * len(variants) * 3, 4.5), sharey=False)
+    width = 0.8 / max(1, len(solvers))
+    for a, axis_name in enumerate(("azimuth", "elevation", "roll")):
+        ax = axes[a]
+        for j, solver in enumerate(solvers):
+            cells = {s.variant: s for s in summary if s.solver == solver}
+            means = [100 * cells[v].mean[a] if v in cells else np.nan for v in variants]
+            errs = [100 * cells[v].half_width_95[a] if v in cells else np.nan for v in variants]
+            ax.bar(np.arange(len(variants)) + j * width, means, width, yerr=errs, capsize=3, label=solver)
+        ax.set_xticks(np.arange(len(variants)) + 0.4 - width / 2, variants, rotation=30, ha="right")
+        ax.set_title(f"{axis_name} RMS")
+        ax.set_ylabel("1e-2 rad (bars: 95% CI over seeds)")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3, axis="y")
+    axes[0].legend()
+    fig.tight_layout()
+    png = out / "summary.png"
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+    return [csv_path, png]

@@ -1,0 +1,71 @@
+"""Ablation studies: expansion, failed runs recorded, resume after a kill, a real Dask LocalCluster."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fusegraph.ablation import METRIC_COLUMNS, Study, _result_or_failure, read_rows, run_study, summarize, summary_table
+
+SMALL = Study(system="head", drops=(("tracker",), ("gyro",)), vary=(("latency", (0.05, 0.1)),), seeds=(0, 1), solvers=("ekf", "online"),
+              duration_s=2.0, profile="ideal")
+
+
+def metrics(rows: list[dict]) -> list[tuple]:
+    return [(r["key"], r["status"], *[f"{float(r[c]):.12g}" if r[c] not in ("", None) else "" for c in METRIC_COLUMNS]) for r in rows]
+
+
+def test_study_expands_baseline_drops_and_grid() -> None:
+    variants = [v.name for v in SMALL.variants()]
+    assert variants == ["full latency=0.05", "full latency=0.1", "-tracker latency=0.05", "-tracker latency=0.1", "-gyro latency=0.05", "-gyro latency=0.1"]
+    runs = SMALL.runs()
+    assert len(runs) == 6 * 2 * 2
+    assert len({r["key"] for r in runs}) == len(runs)  # every configuration has its own key
+    with pytest.raises(ValueError, match="cannot drop mag"):
+        Study(drops=(("mag",),))
+    with pytest.raises(ValueError, match="unknown parameter 'speed'"):
+        Study(vary=(("speed", (1.0,)),))
+
+
+def test_failed_runs_are_rows_and_a_killed_study_resumes_to_the_same_table(tmp_path: Path) -> None:
+    full = run_study(SMALL, tmp_path / "full", workers=1)
+    failed = [r for r in full.rows if r["status"] == "failed"]
+    assert len(failed) == 4 and all("needs the gyro" in r["error"] for r in failed)  # -gyro x online x 2 seeds x 2 latencies
+    # a kill midway: only the first 9 finished rows made it to disk
+    partial = tmp_path / "partial"
+    partial.mkdir()
+    lines = (tmp_path / "full" / "runs.csv").read_text().splitlines()
+    (partial / "runs.csv").write_text("\n".join(lines[:10]) + "\n")
+    resumed = run_study(SMALL, partial, workers=1)
+    assert resumed.skipped == 9 and resumed.ran == len(SMALL.runs()) - 9
+    assert metrics(resumed.rows) == metrics(full.rows)
+    assert len(read_rows(partial / "runs.csv")) == len(SMALL.runs())  # nothing twice, nothing lost
+    table = summary_table(summarize(resumed.rows))
+    assert "-gyro latency=0.1" in table
+
+
+def test_dask_local_cluster_with_two_workers_gives_the_same_results(tmp_path: Path) -> None:
+    pytest.importorskip("dask.distributed")
+    study = Study(system="head", drops=(("tracker",),), seeds=(0, 1), solvers=("ekf", "online"), duration_s=2.0, profile="ideal")
+    local = run_study(study, tmp_path / "local", workers=1)
+    on_dask = run_study(study, tmp_path / "dask", workers=2, scheduler="local")
+    assert metrics(on_dask.rows) == metrics(local.rows)
+
+
+def test_a_dead_worker_becomes_a_failed_row() -> None:
+    class DeadFuture:
+        def result(self) -> dict:
+            raise RuntimeError("KilledWorker: the process died")
+
+    spec = SMALL.runs()[0]
+    row = _result_or_failure(DeadFuture(), spec)
+    assert row["status"] == "failed" and "KilledWorker" in row["error"] and row["key"] == spec["key"]
+
+
+@pytest.mark.parametrize("path", sorted(Path(__file__).resolve().parents[1].joinpath("examples").glob("*.toml")))
+def test_example_studies_parse(path: Path) -> None:
+    from fusegraph.ablation import load_study
+
+    study = load_study(path)
+    assert study.runs(), path
