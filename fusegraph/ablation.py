@@ -8,9 +8,9 @@ failed run (an exception, or a worker that died) becomes a row with status ``fai
 error; the study goes on.
 
 Head variants: ``drop tracker`` keeps only the tracker's first sample (the gyro alone, aligned
-once at start-up); ``drop gyro`` leaves the tracker alone (the EKF row becomes the paper's
-tracker-only Kalman filter; fusegraph's head graph needs the gyro, so those runs fail, said in
-their rows). ``vary`` names: see ``HEAD_PARAMETERS``.
+once at start-up); ``drop gyro`` leaves the tracker alone: the EKF row becomes the paper's
+tracker-only Kalman filter, and fusegraph runs its graph as a constant-angular-velocity model
+(``systems.head.without_gyro``). ``vary`` names: see ``HEAD_PARAMETERS``.
 """
 
 from __future__ import annotations
@@ -183,13 +183,15 @@ def _solve_head(spec: Mapping[str, Any]) -> tuple[Any, Any, Any]:
         tracker = session.stream("tracker")
         session = session.without("tracker")
         session = type(session)(session.system, {**session.streams, "tracker": tracker.select(np.arange(len(tracker)) == 0)}, session.truth, session.meta)
+    model = None
     if "gyro" in drop:
-        if method != "method2":
-            raise NotImplementedError("the head graph needs the gyro (a gyro-less motion model is not built yet)")
-        method = "kalman"  # the paper's tracker-only filter; it runs on the gyro's clock only for output times
+        if method == "method2":
+            method = "kalman"  # the paper's tracker-only filter; the gyro's clock only sets output times
+        else:
+            session, model = head.without_gyro(session)
     truth = session.truth
     assert truth is not None
-    return head.run_method(session, method), truth.t, truth.values
+    return head.run_method(session, method, model), truth.t, truth.values
 
 
 # ------------------------------------------------------------------------------------ a study

@@ -17,7 +17,7 @@ import gtsam
 import numpy as np
 
 from ..estimate import Estimate
-from ..factors.gyro import integrate_gyro
+from ..factors.gyro import GyroNoise, integrate_gyro
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, quat_wxyz_from_rot3, rot3_from_quat_wxyz
 from ..graphs.head import B, HeadGraphBuilder, HeadModel, X, head_model_for
 from ..metrics import AXES, AttitudeScore, mean_scores, score_attitude
@@ -495,3 +495,27 @@ def head_bench(
 def _wall_between(t: FloatArray, wall: FloatArray, t0: float, t1: float) -> float:
     i0, i1 = int(np.searchsorted(t, t0)), int(np.searchsorted(t, t1)) - 1
     return float(wall[i1] - wall[i0])
+
+
+# ------------------------------------------------------------------------------ without a gyro
+
+
+#: Constant-angular-velocity model used when the gyro is dropped (see ``without_gyro``).
+#: Angular-acceleration noise 1 rad/s/sqrt(s): picked from 0.5, 1, 2, 5 on head seeds 0-4 (online RMS).
+NO_GYRO_MODEL = GyroNoise(white_sigma_rad_s=0.01, bias_rw_sigma=1.0, bias_prior_sigma_rad_s=2.0)
+
+
+def without_gyro(session: Session) -> tuple[Session, HeadModel]:
+    """The session with the gyro reduced to a clock, and the model that makes the graph tracker-only.
+
+    With every measured rate zero, the gyro model omega = omega_measured - bias makes the "bias" minus
+    the angular velocity: each AHRSFactor becomes X(k+1) = X(k) Exp(omega dt) and the bias random walk
+    an angular-velocity random walk (``bias_rw_sigma`` is then the angular-acceleration noise, rad/s
+    per sqrt(s)). So the same graph, solvers and latency handling run a constant-angular-velocity
+    model on the tracker alone; the clock only says when to report.
+    """
+    gyro = session.stream("gyro")
+    clock = replace(gyro, values=np.zeros_like(gyro.values), meta={**gyro.meta, "calibrated": True})
+    tracker_only = replace(session, streams={**session.streams, "gyro": clock})
+    model = replace(head_model_for(tracker_only), gyro=replace(NO_GYRO_MODEL, sample_rate_hz=float(gyro.meta.get("rate_hz", 100.0))), gyro_calibration=None)
+    return tracker_only, model
