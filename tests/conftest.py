@@ -12,7 +12,7 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 def _dim(values: gtsam.Values, key: int) -> int:
-    return int(values.dim()) if False else len(values.atVector(key)) if _is_vector(values, key) else 3
+    return len(values.atVector(key)) if _is_vector(values, key) else 3
 
 
 def _is_vector(values: gtsam.Values, key: int) -> bool:

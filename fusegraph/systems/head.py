@@ -307,14 +307,6 @@ def run_method(session: Session, method: str, model: HeadModel | None = None) ->
     raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
 
 
-def final_values(estimate: Estimate) -> gtsam.Values:  # pragma: no cover - convenience for notebooks
-    values = gtsam.Values()
-    for i, q in enumerate(estimate.quat_wxyz):
-        if np.all(np.isfinite(q)):
-            values.insert(X(i), gtsam.Rot3.Quaternion(*q))
-    return values
-
-
 # ------------------------------------------------------------------------------------ report
 
 
