@@ -14,7 +14,7 @@ time (nearest keyframe, corrected by the gyro rate for any offset), which the gy
 from __future__ import annotations
 
 import bisect
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 
 import gtsam
@@ -388,6 +388,23 @@ class HeadGraphBuilder:
                 return delta
         rate = self._keyframe_omega[k] - self._latest_bias
         return gtsam.Rot3.Expmap(rate * (t - self.keyframe_t[k]))
+
+
+_RANK = {"t": 0, "e": 1, "b": 2, "x": 3}
+
+
+def time_ordering(keys: Iterable[int]) -> list[int]:
+    """Elimination order for a whole head graph: keyframe by keyframe, session-wide keys last.
+
+    COLAMD treats the calibration key (in every bias factor) as a dense column and took super-linear
+    time here (60 s of data: 0.08 s, 240 s: 1.1 s); the time order is banded, so elimination is linear.
+    """
+    local, shared = [], []
+    for key in keys:
+        symbol = gtsam.Symbol(key)
+        tag = chr(symbol.chr())
+        (local if tag in _RANK else shared).append((symbol.index(), _RANK.get(tag, 9), key))
+    return [key for *_, key in sorted(local)] + [key for *_, key in sorted(shared)]
 
 
 def head_model_for(session: Session, model: HeadModel | None = None) -> HeadModel:

@@ -19,7 +19,7 @@ import numpy as np
 from ..estimate import Estimate
 from ..factors.gyro import GyroNoise, integrate_gyro
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, quat_wxyz_from_rot3, rot3_from_quat_wxyz
-from ..graphs.head import B, HeadGraphBuilder, HeadModel, X, head_model_for
+from ..graphs.head import B, HeadGraphBuilder, HeadModel, X, head_model_for, time_ordering
 from ..metrics import AXES, AttitudeScore, mean_scores, score_attitude
 from ..progress import progress as progress_bar
 from ..session import Session, replay_in_arrival_order
@@ -177,7 +177,7 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
             increment.values.update(X(k), rot3_from_quat_wxyz(quat))
         latency_key = builder.latency_key()
         marginal_keys = [X(k) for k in range(n_kf)] + ([latency_key] if latency_key is not None else [])
-        result = solve_batch(increment.graph(), increment.values, marginal_keys, config)
+        result = solve_batch(increment.graph(), increment.values, marginal_keys, config, ordering=time_ordering(increment.values.keys()))
         if latency_key is not None:
             applied = float(result.values.atVector(latency_key)[0])
     kf_quat = np.array([quat_wxyz_from_rot3(result.values.atRot3(X(k))) for k in range(n_kf)])
