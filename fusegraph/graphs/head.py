@@ -399,7 +399,8 @@ def time_ordering(keys: Iterable[int]) -> list[int]:
     COLAMD treats the calibration key (in every bias factor) as a dense column and took super-linear
     time here (60 s of data: 0.08 s, 240 s: 1.1 s); the time order is banded, so elimination is linear.
     """
-    local, shared = [], []
+    local: list[tuple[int, int, int]] = []
+    shared: list[tuple[int, int, int]] = []
     for key in keys:
         symbol = gtsam.Symbol(key)
         tag = chr(symbol.chr())
