@@ -116,7 +116,7 @@ class HeadGraphBuilder:
         self._tracker_waiting: list[tuple[float, FloatArray]] = []
         self.keyframe_t: list[float] = []
         """Time of every keyframe so far, seconds."""
-        self._keyframe_omega: list[FloatArray] = []
+        self._keyframe_omega: dict[int, FloatArray] = {}  # pruned with the marginalised keyframes
         self._partials: dict[int, list[tuple[float, gtsam.Rot3]]] = {}
         self._interval: GyroInterval | None = None
         self._last_error_kf: int | None = None
@@ -242,7 +242,7 @@ class HeadGraphBuilder:
         self._gyro_buffer = []
         first_fix = rot3_from_quat_wxyz(self._tracker_waiting[0][1])
         self.keyframe_t.append(t0)
-        self._keyframe_omega.append(omega0)
+        self._keyframe_omega[0] = omega0
         self._latest_rot = first_fix.compose(gtsam.Rot3.Expmap(-omega0 * (t_fix - t0)))
         self._pending.values.insert(X(0), self._latest_rot)
         if self.model.latency is not None:
@@ -285,12 +285,14 @@ class HeadGraphBuilder:
         self._latest_rot = self._latest_rot.compose(interval.delta(self._latest_bias))
         self._pending.values.insert(X(k + 1), self._latest_rot)
         self.keyframe_t.append(interval.t_last)
-        self._keyframe_omega.append(interval.omega_last)
+        self._keyframe_omega[k + 1] = interval.omega_last
         self._interval = GyroInterval(self._params, self._latest_bias, interval.t_last, interval.omega_last)
         while self._partials and next(iter(self._partials)) < self.oldest_allowed_keyframe:
             del self._partials[next(iter(self._partials))]  # keys are in keyframe order
-        while self._applied and next(iter(self._applied)) < self.oldest_allowed_keyframe - 1000:
-            del self._applied[next(iter(self._applied))]
+        # per-keyframe memory older than the online window goes (keys are in keyframe order); batch keeps all
+        for table in (self._applied, self._keyframe_omega):
+            while table and next(iter(table)) < self.oldest_allowed_keyframe - 50:
+                del table[next(iter(table))]
 
     def state_keys(self, k: int) -> tuple[int, int | None]:
         """Keys of keyframe k's attitude and of the newest effective gyro bias known at k."""
