@@ -34,6 +34,7 @@ KIND_COLUMNS: dict[str, tuple[str, ...]] = {
     "mag": ("mx", "my", "mz"),
     "attitude": ("qw", "qx", "qy", "qz"),
     "position": ("x", "y", "z"),
+    "flag": ("value",),
 }
 
 #: Gap between samples, in multiples of the median period, above which a dropout is reported.
@@ -193,12 +194,13 @@ def load_session(directory: str | Path) -> Session:
     if "truth" in spec:
         table = dict(spec["truth"])
         table.setdefault("kind", "attitude")
-        truth = _load_stream(root, toml_path, "truth", table)
+        # ground truth may have gaps (occluded markers), written as NaN rows; sensors may not
+        truth = _load_stream(root, toml_path, "truth", table, allow_nan=True)
     meta = {k: v for k, v in spec.items() if k not in ("streams", "truth")}
     return Session(system, streams, truth, meta, root)
 
 
-def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any]) -> Stream:
+def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any], allow_nan: bool = False) -> Stream:
     where = f"{toml_path}: stream '{name}'"
     kind = table.get("kind")
     if kind not in KIND_COLUMNS:
@@ -207,7 +209,7 @@ def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any
     latency = table.get("latency_s", 0.0)
     if not isinstance(latency, int | float) or not math.isfinite(latency) or latency < 0:
         raise SessionError(f"{where}: latency_s must be a finite number >= 0 (got {latency!r})")
-    t, values = read_stream_csv(root / file, KIND_COLUMNS[kind], name)
+    t, values = read_stream_csv(root / file, KIND_COLUMNS[kind], name, allow_nan=allow_nan)
     meta = {k: v for k, v in table.items() if k not in ("kind", "file", "latency_s")}
     return Stream(name, kind, t, values, KIND_COLUMNS[kind], float(latency), meta)
 

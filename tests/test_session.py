@@ -123,3 +123,13 @@ def test_any_valid_stream_round_trips(tmp_path_factory: pytest.TempPathFactory, 
     loaded = load_session(save_session(Session("head", {"gyro": stream}), root))
     np.testing.assert_array_equal(loaded.stream("gyro").values, stream.values)
     np.testing.assert_array_equal(loaded.stream("gyro").t, t)
+
+
+def test_truth_may_have_nan_gaps_but_sensors_may_not(tmp_path: Path) -> None:
+    session = simulate_head(1, duration_s=1.0)
+    assert session.truth is not None
+    values = session.truth.values.copy()
+    values[5] = np.nan  # an occluded marker
+    gappy = Session(session.system, session.streams, Stream("truth", "attitude", session.truth.t, values, KIND_COLUMNS["attitude"]), session.meta)
+    loaded = load_session(save_session(gappy, tmp_path / "s"))
+    assert loaded.truth is not None and np.isnan(loaded.truth.values[5]).all()

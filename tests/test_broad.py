@@ -1,0 +1,56 @@
+"""BROAD loader and the benchmark's metric (real-data tests skip with a reason when the data is absent)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import requires_shared_data
+
+from fusegraph import SessionError
+from fusegraph.datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
+from fusegraph.geometry import quat_from_rotvec, quat_multiply
+
+
+def test_metric_splits_heading_and_inclination() -> None:
+    rng = np.random.default_rng(0)
+    truth = quat_from_rotvec(rng.normal(0, 1, (200, 3)))
+    moving = np.ones(200)
+    yaw = quat_multiply(quat_from_rotvec(np.tile([0, 0, np.deg2rad(10.0)], (200, 1))), truth)  # earth-frame yaw error
+    errors = broad_errors(yaw, truth, moving)
+    assert errors.total == pytest.approx(10.0) and errors.heading == pytest.approx(10.0)
+    assert errors.inclination == pytest.approx(0.0, abs=1e-6)
+    tilt = quat_multiply(quat_from_rotvec(np.tile([np.deg2rad(5.0), 0, 0], (200, 1))), truth)
+    errors = broad_errors(tilt, truth, moving)
+    assert errors.inclination == pytest.approx(5.0) and errors.heading == pytest.approx(0.0, abs=1e-6)
+
+
+def test_metric_scores_only_movement_with_truth() -> None:
+    truth = np.tile([1.0, 0, 0, 0], (4, 1))
+    truth[1] = np.nan
+    estimate = quat_from_rotvec(np.array([[0, 0, 0.1], [0, 0, 0.5], [0, 0, 0.9], [0, 0, 0.1]]))
+    errors = broad_errors(estimate, truth, np.array([1, 1, 0, 1]))
+    assert errors.samples == 2  # row 1 has no truth, row 2 no movement
+    assert errors.total == pytest.approx(np.rad2deg(0.1))
+    with pytest.raises(ValueError, match="no sample to score"):
+        broad_errors(estimate, truth, np.zeros(4))
+
+
+def test_missing_trial_is_a_clear_error(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(SessionError, match="BROAD trial not found"):
+        load_broad(tmp_path / "01_nothing.mat")
+
+
+@requires_shared_data("broad")
+def test_real_trials_load_and_truth_scores_zero() -> None:
+    paths = trial_paths(DEFAULT_DIR)
+    assert len(paths) == 10
+    session = load_broad(paths[0])
+    gyro = session.stream("gyro")
+    assert gyro.meta["rate_hz"] == pytest.approx(285.714, abs=1e-3)
+    assert len(gyro) == len(session.stream("accel")) == len(session.stream("mag"))
+    assert session.truth is not None and np.isnan(session.truth.values).any()  # occlusions are kept, as NaN
+    accel_norm = np.median(np.linalg.norm(session.stream("accel").values, axis=1))
+    assert accel_norm == pytest.approx(9.81, abs=0.1)  # m/s^2: gravity at rest
+    movement = session.stream("movement").values[:, 0]
+    errors = broad_errors(session.truth.values, session.truth.values, movement)
+    assert errors.total == pytest.approx(0.0, abs=1e-6) and errors.samples > 10_000
