@@ -24,9 +24,7 @@ def run_vqf(session: Session, offline: bool = False) -> Estimate:
     sample_time = float(np.median(np.diff(gyro.t)))
     gyr, acc, mg = (np.ascontiguousarray(s.values, dtype=float) for s in (gyro, accel, mag))
     start = time.perf_counter()
-    if offline:
-        quat = vqf.offlineVQF(gyr, acc, mg, sample_time)["quat9D"]
-    else:
-        quat = vqf.VQF(sample_time).updateBatch(gyr, acc, mg)["quat9D"]
+    result = vqf.offlineVQF(gyr, acc, mg, sample_time) if offline else vqf.VQF(sample_time).updateBatch(gyr, acc, mg)
+    quat = result["quat9D"]
     runtime = time.perf_counter() - start
     return Estimate("vqf_offline" if offline else "vqf", gyro.t.copy(), np.asarray(quat, dtype=float), None, runtime)
