@@ -1,0 +1,90 @@
+"""The founding papers' 9-axis attitude EKF on roll/pitch/yaw (ZYX Euler angles), a baseline.
+
+State: (azimuth/yaw, elevation/pitch, roll) of earth_R_sensor = Rz Ry Rx, earth frame ENU (z up).
+Time update with the gyro through the Euler-rate equation angles' = angles + T E^-1(angles) omega.
+Observations: the accelerometer's gravity direction R^T [0, 0, g] (noise inflated as |a| departs
+from g, where the body accelerates), and the magnetometer's yaw from the tilt-compensated field
+(magnetic north = +y of ENU; calibration M = G m + B applied first, identity by default). Joseph
+form throughout. Euler angles are the papers' choice; they are singular at pitch +-90 deg.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import FloatArray, euler_rate_matrix, quat_from_euler_zyx, wrap_angle
+
+GRAVITY = 9.81
+
+
+@dataclass(frozen=True)
+class Ekf9Config:
+    """Noise figures of the 9-axis EKF (one set for all recordings)."""
+
+    gyro_sigma_rad_s: float = 0.01
+    """Gyro noise driving the angles, rad/s."""
+    accel_sigma_m_s2: float = 0.5
+    """Accelerometer noise on the gravity direction at rest, m/s^2."""
+    accel_inflation: float = 20.0
+    """Extra sigma per m/s^2 that |a| departs from g (translational acceleration)."""
+    mag_yaw_sigma_rad: float = 0.1
+    """Magnetometer yaw noise, rad."""
+    mag_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Per-axis gain G of the calibration M = G m + B."""
+    mag_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Offset B of the calibration, in the magnetometer's unit."""
+
+
+def _tilt_compensated_yaw(angles: FloatArray, mag: FloatArray) -> float:
+    """Yaw from the field levelled with the current roll and pitch (ENU: the horizontal field points +y)."""
+    _, pitch, roll = angles
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    # R_y(pitch) R_x(roll) m: the field in a frame that only lacks the yaw rotation
+    level_x = cp * mag[0] + sp * sr * mag[1] + sp * cr * mag[2]
+    level_y = cr * mag[1] - sr * mag[2]
+    return float(np.pi / 2 - np.arctan2(level_y, level_x))
+
+
+def run_ekf9(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray, config: Ekf9Config | None = None) -> FloatArray:
+    """Attitude quaternions (N, 4) wxyz, earth_R_sensor in ENU, at every sample."""
+    cfg = config or Ekf9Config()
+    mag_cal = np.asarray(mag, dtype=float) * np.asarray(cfg.mag_gain) + np.asarray(cfg.mag_offset)
+    # initial attitude from the first accelerometer and magnetometer samples
+    a0 = accel[0] / np.linalg.norm(accel[0])
+    roll0, pitch0 = np.arctan2(a0[1], a0[2]), np.arctan2(-a0[0], np.hypot(a0[1], a0[2]))
+    x = np.array([0.0, pitch0, roll0])
+    x[0] = _tilt_compensated_yaw(x, mag_cal[0])
+    P = np.diag([0.3, 0.05, 0.05]) ** 2
+    out = np.empty((len(t), 3))
+    out[0] = x
+    for i in range(1, len(t)):
+        dt = t[i] - t[i - 1]
+        omega = 0.5 * (gyro[i] + gyro[i - 1])
+        E_inv = euler_rate_matrix(x)
+        x = x + dt * E_inv @ omega
+        x[0] = wrap_angle(x[0])
+        Q = (dt * cfg.gyro_sigma_rad_s) ** 2 * (E_inv @ E_inv.T)
+        P = P + Q  # the Euler-rate Jacobian w.r.t. the angles is O(dt * omega); the papers drop it
+        # gravity direction: R^T [0, 0, g] = g (-sin(pitch), sin(roll) cos(pitch), cos(roll) cos(pitch))
+        sp, cp, sr, cr = np.sin(x[1]), np.cos(x[1]), np.sin(x[2]), np.cos(x[2])
+        predicted = GRAVITY * np.array([-sp, sr * cp, cr * cp])
+        H = GRAVITY * np.array([[0.0, -cp, 0.0], [0.0, -sr * sp, cr * cp], [0.0, -cr * sp, -sr * cp]])
+        departure = abs(np.linalg.norm(accel[i]) - GRAVITY)
+        sigma = cfg.accel_sigma_m_s2 + cfg.accel_inflation * departure
+        x, P = _update(x, P, accel[i] - predicted, H, sigma**2 * np.eye(3))
+        # magnetometer yaw
+        residual = wrap_angle(_tilt_compensated_yaw(x, mag_cal[i]) - x[0])
+        x, P = _update(x, P, np.array([residual]), np.array([[1.0, 0.0, 0.0]]), np.array([[cfg.mag_yaw_sigma_rad**2]]))
+        out[i] = x
+    return quat_from_euler_zyx(out)
+
+
+def _update(x: FloatArray, P: FloatArray, residual: FloatArray, H: FloatArray, R: FloatArray) -> tuple[FloatArray, FloatArray]:
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T
+    x = x + K @ residual
+    x[0] = wrap_angle(x[0])
+    I_KH = np.eye(len(x)) - K @ H
+    return x, I_KH @ P @ I_KH.T + K @ R @ K.T
