@@ -148,10 +148,7 @@ def load_study(path: str | Path) -> Study:
 def execute(spec: Mapping[str, Any]) -> dict[str, Any]:
     """Simulate, drop, solve, score one run; never raises (a failure is a row)."""
     start = time.perf_counter()
-    row: dict[str, Any] = {c: "" for c in COLUMNS}
-    row.update({k: spec[k] for k in ("key", "system", "variant", "seed", "solver", "profile", "duration_s")})
-    row["drop"] = "+".join(spec["drop"])
-    row["params"] = ";".join(f"{k}={v:g}" for k, v in spec["params"].items())
+    row = _blank_row(spec)
     try:
         estimate, truth_t, truth_q = _solve_head(spec)
         from .estimate import Estimate
@@ -167,6 +164,15 @@ def execute(spec: Mapping[str, Any]) -> dict[str, Any]:
         row["status"] = "failed"
         row["error"] = f"{type(exc).__name__}: {exc}"
     row["run_s"] = time.perf_counter() - start
+    return row
+
+
+def _blank_row(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """A row with the run's configuration filled in and its results empty."""
+    row: dict[str, Any] = dict.fromkeys(COLUMNS, "")
+    row.update({k: spec[k] for k in ("key", "system", "variant", "seed", "solver", "profile", "duration_s")})
+    row["drop"] = "+".join(spec["drop"])
+    row["params"] = ";".join(f"{k}={v:g}" for k, v in spec["params"].items())
     return row
 
 
@@ -288,9 +294,7 @@ def _result_or_failure(future: Any, spec: Mapping[str, Any]) -> dict[str, Any]:
     try:
         return dict(future.result())
     except Exception as exc:  # noqa: BLE001 - e.g. a worker killed mid-run
-        row: dict[str, Any] = {c: "" for c in COLUMNS}
-        row.update({k: spec[k] for k in ("key", "system", "variant", "seed", "solver", "profile", "duration_s")})
-        row.update(drop="+".join(spec["drop"]), params=";".join(f"{k}={v:g}" for k, v in spec["params"].items()))
+        row = _blank_row(spec)
         row.update(status="failed", error=f"worker failed: {type(exc).__name__}: {exc}")
         return row
 

@@ -22,7 +22,7 @@ import gtsam
 import numpy as np
 
 from ..geometry import FloatArray, rot3_from_quat_wxyz
-from .linear import linear_factor
+from .linear import ar1_coefficients, linear_factor
 
 
 @dataclass(frozen=True)
@@ -84,8 +84,7 @@ def error_state_factor(state_key: int, reading_key: int, error_key: int) -> gtsa
 
 def gauss_markov_factor(prev_key: int, next_key: int, dt_s: float, sigma: float, tau_s: float) -> gtsam.LinearContainerFactor:
     """Exact AR(1) transition e_next = phi * e_prev + w of a 3-vector first-order Markov process."""
-    phi = float(np.exp(-dt_s / tau_s))
-    drive_sigma = sigma * np.sqrt(max(1.0 - phi**2, 1e-12))
+    phi, drive_sigma = ar1_coefficients(dt_s, sigma, tau_s)
     return linear_factor([(prev_key, -phi * np.eye(3)), (next_key, np.eye(3))], drive_sigma)
 
 

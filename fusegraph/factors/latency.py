@@ -25,7 +25,7 @@ import numpy as np
 
 from ..geometry import FloatArray
 from .attitude import ERROR_TIE_SIGMA_RAD
-from .linear import linear_factor
+from .linear import ar1_coefficients, linear_factor
 
 
 @dataclass(frozen=True)
@@ -81,8 +81,7 @@ def apparent_markov_factor(
     tau_s: float,
 ) -> gtsam.LinearContainerFactor:
     """AR(1) law of the sensor error seen through apparent errors: e_next - phi e_prev ~ N(0, q)."""
-    phi = float(np.exp(-dt_s / tau_s))
-    drive_sigma = sigma * np.sqrt(max(1.0 - phi**2, 1e-12))
+    phi, drive_sigma = ar1_coefficients(dt_s, sigma, tau_s)
     rate_prev, rate_next = np.asarray(rate_prev, dtype=float), np.asarray(rate_next, dtype=float)
     offset_block = -offset_column(rate_next) + phi * offset_column(rate_prev)
     rhs = rate_next * applied_next_s - phi * rate_prev * applied_prev_s

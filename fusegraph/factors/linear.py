@@ -8,6 +8,12 @@ import numpy as np
 from ..geometry import FloatArray
 
 
+def ar1_coefficients(dt_s: float, sigma: float, tau_s: float) -> tuple[float, float]:
+    """(phi, drive sigma) of a first-order Gauss-Markov process with stationary ``sigma`` sampled ``dt_s`` apart."""
+    phi = float(np.exp(-dt_s / tau_s))
+    return phi, sigma * float(np.sqrt(max(1.0 - phi**2, 1e-12)))
+
+
 def linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float, rhs: FloatArray | None = None) -> gtsam.LinearContainerFactor:
     """sum_i A_i x_i - rhs ~ N(0, sigma^2 I) over vector variables, exact for any value (linearised at 0)."""
     args: list[object] = []

@@ -113,12 +113,7 @@ class HeadEkf:
         return wrap_angle(angles - predicted), H, self.cfg.tracker_sigma_rad**2 * np.eye(3)
 
     def _update(self, residual: FloatArray, H: FloatArray, R: FloatArray) -> None:
-        S = H @ self.P @ H.T + R
-        K = np.linalg.solve(S, H @ self.P).T
-        self.x = self.x + K @ residual
-        self.x[:3] = wrap_angle(self.x[:3])
-        I_KH = np.eye(6) - K @ H
-        self.P = I_KH @ self.P @ I_KH.T + K @ R @ K.T  # Joseph form
+        self.x, self.P = joseph_update(self.x, self.P, residual, H, R, angle_rows=slice(0, 3))
 
     def attitude_cov_body(self) -> FloatArray:
         """Covariance of the attitude as a body-frame rotation vector (for NEES against gtsam's)."""
@@ -133,6 +128,18 @@ class HeadEkf:
             ]
         )
         return M @ self.P[:3, :3] @ M.T
+
+
+def joseph_update(
+    x: FloatArray, P: FloatArray, residual: FloatArray, H: FloatArray, R: FloatArray, angle_rows: slice = slice(0, 3)
+) -> tuple[FloatArray, FloatArray]:
+    """Kalman update in Joseph form (P stays symmetric positive definite); angles wrapped to [-pi, pi)."""
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T
+    x = x + K @ residual
+    x[angle_rows] = wrap_angle(x[angle_rows])
+    I_KH = np.eye(len(x)) - K @ H
+    return x, I_KH @ P @ I_KH.T + K @ R @ K.T
 
 
 def _d_rate_d_angles(angles: FloatArray, omega: FloatArray, step: float = 1e-6) -> FloatArray:

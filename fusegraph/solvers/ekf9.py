@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import FloatArray, euler_rate_matrix, quat_from_euler_zyx, wrap_angle
+from .ekf import joseph_update
 
 GRAVITY = 9.81
 
@@ -73,18 +74,9 @@ def run_ekf9(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray
         H = GRAVITY * np.array([[0.0, -cp, 0.0], [0.0, -sr * sp, cr * cp], [0.0, -cr * sp, -sr * cp]])
         departure = abs(np.linalg.norm(accel[i]) - GRAVITY)
         sigma = cfg.accel_sigma_m_s2 + cfg.accel_inflation * departure
-        x, P = _update(x, P, accel[i] - predicted, H, sigma**2 * np.eye(3))
+        x, P = joseph_update(x, P, accel[i] - predicted, H, sigma**2 * np.eye(3), angle_rows=slice(0, 1))
         # magnetometer yaw
         residual = wrap_angle(_tilt_compensated_yaw(x, mag_cal[i]) - x[0])
-        x, P = _update(x, P, np.array([residual]), np.array([[1.0, 0.0, 0.0]]), np.array([[cfg.mag_yaw_sigma_rad**2]]))
+        x, P = joseph_update(x, P, np.array([residual]), np.array([[1.0, 0.0, 0.0]]), np.array([[cfg.mag_yaw_sigma_rad**2]]), angle_rows=slice(0, 1))
         out[i] = x
     return quat_from_euler_zyx(out)
-
-
-def _update(x: FloatArray, P: FloatArray, residual: FloatArray, H: FloatArray, R: FloatArray) -> tuple[FloatArray, FloatArray]:
-    S = H @ P @ H.T + R
-    K = np.linalg.solve(S, H @ P).T
-    x = x + K @ residual
-    x[0] = wrap_angle(x[0])
-    I_KH = np.eye(len(x)) - K @ H
-    return x, I_KH @ P @ I_KH.T + K @ R @ K.T

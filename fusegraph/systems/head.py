@@ -166,6 +166,7 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
     # with an estimated latency: a first pass finds it, a second places the readings with it so that
     # the first-order offset model only covers the remainder (as online, where it is the running estimate)
     applied = 0.0
+    dead_reckoned = integrate_gyro(gyro.t, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]))  # shared by both passes
     for _ in range(2 if model.latency is not None else 1):
         builder = HeadGraphBuilder(model)
         builder.latency_applied_s = applied
@@ -173,7 +174,7 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
         increment = builder.take()
         n_kf = len(builder.keyframe_t)
         kf_t = np.asarray(builder.keyframe_t)
-        for k, quat in enumerate(tracker_seeded_initial(session, kf_t, applied)):
+        for k, quat in enumerate(tracker_seeded_initial(session, kf_t, applied, dead_reckoned)):
             increment.values.update(X(k), rot3_from_quat_wxyz(quat))
         latency_key = builder.latency_key()
         marginal_keys = [X(k) for k in range(n_kf)] + ([latency_key] if latency_key is not None else [])
@@ -212,16 +213,18 @@ def _hold_covariances(covariances: dict[int, FloatArray], n_kf: int) -> FloatArr
     return out.reshape(n_kf, 3, 3)
 
 
-def tracker_seeded_initial(session: Session, times: FloatArray, tracker_shift_s: float = 0.0) -> FloatArray:
+def tracker_seeded_initial(session: Session, times: FloatArray, tracker_shift_s: float = 0.0, dead_reckoned: FloatArray | None = None) -> FloatArray:
     """Initial attitudes for the batch: the last tracker sample before each time, carried to it by the gyro.
 
     Dead reckoning from the start alone drifts by bias x duration (radians after minutes), which
     cost Levenberg-Marquardt ~100 iterations on 2-minute sessions; re-seeding at every tracker
     sample keeps the initial guess within the tracker's error plus the gyro drift over one gap.
-    ``tracker_shift_s`` is subtracted from the tracker stamps (a latency correction).
+    ``tracker_shift_s`` is subtracted from the tracker stamps (a latency correction); ``dead_reckoned``
+    (the gyro integrated from identity at every sample) may be passed in when it is already known.
     """
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
-    dead_reckoned = integrate_gyro(gyro.t, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]))
+    if dead_reckoned is None:
+        dead_reckoned = integrate_gyro(gyro.t, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]))
     stamps = tracker.t - tracker_shift_s
     j = np.clip(np.searchsorted(stamps, times + 1e-9, side="right") - 1, 0, len(tracker) - 1)
     at_fix = np.clip(np.searchsorted(gyro.t, stamps[j] - 1e-9), 0, len(gyro) - 1)
@@ -245,14 +248,12 @@ def interpolate_keyframes(t, omega, kf_t, kf_quat, kf_bias, kf_cov=None):  # typ
     k = kf_index[idx]
     steps_after = idx - kf_sample[k]
     q = kf_quat[k].copy()
-    rot_total = np.zeros((len(idx), 3))
     for p in range(1, int(steps_after.max(initial=0)) + 1):
         moving = steps_after >= p
         j = kf_sample[k[moving]] + p  # sample at the end of this step
         rate = 0.5 * (omega[j] + omega[j - 1]) - kf_bias[k[moving]]
         step = rate * (t[j] - t[j - 1])[:, None]
         q[moving] = quat_multiply(q[moving], quat_from_rotvec(step))
-        rot_total[moving] += step
     quats[idx] = quat_normalize(q)
     if covs is not None and kf_cov is not None:
         covs[idx] = kf_cov[k]  # the <= one keyframe period of gyro adds ~1e-4 rad: negligible here
