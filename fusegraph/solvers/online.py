@@ -110,18 +110,22 @@ class OnlineSmoother:
         self._keyframes_since_anchor += k - self._known_keyframe
         self._known_keyframe = k
         rot_key, bias_key = self.builder.state_keys(k)
-        self.latest_rot = self._isam.calculateEstimateRot3(rot_key)
-        if bias_key is not None:
-            self.latest_bias = self._isam.calculateEstimateVector(bias_key)
+        reader = getattr(self.builder, "read_latest", None)
+        if reader is not None:  # a builder whose states are not (Rot3, Vector3) reads them itself
+            self.latest_rot, self.latest_bias = reader(self._isam, k)
+        else:
+            self.latest_rot = self._isam.calculateEstimateRot3(rot_key)
+            if bias_key is not None:
+                self.latest_bias = self._isam.calculateEstimateVector(bias_key)
         # an update that only adds late measurements to older keyframes (a latency that is not a
         # multiple of the keyframe period) keeps the newest covariance until the next keyframe:
         # recomputing it there cost ~2 ms per update, 6x the whole loop, for a change of a few percent
         if self.config.covariance and (new_keyframe or np.isnan(self.latest_cov[0, 0])):
-            self.latest_cov = self._isam.marginalCovariance(rot_key)
+            self.latest_cov = self._isam.marginalCovariance(rot_key)[:3, :3]  # rotation block (Rot3, or Pose3's first)
             self._updates += 1
             if bias_key is not None and (self._updates % self.config.bias_covariance_every == 1 or np.isnan(self.latest_bias_cov[0, 0])):
                 # the bias uncertainty changes slowly; refreshing it every few updates halves the cost
-                self.latest_bias_cov = self._isam.marginalCovariance(bias_key)
+                self.latest_bias_cov = self._isam.marginalCovariance(bias_key)[-3:, -3:]  # gyro block (Vector3, or ConstantBias' last)
         self.builder.set_latest(self.latest_rot, self.latest_bias)
         feedback = getattr(self.builder, "feedback", None)
         if feedback is not None:

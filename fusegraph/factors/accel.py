@@ -1,0 +1,44 @@
+"""Accelerometer as a gravity direction (optional, on top of the IMU factor's specific force).
+
+``AttitudeFactorPose3``: the measured specific force, rotated to the world, points up. Trusted less
+as |a| departs from g (the body accelerates) through a sigma that grows with the departure, and a
+Cauchy kernel for shocks (tapping). Off by default: on BROAD it traded heading for inclination
+(see the bench); the IMU factor with the motion priors carries the tilt.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from ..geometry import FloatArray
+from .imu import GRAVITY_M_S2
+
+_UP = gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
+
+
+@dataclass(frozen=True)
+class GravityNoise:
+    """Noise of the accelerometer's gravity direction."""
+
+    sigma_deg: float = 3.0
+    """Direction sigma at rest, degrees."""
+    inflation_deg_per_m_s2: float = 15.0
+    """Extra sigma per m/s^2 that |a| departs from g, degrees."""
+    cauchy_k: float = 2.0
+    """Cauchy kernel width in sigmas; 0 = Gaussian."""
+
+
+def gravity_sigma_rad(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_m_s2: float = GRAVITY_M_S2) -> float:
+    departure = abs(float(np.linalg.norm(accel_body_m_s2)) - gravity_m_s2)
+    return float(np.deg2rad(noise.sigma_deg + noise.inflation_deg_per_m_s2 * departure))
+
+
+def gravity_factor(pose_key: int, accel_body_m_s2: FloatArray, noise: GravityNoise, gravity_m_s2: float = GRAVITY_M_S2) -> gtsam.AttitudeFactorPose3:
+    """The specific force at rest points up in the world (ENU)."""
+    model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, gravity_sigma_rad(noise, accel_body_m_s2, gravity_m_s2))
+    if noise.cauchy_k > 0:
+        model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(noise.cauchy_k), model)
+    return gtsam.AttitudeFactorPose3(pose_key, _UP, model, gtsam.Unit3(np.asarray(accel_body_m_s2, dtype=float)))

@@ -1,0 +1,98 @@
+"""Full IMU (gyro + accelerometer) between keyframes, and the bounded-motion priors of a worn sensor.
+
+The accelerometer measures specific force, gravity included. Its gravity direction becomes
+information on the tilt only through a motion model: a body-worn sensor stays within a few metres
+of where it started and moves at a few m/s at most, so weak zero-mean priors on position and
+velocity (and a tight zero velocity when the sensor rests) make the accelerometer's integral
+pin the tilt, while translational accelerations are explained by velocity instead of tilt.
+Everything is a C++ factor: ``ImuFactor`` (preintegrated), ``BetweenFactorConstantBias``,
+``GPSFactor`` (position only), ``PriorFactorVector`` (velocity).
+
+Sample convention: a sample at t_i describes the interval (t_{i-1}, t_i] (rate-integrating
+sensors output the mean over the last period); the state at t_i includes sample i.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+#: Standard gravity, m/s^2.
+GRAVITY_M_S2 = 9.81
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """Noise of a MEMS IMU (continuous-time densities)."""
+
+    gyro_noise_rad_s_sqrt_hz: float = 2e-3
+    """Gyro white noise density, rad/s/sqrt(Hz)."""
+    accel_noise_m_s2_sqrt_hz: float = 2e-2
+    """Accelerometer white noise density, m/s^2/sqrt(Hz)."""
+    gyro_bias_walk_rad_s_sqrt_s: float = 1e-5
+    """Gyro bias random walk, rad/s per sqrt(s)."""
+    accel_bias_walk_m_s2_sqrt_s: float = 1e-3
+    """Accelerometer bias random walk, m/s^2 per sqrt(s)."""
+    gyro_bias_prior_rad_s: float = 0.01
+    """Start-up sigma of the gyro bias, rad/s."""
+    accel_bias_prior_m_s2: float = 0.2
+    """Start-up sigma of the accelerometer bias, m/s^2."""
+    gravity_m_s2: float = GRAVITY_M_S2
+    """Local gravity magnitude, m/s^2 (the world frame is ENU: gravity along -z)."""
+
+
+@dataclass(frozen=True)
+class MotionPriors:
+    """What a body-worn sensor's translation does on average (pseudo-measurements, per keyframe)."""
+
+    position_sigma_m: float = 5.0
+    """Zero-mean position prior: the sensor stays within metres of the start."""
+    velocity_sigma_m_s: float = 2.0
+    """Zero-mean velocity prior: hand, head and limb speeds of a few m/s."""
+    rest_velocity_sigma_m_s: float = 0.02
+    """Velocity sigma while the sensor rests (zero-velocity update)."""
+    rest_gyro_rad_s: float = 0.05
+    """At rest: every gyro sample's norm below this, rad/s ..."""
+    rest_accel_m_s2: float = 0.3
+    """... and every accelerometer norm within this of gravity, m/s^2 ..."""
+    rest_window_s: float = 0.14
+    """... over this long a trailing window."""
+
+
+def preintegration_params(noise: ImuNoise) -> gtsam.PreintegrationParams:
+    params = gtsam.PreintegrationParams.MakeSharedU(noise.gravity_m_s2)
+    params.setGyroscopeCovariance(noise.gyro_noise_rad_s_sqrt_hz**2 * np.eye(3))
+    params.setAccelerometerCovariance(noise.accel_noise_m_s2_sqrt_hz**2 * np.eye(3))
+    params.setIntegrationCovariance(1e-8 * np.eye(3))  # position from velocity: numerically exact
+    return params
+
+
+def bias_walk_factor(bias_i: int, bias_j: int, dt_s: float, noise: ImuNoise) -> gtsam.BetweenFactorConstantBias:
+    """Random walk of both biases between keyframes dt_s apart (accelerometer first, as gtsam orders them)."""
+    sigmas = np.sqrt(max(dt_s, 1e-9)) * np.r_[[noise.accel_bias_walk_m_s2_sqrt_s] * 3, [noise.gyro_bias_walk_rad_s_sqrt_s] * 3]
+    return gtsam.BetweenFactorConstantBias(bias_i, bias_j, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+
+def bias_prior_factor(bias_key: int, noise: ImuNoise) -> gtsam.PriorFactorConstantBias:
+    sigmas = np.r_[[noise.accel_bias_prior_m_s2] * 3, [noise.gyro_bias_prior_rad_s] * 3]
+    return gtsam.PriorFactorConstantBias(bias_key, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+
+def position_prior_factor(pose_key: int, sigma_m: float) -> gtsam.GPSFactor:
+    """Zero-mean position pseudo-measurement on a Pose3 (touches only its translation)."""
+    return gtsam.GPSFactor(pose_key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma_m))
+
+
+def velocity_prior_factor(velocity_key: int, sigma_m_s: float) -> gtsam.PriorFactorVector:
+    """Zero-mean velocity pseudo-measurement (or a zero-velocity update with a tight sigma)."""
+    return gtsam.PriorFactorVector(velocity_key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma_m_s))
+
+
+def at_rest(gyro_rad_s: np.ndarray, accel_m_s2: np.ndarray, priors: MotionPriors, gravity_m_s2: float = GRAVITY_M_S2) -> bool:
+    """Every sample of the window is still (gyro norm small, |a| close to g)."""
+    return bool(
+        np.all(np.einsum("ij,ij->i", gyro_rad_s, gyro_rad_s) < priors.rest_gyro_rad_s**2)
+        and np.all(np.abs(np.sqrt(np.einsum("ij,ij->i", accel_m_s2, accel_m_s2)) - gravity_m_s2) < priors.rest_accel_m_s2)
+    )

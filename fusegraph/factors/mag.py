@@ -1,0 +1,115 @@
+"""Magnetometer: heading only, from the tilt-compensated field, with calibration and disturbance rejection.
+
+Calibration (the founding papers'): M = G m + B, per-axis gain G and offset B, from a calibration
+recording (``fit_mag_calibration``: an axis-aligned ellipsoid fit) or given.
+
+Heading only: the field is levelled with the attitude known when the factor is made (the online
+prediction, or the previous batch pass), its horizontal direction expressed back in the body frame,
+and a C++ ``AttitudeFactorPose3`` asks it to point to magnetic north (+y of ENU). Its error has two
+components on the sphere around north; the vertical one gets zero precision, so the factor carries
+no tilt information: a disturbed field can turn the heading but never tilt the estimate (the field
+dips ~70 deg, so a 3-D residual converts field errors into tilt errors).
+
+Disturbances (steel, magnets) change the field's norm and dip: the heading sigma grows with their
+departure from the reference, and a Cauchy kernel takes what slips through.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from ..geometry import FloatArray
+
+#: Magnetic north in the ENU world frame.
+NORTH_ENU = np.array([0.0, 1.0, 0.0])
+_NORTH = gtsam.Unit3(NORTH_ENU)
+# which tangent component of the error around north is vertical (zero precision)
+_VERTICAL_COMPONENT = int(np.argmax(np.abs(_NORTH.basis()[2])))
+
+
+@dataclass(frozen=True)
+class MagCalibration:
+    """M = G m + B (founding papers' calibration): calibrated field from the raw reading."""
+
+    gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Per-axis gain G."""
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Offset B, in the reading's unit (uT)."""
+
+    def apply(self, raw: FloatArray) -> FloatArray:
+        return np.asarray(raw, dtype=float) * np.asarray(self.gain) + np.asarray(self.offset)
+
+
+def fit_mag_calibration(raw: FloatArray) -> MagCalibration:
+    """Axis-aligned ellipsoid fit of readings taken in many orientations (a calibration recording).
+
+    Solves a x^2 + b y^2 + c z^2 + d x + e y + f z = 1 by least squares; the gains make the ellipsoid a
+    sphere (their geometric mean is 1, since heading needs only the shape) and the offset centres it.
+    """
+    m = np.asarray(raw, dtype=float)
+    if m.ndim != 2 or m.shape[1] != 3 or len(m) < 9:
+        raise ValueError(f"calibration needs at least 9 readings of 3 axes, got shape {m.shape}")
+    design = np.column_stack([m**2, m])
+    coef, *_ = np.linalg.lstsq(design, np.ones(len(m)), rcond=None)
+    quad, lin = coef[:3], coef[3:]
+    if np.any(quad <= 0):
+        raise ValueError("calibration readings do not span enough orientations (ellipsoid fit is not closed)")
+    centre = -lin / (2 * quad)
+    gain = np.sqrt(quad)
+    gain /= np.prod(gain) ** (1 / 3)
+    return MagCalibration(tuple(float(g) for g in gain), tuple(float(b) for b in -gain * centre))  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class MagNoise:
+    """Heading noise of the magnetometer and its disturbance rejection."""
+
+    heading_sigma_deg: float = 5.0
+    """Heading sigma per keyframe in an undisturbed field, degrees."""
+    norm_gain: float = 20.0
+    """Sigma multiplier per unit relative departure of |m| from the reference norm."""
+    dip_gain: float = 20.0
+    """Sigma multiplier per radian of departure of the dip angle from the reference dip."""
+    cauchy_k: float = 1.0
+    """Cauchy kernel width in sigmas; 0 = Gaussian."""
+    reference_s: float = 0.5
+    """The reference norm and dip are the mean over the first this many seconds."""
+
+
+@dataclass(frozen=True)
+class FieldReference:
+    """The undisturbed field: norm and dip (positive downwards, northern hemisphere)."""
+
+    norm: float
+    dip_rad: float
+
+
+def field_norm_dip(world_R_body: gtsam.Rot3, mag_body: FloatArray) -> tuple[float, float]:
+    """Norm and dip of a body-frame field reading levelled with an attitude."""
+    m_world = world_R_body.rotate(np.asarray(mag_body, dtype=float))
+    return float(np.linalg.norm(m_world)), float(np.arctan2(-m_world[2], np.hypot(m_world[0], m_world[1])))
+
+
+def heading_sigma_rad(noise: MagNoise, reference: FieldReference, norm: float, dip_rad: float) -> float:
+    """Heading sigma inflated by the field's departure from the reference (disturbance gating)."""
+    departure = noise.norm_gain * abs(norm - reference.norm) / reference.norm + noise.dip_gain * abs(dip_rad - reference.dip_rad)
+    return float(np.deg2rad(noise.heading_sigma_deg) * (1.0 + departure))
+
+
+def heading_factor(pose_key: int, world_R_body: gtsam.Rot3, mag_body: FloatArray, sigma_rad: float, cauchy_k: float = 0.0) -> gtsam.AttitudeFactorPose3:
+    """Heading-only factor: the field levelled with ``world_R_body`` points to magnetic north."""
+    m_world = world_R_body.rotate(np.asarray(mag_body, dtype=float))
+    horizontal = np.array([m_world[0], m_world[1], 0.0])
+    size = np.linalg.norm(horizontal)
+    if size < 1e-9:
+        raise ValueError("the field is vertical: no heading information")
+    body_direction = world_R_body.unrotate(horizontal / size)
+    precisions = np.full(2, 1.0 / sigma_rad**2)
+    precisions[_VERTICAL_COMPONENT] = 0.0
+    model: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Precisions(precisions)
+    if cauchy_k > 0:
+        model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(cauchy_k), model)
+    return gtsam.AttitudeFactorPose3(pose_key, _NORTH, model, gtsam.Unit3(body_direction))

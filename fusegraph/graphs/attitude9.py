@@ -1,0 +1,285 @@
+"""9-axis attitude graph: IMU preintegration between keyframes, bounded-motion priors, magnetometer heading.
+
+Variables per keyframe k (one every ``keyframe_period_s``, on a sample): ``x(k)`` world_T_body
+(Pose3, ENU; the position is a nuisance that lets the accelerometer's specific force be explained),
+``v(k)`` velocity (world), ``b(k)`` accelerometer + gyro bias (ConstantBias). Factors per keyframe:
+``ImuFactor`` from k-1, the bias walk, the zero-mean position/velocity priors, a zero-velocity
+update when the sensor rests, the magnetometer's heading-only factor, and optionally the
+accelerometer's gravity direction. All are C++ factors.
+
+Samples are pushed in time order (``add_samples``, any block size, a single sample for a live
+feed). Online, the heading factor levels the field with the prediction from the newest posterior;
+batch smoothing defers the heading factors (``deferred_mag``) so they can be levelled with a solved
+attitude (``heading_factors``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from ..factors.accel import GravityNoise, gravity_factor
+from ..factors.imu import (
+    ImuNoise,
+    MotionPriors,
+    bias_prior_factor,
+    bias_walk_factor,
+    position_prior_factor,
+    preintegration_params,
+    velocity_prior_factor,
+)
+from ..factors.mag import FieldReference, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
+from ..geometry import FloatArray, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rotvec_from_quat, quat_conjugate
+from .increment import GraphIncrement
+
+
+def X(k: int) -> int:
+    """Key of keyframe k's world_T_body (Pose3)."""
+    return int(gtsam.symbol("x", k))
+
+
+def V(k: int) -> int:
+    """Key of keyframe k's world velocity (Vector3)."""
+    return int(gtsam.symbol("v", k))
+
+
+def B(k: int) -> int:
+    """Key of keyframe k's IMU bias (ConstantBias: accelerometer, gyro)."""
+    return int(gtsam.symbol("b", k))
+
+
+@dataclass(frozen=True)
+class Attitude9Model:
+    """Everything the 9-axis graph assumes; one set serves every recording."""
+
+    keyframe_period_s: float = 0.1
+    """Time between keyframes; preintegration is exact in between, so 10 Hz costs little accuracy."""
+    imu: ImuNoise = field(default_factory=ImuNoise)
+    """Gyro and accelerometer noise and bias walks."""
+    motion: MotionPriors = field(default_factory=MotionPriors)
+    """Zero-mean position/velocity pseudo-measurements and the rest detector."""
+    mag: MagNoise = field(default_factory=MagNoise)
+    """Magnetometer heading noise and disturbance rejection."""
+    mag_calibration: MagCalibration = field(default_factory=MagCalibration)
+    """M = G m + B applied to every reading."""
+    use_mag: bool = True
+    """Use the magnetometer (without it the heading is the gyro's alone)."""
+    gravity: GravityNoise | None = None
+    """Optional accelerometer gravity-direction factor on top of the IMU factor (None = off)."""
+    initial_attitude_sigma_deg: float = 5.0
+    """Sigma of the start-up attitude from the first accelerometer and magnetometer samples."""
+
+
+def initial_attitude(accel_body: FloatArray, mag_body: FloatArray | None) -> gtsam.Rot3:
+    """world_R_body (ENU) from one gravity and one field reading (TRIAD); heading 0 without a field."""
+    up = np.asarray(accel_body, dtype=float) / np.linalg.norm(accel_body)
+    reference = np.asarray(mag_body, dtype=float) if mag_body is not None else np.array([0.0, 1.0, 0.0])
+    east = np.cross(reference, up)
+    if np.linalg.norm(east) < 1e-9:  # field (or the default) along gravity: any horizontal axis
+        east = np.cross(np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0]), up)
+    east /= np.linalg.norm(east)
+    north = np.cross(up, east)
+    return gtsam.Rot3(np.stack([east, north, up], axis=0))  # rows: world axes in the body frame
+
+
+class Attitude9Builder:
+    """Measurements -> GraphIncrements for the online and the batch solver."""
+
+    linear_keys: tuple[int, ...] = ()
+
+    def __init__(self, model: Attitude9Model | None = None, deferred_mag: bool = False):
+        self.model = model or Attitude9Model()
+        self.deferred_mag = deferred_mag
+        self._params = preintegration_params(self.model.imu)
+        self._pending = GraphIncrement()
+        self.keyframe_t: list[float] = []
+        self.keyframe_index: list[int] = []
+        """Sample index (counted over everything pushed) of every keyframe."""
+        self.oldest_allowed_keyframe = 0
+        self.mag_readings: list[tuple[int, FloatArray]] = []
+        """(keyframe, calibrated body-frame field) for every heading factor made or deferred."""
+        self.reference: FieldReference | None = None
+        self.posterior_quat: list[FloatArray] = []
+        """Online: keyframe k's attitude right after the update that added it (causal)."""
+        self.posterior_gyro_bias: list[FloatArray] = []
+        self._reference_samples: list[tuple[float, float]] = []
+        self._nav = gtsam.NavState()
+        self._bias = gtsam.imuBias.ConstantBias()
+        self._pim: gtsam.PreintegratedImuMeasurements | None = None
+        self._last_t = np.nan
+        self._count = 0
+        self._still_run = 0  # consecutive still samples
+        self._solved = False
+
+    # ------------------------------------------------------------------ protocol of the online solver
+
+    @property
+    def started(self) -> bool:
+        return bool(self.keyframe_t)
+
+    @property
+    def latest_keyframe(self) -> int:
+        return len(self.keyframe_t) - 1
+
+    def state_keys(self, k: int) -> tuple[int, int | None]:
+        return X(k), B(k)
+
+    def read_latest(self, isam: gtsam.ISAM2, k: int) -> tuple[gtsam.Rot3, FloatArray]:
+        """Read keyframe k's posterior (pose, velocity, bias): the next prediction starts from it."""
+        pose = isam.calculateEstimatePose3(X(k))
+        self._nav = gtsam.NavState(pose, isam.calculateEstimateVector(V(k)))
+        self._bias = isam.calculateEstimateConstantBias(B(k))
+        self._solved = True
+        gyro_bias = np.asarray(self._bias.gyroscope())
+        while len(self.posterior_quat) <= k:
+            self.posterior_quat.append(np.full(4, np.nan))
+            self.posterior_gyro_bias.append(np.zeros(3))
+        self.posterior_quat[k] = quat_wxyz_from_rot3(pose.rotation())
+        self.posterior_gyro_bias[k] = gyro_bias
+        return pose.rotation(), gyro_bias
+
+    def set_latest(self, world_R_body: gtsam.Rot3, bias: FloatArray) -> None:
+        """Part of the solver protocol; ``read_latest`` already took the full state."""
+
+    def take(self) -> GraphIncrement:
+        out, self._pending = self._pending, GraphIncrement()
+        return out
+
+    # ------------------------------------------------------------------ measurements
+
+    def add_samples(self, t: FloatArray, gyro_rad_s: FloatArray, accel_m_s2: FloatArray, mag_raw: FloatArray | None) -> None:
+        """Push synchronous samples (rows) in time order; keyframes close as their time comes."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        gyro = np.atleast_2d(np.asarray(gyro_rad_s, dtype=float))
+        accel = np.atleast_2d(np.asarray(accel_m_s2, dtype=float))
+        mag = None if mag_raw is None or not self.model.use_mag else self.model.mag_calibration.apply(np.atleast_2d(mag_raw))
+        motion = self.model.motion
+        still = (np.einsum("ij,ij->i", gyro, gyro) < motion.rest_gyro_rad_s**2) & (
+            np.abs(np.linalg.norm(accel, axis=1) - self.model.imu.gravity_m_s2) < motion.rest_accel_m_s2
+        )
+        period = self.model.keyframe_period_s
+        for i in range(len(t)):
+            self._still_run = self._still_run + 1 if still[i] else 0
+            if not self.started:
+                self._start(float(t[i]), accel[i], None if mag is None else mag[i])
+                continue
+            dt = float(t[i]) - self._last_t
+            if dt <= 0:
+                raise ValueError(f"sample {self._count}: time {t[i]:.6f} s does not increase (previous {self._last_t:.6f} s)")
+            assert self._pim is not None
+            self._pim.integrateMeasurement(accel[i], gyro[i], dt)
+            self._last_t = float(t[i])
+            if self._last_t - self.keyframe_t[-1] >= period - 0.5 * dt:
+                self._close_keyframe(accel[i], None if mag is None else mag[i])
+            self._count += 1
+
+    def _start(self, t: float, accel: FloatArray, mag: FloatArray | None) -> None:
+        rot = initial_attitude(accel, mag)
+        model = self.model
+        self._nav = gtsam.NavState(rot, np.zeros(3), np.zeros(3))
+        sigma = np.deg2rad(model.initial_attitude_sigma_deg)
+        pose_noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma] * 3, [0.01] * 3])
+        self._pending.add(0, gtsam.PriorFactorPose3(X(0), self._nav.pose(), pose_noise))
+        self._pending.add(0, velocity_prior_factor(V(0), model.motion.velocity_sigma_m_s))
+        self._pending.add(0, bias_prior_factor(B(0), model.imu))
+        self._pending.values.insert(X(0), self._nav.pose())
+        self._pending.values.insert(V(0), np.zeros(3))
+        self._pending.values.insert(B(0), self._bias)
+        self.keyframe_t.append(t)
+        self.keyframe_index.append(self._count)
+        self._after_keyframe(0, rot, mag)
+        self._last_t = t
+        self._count += 1
+        self._pim = gtsam.PreintegratedImuMeasurements(self._params, self._bias)
+
+    def _close_keyframe(self, accel: FloatArray, mag: FloatArray | None) -> None:
+        assert self._pim is not None
+        k = len(self.keyframe_t)
+        model = self.model
+        pim = self._pim
+        predicted = pim.predict(self._nav, self._bias)
+        if not self._solved:
+            # no posterior yet (batch): keep the attitude, not the accelerometer's drifting double integral
+            predicted = gtsam.NavState(predicted.attitude(), np.zeros(3), np.zeros(3))
+        add = self._pending.add
+        add(k - 1, gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), pim))
+        add(k - 1, bias_walk_factor(B(k - 1), B(k), pim.deltaTij(), model.imu))
+        add(k, position_prior_factor(X(k), model.motion.position_sigma_m))
+        add(k, velocity_prior_factor(V(k), model.motion.velocity_sigma_m_s))
+        rest_samples = int(round(model.motion.rest_window_s / max(pim.deltaTij(), 1e-9) * (self._count - self.keyframe_index[-1])))
+        if self._still_run >= max(rest_samples, 1):
+            add(k, velocity_prior_factor(V(k), model.motion.rest_velocity_sigma_m_s))
+        if model.gravity is not None:
+            add(k, gravity_factor(X(k), accel, model.gravity, model.imu.gravity_m_s2))
+        self._pending.values.insert(X(k), predicted.pose())
+        self._pending.values.insert(V(k), predicted.velocity())
+        self._pending.values.insert(B(k), self._bias)
+        self.keyframe_t.append(self._last_t)
+        self.keyframe_index.append(self._count)
+        self._nav = predicted
+        self._after_keyframe(k, predicted.attitude(), mag)
+        self._pim = gtsam.PreintegratedImuMeasurements(self._params, self._bias)
+
+    def _after_keyframe(self, k: int, world_R_body: gtsam.Rot3, mag: FloatArray | None) -> None:
+        if mag is None:
+            return
+        self.mag_readings.append((k, mag))
+        norm, dip = field_norm_dip(world_R_body, mag)
+        if self.reference is None or self.keyframe_t[-1] - self.keyframe_t[0] <= self.model.mag.reference_s:
+            self._reference_samples.append((norm, dip))
+            self.reference = FieldReference(*np.mean(self._reference_samples, axis=0))
+        if not self.deferred_mag:
+            self._pending.add(k, self._heading(k, world_R_body, mag, norm, dip, robust=True))
+
+    def _heading(self, k: int, world_R_body: gtsam.Rot3, mag: FloatArray, norm: float, dip: float, robust: bool) -> gtsam.AttitudeFactorPose3:
+        assert self.reference is not None
+        sigma = heading_sigma_rad(self.model.mag, self.reference, norm, dip)
+        return heading_factor(X(k), world_R_body, mag, sigma, self.model.mag.cauchy_k if robust else 0.0)
+
+    def heading_factors(self, attitude: dict[int, gtsam.Rot3] | list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
+        """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""
+        out = []
+        for k, mag in self.mag_readings:
+            norm, dip = field_norm_dip(attitude[k], mag)
+            out.append(self._heading(k, attitude[k], mag, norm, dip, robust))
+        return out
+
+
+def fill_samples(
+    t: FloatArray,
+    gyro_rad_s: FloatArray,
+    keyframe_index: FloatArray,
+    keyframe_quat_wxyz: FloatArray,
+    keyframe_gyro_bias: FloatArray,
+    blend_to_next: bool,
+) -> FloatArray:
+    """Attitude at every sample: each keyframe's attitude carried on by its bias-corrected gyro.
+
+    Causal (``blend_to_next=False``): samples after keyframe k use k's attitude only. Smoothed: the
+    mismatch with keyframe k+1 is spread linearly in time over the interval.
+    """
+    n = len(t)
+    kf = np.asarray(keyframe_index, dtype=int)
+    out = np.full((n, 4), np.nan)
+    segment = np.searchsorted(kf, np.arange(n), side="right") - 1
+    valid = segment >= 0
+    dt = np.diff(t, prepend=t[0])
+    rates = gyro_rad_s - keyframe_gyro_bias[np.clip(segment, 0, None)]
+    increments = quat_from_rotvec(rates * dt[:, None])  # sample i covers (t_{i-1}, t_i]
+    out[kf] = keyframe_quat_wxyz
+    lengths = np.diff(np.r_[kf, n])
+    for offset in range(1, int(lengths.max(initial=1))):
+        rows = kf[lengths > offset] + offset
+        out[rows] = quat_multiply(out[rows - 1], increments[rows])
+    if blend_to_next and len(kf) > 1:
+        ends = kf[1:]
+        # sample ends-1 forward one more step gives the forward estimate at the next keyframe
+        forward_end = quat_multiply(out[ends - 1], increments[ends])
+        mismatch = rotvec_from_quat(quat_multiply(quat_conjugate(forward_end), keyframe_quat_wxyz[1:]))
+        inner = valid & (segment < len(kf) - 1) & ~np.isin(np.arange(n), kf)
+        seg = segment[inner]
+        frac = (t[inner] - t[kf[seg]]) / (t[kf[seg + 1]] - t[kf[seg]])
+        out[inner] = quat_multiply(out[inner], quat_from_rotvec(frac[:, None] * mismatch[seg]))
+    return out
