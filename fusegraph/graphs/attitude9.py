@@ -31,7 +31,7 @@ from ..factors.imu import (
     velocity_prior_factor,
 )
 from ..factors.mag import FieldReference, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
-from ..geometry import FloatArray, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rotvec_from_quat, quat_conjugate
+from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rotvec_from_quat
 from .increment import GraphIncrement
 
 

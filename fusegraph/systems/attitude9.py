@@ -16,7 +16,8 @@ import gtsam
 import numpy as np
 
 from ..estimate import Estimate
-from ..graphs.attitude9 import B, V, X, Attitude9Builder, Attitude9Model, fill_samples
+from ..geometry import quat_wxyz_from_rot3
+from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, B, V, X, fill_samples
 from ..progress import progress
 from ..session import Session
 from ..solvers.online import OnlineConfig, OnlineSmoother
@@ -113,7 +114,7 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
             graph.add(factor)
         values = _levenberg(graph, values, order, max_iterations)
         attitude = [values.atPose3(X(k)).rotation() for k in range(keyframes)]
-    kq = np.array([np.asarray(r.toQuaternion().coeffs())[[3, 0, 1, 2]] for r in attitude])
+    kq = np.array([quat_wxyz_from_rot3(r) for r in attitude])
     kb = np.array([values.atConstantBias(B(k)).gyroscope() for k in range(keyframes)])
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), kq, kb, True)
     runtime = time.perf_counter() - start
