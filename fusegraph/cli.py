@@ -115,12 +115,21 @@ def build_parser() -> argparse.ArgumentParser:
     abl.add_argument("--scheduler", default=None, help="'local' starts a Dask LocalCluster; tcp://host:port uses an existing one")
     abl.add_argument("--out", type=Path, required=True, help="study directory (created; reused to resume)")
 
-    ben = sub.add_parser("bench", help="speed of the online loop and the batch smoother on a long session",
-                         description="Real-time factor of the whole causal loop in the first and last minute, batch time, peak memory.")
-    ben.add_argument("system", choices=["head"])
-    ben.add_argument("--duration", type=float, default=600.0, help="seconds of data (default 600)")
-    ben.add_argument("--repeat", type=int, default=3, help="repeats; the median is printed (default 3)")
-    ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic")
+    ben = sub.add_parser("bench", help="head: speed on a long session; broad: every BROAD trial, every method, side by side",
+                         description="head: real-time factor of the whole causal loop in the first and last minute, batch time, peak memory.\n"
+                         "broad: every trial in DIR through VQF online/offline, the papers' 9-axis EKF, fusegraph online and batch, in one run: "
+                         "total/heading/inclination RMSE (deg, the benchmark's metric) and speed (x real time) per trial and mean.",
+                         epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
+                         "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    ben.add_argument("system", choices=["head", "broad"])
+    ben.add_argument("directory", nargs="?", type=Path, help="broad: directory of BROAD trials (*.mat; default ../shared/data/broad)")
+    ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600)")
+    ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
+    ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="head: sensor error profile")
+    ben.add_argument("--methods", default=None, help="broad: comma list of vqf,vqf_offline,ekf,online,batch (default all)")
+    ben.add_argument("--trials", default=None, help="broad: comma list of file-name prefixes, e.g. 01,32 (default all)")
+    ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method")
     ben.add_argument("--json", action="store_true", help="print JSON")
     return parser
 
@@ -224,6 +233,10 @@ def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.system == "broad":
+        return _bench_broad(args)
+    if args.directory is not None:
+        raise ValueError("bench head takes no directory (it simulates its session)")
     from .systems import head
 
     result = head.head_bench(args.duration, args.repeat, profile=args.profile)
@@ -235,6 +248,21 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         print(f"  online loop, last minute  : {result['x_realtime_last_minute']:8.1f} x real time")
         print(f"  batch smoother            : {result['batch_s']:8.2f} s")
         print(f"  peak memory (RSS)         : {result['peak_rss_mb']:8.0f} MB")
+    return 0
+
+
+def _bench_broad(args: argparse.Namespace) -> int:
+    from .systems import attitude9
+
+    methods = tuple(m.strip() for m in args.methods.split(",")) if args.methods else tuple(attitude9.METHODS)
+    trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
+    result = attitude9.bench_broad(args.directory, methods, trials)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(attitude9.format_broad_table(result))
+    if args.plot:
+        print(f"wrote {attitude9.plot_broad(result, args.plot)}", file=sys.stderr if args.json else sys.stdout)
     return 0
 
 

@@ -2,8 +2,8 @@
 
 ``AttitudeFactorPose3``: the measured specific force, rotated to the world, points up. Trusted less
 as |a| departs from g (the body accelerates) through a sigma that grows with the departure, and a
-Cauchy kernel for shocks (tapping). Off by default: on BROAD it traded heading for inclination
-(see the bench); the IMU factor with the motion priors carries the tilt.
+Cauchy kernel for shocks (tapping). It complements the IMU factor: the motion priors pin the tilt
+only slowly, this pins it at every keyframe when the body does not accelerate.
 """
 
 from __future__ import annotations
