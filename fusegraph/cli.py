@@ -56,10 +56,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="write a simulated session directory (session.toml + CSVs + truth)",
                          description="Simulate a scenario and write it as a session directory you can read and edit.")
-    sim.add_argument("scenario", choices=["head"], help="which system to simulate")
+    sim.add_argument("scenario", choices=["head", "attitude9"], help="which system to simulate")
     sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     sim.add_argument("--out", type=Path, required=True, help="directory to write (created)")
-    sim.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
+    sim.add_argument("--profile", choices=["ideal", "realistic", "noise_free"], default="realistic",
+                     help="sensor error profile (default realistic); head: ideal or realistic; attitude9: realistic or noise_free")
     sim.add_argument("--duration", type=float, default=10.0, help="seconds of data (default 10)")
     sim.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency, seconds (default 0.1)")
     sim.add_argument("--latency-assumed", type=float, metavar="S",
@@ -69,8 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Run one solver over a session directory and write the estimate as CSV "
                          "(t, quaternion, azimuth/elevation/roll in degrees, covariance).")
     run.add_argument("session", type=Path, help="session directory (with session.toml)")
-    run.add_argument("--solver", choices=["online", "batch", "ekf"], default="online",
-                     help="online = iSAM2 causal estimate at every gyro sample; batch = smoother over the whole session; ekf = the paper's Method II")
+    run.add_argument("--solver", choices=["online", "batch", "ekf", "vqf", "vqf_offline"], default="online",
+                     help="online = iSAM2 causal estimate at every gyro sample; batch = smoother over the whole session; ekf = the paper's "
+                     "EKF (head: Method II; attitude9: the 9-axis EKF); vqf, vqf_offline = the peer (attitude9 only)")
     run.add_argument("--out", type=Path, help="CSV to write (default: <session>/estimate_<solver>.csv)")
     run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
     run.add_argument("--json", action="store_true", help="print the metrics as JSON")
@@ -156,6 +158,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         extra["tracker_latency_s"] = args.latency_true
     if args.latency_assumed is not None:
         extra["tracker_latency_assumed_s"] = args.latency_assumed
+    if (args.scenario, args.profile) in (("head", "noise_free"), ("attitude9", "ideal")):
+        raise ValueError(f"--profile {args.profile} does not apply to {args.scenario} (head: ideal, realistic; attitude9: realistic, noise_free)")
+    if args.scenario != "head" and extra:
+        raise ValueError("--latency-true/--latency-assumed apply to the head scenario only")
     session = SCENARIOS[args.scenario](args.seed, profile=args.profile, duration_s=args.duration, **extra)
     path = save_session(session, args.out)
     files = ", ".join(sorted(p.name for p in path.iterdir()))
@@ -169,8 +175,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .systems import head
 
     session = load_session(args.session)
+    if session.system == "attitude9":
+        return _run_attitude9(args, session)
     if session.system != "head":
-        raise ValueError(f"{args.session}/session.toml: system '{session.system}' has no solver yet (available: head)")
+        raise ValueError(f"{args.session}/session.toml: system '{session.system}' has no solver yet (available: head, attitude9)")
+    if args.solver not in ("online", "batch", "ekf"):
+        raise ValueError(f"--solver {args.solver} is for attitude9 sessions; head has online, batch, ekf")
     method = {"online": "isam2", "batch": "batch", "ekf": "method2"}[args.solver]
     estimate = head.run_method(session, method)
     out = args.out or args.session / f"estimate_{args.solver}.csv"
@@ -188,6 +198,32 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 rms = score.rms_rad * 100
                 nees = f", NEES {score.nees:.2f}" if score.nees is not None else ""
                 print(f"RMS after 1 s [1e-2 rad]: azimuth {rms[0]:.3f}, elevation {rms[1]:.3f}, roll {rms[2]:.3f}{nees}")
+    if args.plot:
+        from .plots import plot_attitude_axes
+
+        truth_t = session.truth.t if session.truth is not None else estimate.t
+        truth_q = session.truth.values if session.truth is not None else estimate.quat_wxyz
+        print(f"wrote {plot_attitude_axes(truth_t, truth_q, [estimate], args.plot, title=str(args.session))}")
+    return 0
+
+
+def _run_attitude9(args: argparse.Namespace, session: Any) -> int:
+    import numpy as np
+
+    from .datasets.broad import broad_errors
+    from .systems import attitude9
+
+    estimate = attitude9.METHODS[args.solver](session)
+    out = args.out or args.session / f"estimate_{args.solver}.csv"
+    estimate.save_csv(out)
+    print(f"wrote {out} ({len(estimate.t)} rows, {session.duration_s:.1f} s of data in {estimate.runtime_s:.2f} s)")
+    if session.truth is not None and _same_times(estimate, session):
+        movement = session.stream("movement").values[:, 0] if "movement" in session.streams else np.ones(len(estimate.t))
+        errors = broad_errors(estimate.quat_wxyz, session.truth.values, movement)
+        if args.json:
+            print(json.dumps({"method": args.solver, "total": errors.total, "heading": errors.heading, "inclination": errors.inclination}, indent=2))
+        else:
+            print(f"RMSE [deg]: total {errors.total:.3f}, heading {errors.heading:.3f}, inclination {errors.inclination:.3f}")
     if args.plot:
         from .plots import plot_attitude_axes
 

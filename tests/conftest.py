@@ -11,24 +11,29 @@ import pytest
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
+def _kind(values: gtsam.Values, key: int) -> str:
+    for kind, getter in (("rot3", values.atRot3), ("pose3", values.atPose3)):
+        try:
+            getter(key)
+            return kind
+        except RuntimeError:
+            pass
+    return "vector"
+
+
 def _dim(values: gtsam.Values, key: int) -> int:
-    return len(values.atVector(key)) if _is_vector(values, key) else 3
-
-
-def _is_vector(values: gtsam.Values, key: int) -> bool:
-    try:
-        values.atRot3(key)
-    except RuntimeError:
-        return True
-    return False
+    return {"rot3": 3, "pose3": 6}.get(_kind(values, key)) or len(values.atVector(key))
 
 
 def _retracted(values: gtsam.Values, key: int, delta: np.ndarray) -> gtsam.Values:
     out = gtsam.Values(values)
-    if _is_vector(values, key):
+    kind = _kind(values, key)
+    if kind == "vector":
         out.update(key, values.atVector(key) + delta)
-    else:
+    elif kind == "rot3":
         out.update(key, values.atRot3(key).retract(delta))
+    else:
+        out.update(key, values.atPose3(key).retract(delta))
     return out
 
 

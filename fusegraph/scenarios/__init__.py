@@ -1,8 +1,12 @@
 """Seeded simulators of each system, with ground truth."""
 
+from collections.abc import Callable
+
+from ..session import Session
+from .attitude9 import Attitude9ScenarioConfig, simulate_attitude9
 from .head import PROFILES, HeadScenarioConfig, simulate_head
 
-SCENARIOS = {"head": simulate_head}
+SCENARIOS: dict[str, Callable[..., Session]] = {"head": simulate_head, "attitude9": simulate_attitude9}
 """Scenario name -> simulator ``f(seed, **overrides) -> Session``."""
 
-__all__ = ["PROFILES", "SCENARIOS", "HeadScenarioConfig", "simulate_head"]
+__all__ = ["PROFILES", "SCENARIOS", "Attitude9ScenarioConfig", "HeadScenarioConfig", "simulate_attitude9", "simulate_head"]
