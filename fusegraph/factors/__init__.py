@@ -1,5 +1,6 @@
 """One module per sensor: a measurement dataclass and the gtsam factor(s) it becomes."""
 
+from .accel import GravityNoise, gravity_factor
 from .attitude import (
     AttitudeMeasurement,
     AttitudeNoise,
@@ -9,17 +10,28 @@ from .attitude import (
     markov_prior_factor,
 )
 from .gyro import GyroInterval, GyroNoise, bias_prior_factor, bias_walk_factor, integrate_gyro, preintegration_params
+from .imu import ImuNoise, MotionPriors
+from .mag import FieldReference, MagCalibration, MagNoise, fit_mag_calibration, heading_factor
 
 __all__ = [
     "AttitudeMeasurement",
     "AttitudeNoise",
+    "FieldReference",
+    "GravityNoise",
     "GyroInterval",
     "GyroNoise",
+    "ImuNoise",
+    "MagCalibration",
+    "MagNoise",
+    "MotionPriors",
     "attitude_prior_factor",
     "bias_prior_factor",
     "bias_walk_factor",
     "error_state_factor",
+    "fit_mag_calibration",
     "gauss_markov_factor",
+    "gravity_factor",
+    "heading_factor",
     "integrate_gyro",
     "markov_prior_factor",
     "preintegration_params",
