@@ -77,7 +77,8 @@ def preintegration_params(noise: ImuNoise, rate_rad_s: float = 0.0, interval_s: 
 
 def bias_walk_factor(bias_i: int, bias_j: int, dt_s: float, noise: ImuNoise) -> gtsam.BetweenFactorConstantBias:
     """Random walk of both biases between keyframes dt_s apart (accelerometer first, as gtsam orders them)."""
-    sigmas = np.sqrt(max(dt_s, 1e-9)) * np.r_[[noise.accel_bias_walk_m_s2_sqrt_s] * 3, [noise.gyro_bias_walk_rad_s_sqrt_s] * 3]
+    a, g = noise.accel_bias_walk_m_s2_sqrt_s, noise.gyro_bias_walk_rad_s_sqrt_s
+    sigmas = np.sqrt(max(dt_s, 1e-9)) * np.array([a, a, a, g, g, g])
     return gtsam.BetweenFactorConstantBias(bias_i, bias_j, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
 

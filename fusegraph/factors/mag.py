@@ -40,6 +40,8 @@ class MagCalibration:
     """Offset B, in the reading's unit (uT)."""
 
     def apply(self, raw: FloatArray) -> FloatArray:
+        if self.gain == (1.0, 1.0, 1.0) and self.offset == (0.0, 0.0, 0.0):
+            return np.asarray(raw, dtype=float)  # identity (already calibrated): no copy per pushed block
         return np.asarray(raw, dtype=float) * np.asarray(self.gain) + np.asarray(self.offset)
 
 
