@@ -1,0 +1,171 @@
+"""Unknown data association of ranges: per-receiver optimal assignment, and locating transmitters without a prior.
+
+``assign_ranges``: one receiver's sorted distances against predicted distances of the tracks: an
+optimal assignment (Hungarian, ``scipy.optimize.linear_sum_assignment``) with a chi-square gate and
+one "leave it unassigned" option per distance (echoes, transmitters nobody tracks).
+
+``locate``: positions supported by the most receivers, without any prior: trilaterate every
+combination of the distances heard by three well-spread receivers, count the other receivers that
+heard a distance within ``tolerance_m`` of the candidate's, keep the best, refine by Gauss-Newton,
+remove its distances and repeat. It (re)initialises tracks from unassigned distances.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..geometry import FloatArray
+
+#: Cost of an infeasible pairing (outside the gate).
+_INFEASIBLE = 1e9
+
+
+def assign_ranges(measured_m: FloatArray, predicted_m: FloatArray, sigma_m: FloatArray, gate_chi2: float = 16.0) -> np.ndarray:
+    """Index of the track each measured distance belongs to, or -1 (unassigned)."""
+    m, n = len(measured_m), len(predicted_m)
+    if m == 0:
+        return np.zeros(0, dtype=int)
+    if n == 0:
+        return np.full(m, -1)
+    chi2 = ((np.asarray(measured_m)[:, None] - np.asarray(predicted_m)[None, :]) / np.asarray(sigma_m)[None, :]) ** 2
+    cost = np.full((m, n + m), _INFEASIBLE)
+    cost[:, :n] = np.where(chi2 <= gate_chi2, chi2, _INFEASIBLE)
+    cost[np.arange(m), n + np.arange(m)] = gate_chi2  # leaving a distance out costs as much as the gate
+    rows, cols = linear_sum_assignment(cost)
+    out = np.full(m, -1)
+    keep = cols < n
+    out[rows[keep]] = cols[keep]
+    return out
+
+
+def trilaterate(centres: FloatArray, radii: FloatArray, below: bool = True) -> tuple[FloatArray, np.ndarray]:
+    """Points at distances ``radii`` (K, 3) from three ``centres`` (3, 3); the solution below their plane.
+
+    Returns (K, 3) points and a validity mask (the spheres meet, up to 2 cm of noise).
+    """
+    c1, c2, c3 = centres
+    ex = (c2 - c1) / np.linalg.norm(c2 - c1)
+    i = ex @ (c3 - c1)
+    ey = c3 - c1 - i * ex
+    ey /= np.linalg.norm(ey)
+    ez = np.cross(ex, ey)
+    d = np.linalg.norm(c2 - c1)
+    j = ey @ (c3 - c1)
+    r1, r2, r3 = radii[:, 0], radii[:, 1], radii[:, 2]
+    x = (r1**2 - r2**2 + d**2) / (2 * d)
+    y = (r1**2 - r3**2 + i**2 + j**2) / (2 * j) - i * x / j
+    z2 = r1**2 - x**2 - y**2
+    valid = z2 > -(0.02**2) * 50  # noisy spheres that nearly touch still locate a point
+    z = np.sqrt(np.clip(z2, 0.0, None))
+    sign = -1.0 if (ez[2] > 0) == below else 1.0
+    points = c1 + x[:, None] * ex + y[:, None] * ey + sign * z[:, None] * ez
+    return points, valid
+
+
+@dataclass(frozen=True)
+class Located:
+    """A transmitter found without a prior."""
+
+    position_m: FloatArray
+    support: int
+    """Receivers whose distances agree with it."""
+    used: list[tuple[int, int]]
+    """(receiver, index in its sorted distances) of the distances it explains."""
+
+
+def refine(position_m: FloatArray, receivers: FloatArray, distances: FloatArray, iterations: int = 3) -> FloatArray:
+    """Gauss-Newton on the distances to known receivers."""
+    p = np.asarray(position_m, dtype=float).copy()
+    for _ in range(iterations):
+        diff = p - receivers
+        predicted = np.linalg.norm(diff, axis=1)
+        jac = diff / predicted[:, None]
+        step, *_ = np.linalg.lstsq(jac, distances - predicted, rcond=None)
+        p += step
+    return p
+
+
+def _triples(receivers: FloatArray) -> list[tuple[int, int, int]]:
+    """A few well-spread receiver triples (largest triangles first)."""
+    r = len(receivers)
+    hull = [int(np.argmin(receivers[:, 0] + receivers[:, 1])), int(np.argmax(receivers[:, 0] + receivers[:, 1])),
+            int(np.argmin(receivers[:, 0] - receivers[:, 1])), int(np.argmax(receivers[:, 0] - receivers[:, 1]))]
+    centre = int(np.argmin(np.linalg.norm(receivers[:, :2] - receivers[:, :2].mean(0), axis=1)))
+    cands = {tuple(sorted(t)) for t in ((hull[0], hull[1], hull[2]), (hull[0], hull[1], hull[3]), (hull[2], hull[3], hull[0]),
+                                        (hull[2], hull[3], hull[1]), (hull[0], hull[3], centre), (hull[1], hull[2], centre))}
+    good = [t for t in cands if len(set(t)) == 3 and r >= 3]
+
+    def area(t: tuple[int, ...]) -> float:
+        a, b, c = receivers[list(t)]
+        return float(np.linalg.norm(np.cross(b - a, c - a)))
+
+    return sorted(good, key=area, reverse=True)  # type: ignore[arg-type]
+
+
+def locate(
+    receivers: FloatArray,
+    ranges: list[FloatArray],
+    count: int,
+    tolerance_m: float = 0.02,
+    min_support: int = 6,
+    exclude_near: FloatArray | None = None,
+    exclude_radius_m: float = 0.05,
+    max_triples: int = 3,
+) -> list[Located]:
+    """Up to ``count`` transmitters located from unlabelled distances alone (greedy, best-supported first)."""
+    available = [np.asarray(r, dtype=float).copy() for r in ranges]
+    taken = [np.zeros(len(r), dtype=bool) for r in available]
+    found: list[Located] = []
+    triples = _triples(receivers)[:max_triples]
+    for _ in range(count):
+        best: Located | None = None
+        for triple in triples:
+            lists = [np.nonzero(~taken[r])[0] for r in triple]
+            if any(len(x) == 0 for x in lists):
+                continue
+            grid = np.array(np.meshgrid(*lists, indexing="ij")).reshape(3, -1).T  # index combos
+            radii = np.column_stack([available[r][grid[:, c]] for c, r in enumerate(triple)])
+            points, valid = trilaterate(receivers[list(triple)], radii)
+            points, grid = points[valid], grid[valid]
+            if len(points) == 0:
+                continue
+            support = np.zeros(len(points), dtype=int)
+            for r in range(len(receivers)):
+                free = available[r][~taken[r]]
+                if len(free) == 0:
+                    continue
+                predicted = np.linalg.norm(points - receivers[r], axis=1)
+                support += (np.abs(predicted[:, None] - free[None, :]).min(axis=1) < tolerance_m).astype(int)
+            if exclude_near is not None and len(exclude_near):
+                near = np.linalg.norm(points[:, None, :] - exclude_near[None, :, :], axis=2).min(axis=1) < exclude_radius_m
+                support[near] = 0
+            i = int(np.argmax(support))
+            if support[i] >= min_support and (best is None or support[i] > best.support):
+                best = _explain(points[i], receivers, available, taken, tolerance_m)
+        if best is None:
+            break
+        for r, j in best.used:
+            taken[r][j] = True
+        found.append(best)
+    return found
+
+
+def _explain(point: FloatArray, receivers: FloatArray, available: list[FloatArray], taken: list[np.ndarray], tolerance_m: float) -> Located:
+    """The distances a candidate explains (the closest free one per receiver), and the refined point."""
+    used: list[tuple[int, int]] = []
+    for _ in range(2):  # refine, then re-collect with the refined point
+        used = []
+        for r in range(len(receivers)):
+            free = np.nonzero(~taken[r])[0]
+            if len(free) == 0:
+                continue
+            gap = np.abs(np.linalg.norm(point - receivers[r]) - available[r][free])
+            j = int(np.argmin(gap))
+            if gap[j] < tolerance_m:
+                used.append((r, int(free[j])))
+        if len(used) >= 3:
+            point = refine(point, receivers[[r for r, _ in used]], np.array([available[r][j] for r, j in used]))
+    return Located(point, len(used), used)

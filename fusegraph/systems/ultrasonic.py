@@ -1,0 +1,314 @@
+"""Ultrasonic 3D tags with unknown data association: fusegraph's tracker, the paper's search, scoring, bench.
+
+fusegraph: every transmitter's state (position, velocity) is a graph variable; per epoch the
+factors are the previous marginal (a prior), the constant-velocity motion law, and the ranges from
+known receivers that the association gave it. The association comes from the graph's prediction:
+per receiver, an optimal assignment of the sorted distances to the predicted ones, gated by the
+predicted range uncertainty; a Cauchy kernel (iterated reweighting) takes what slips through. The
+ranges are linearised at the prediction and re-linearised once at the solution (the remaining
+error is (prediction error)^2 / range, micrometres). gtsam eliminates the small graph per
+transmitter (QR, C++); the new marginal is the next prior. A track that loses its ranges, or
+duplicates another, is re-initialised from the distances nobody explains (``frontends.association.locate``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from ..frontends.association import assign_ranges, locate
+from ..geometry import FloatArray
+from ..scenarios.ultrasonic import RangeEpochs
+
+_UNIT6 = gtsam.noiseModel.Unit.Create(6)
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Motion model, gating and track maintenance of the fusegraph tracker."""
+
+    accel_psd: float = 4.0
+    """White-acceleration spectral density of the constant-velocity model, (m/s^2)^2/Hz."""
+    gate_chi2: float = 16.0
+    """Association gate on the squared normalised range innovation (4 sigma)."""
+    gate_floor_m: float = 0.01
+    """Smallest predicted-range sigma used in the gate, metres (model error of the motion law)."""
+    cauchy_k: float = 3.0
+    """Cauchy kernel width in range sigmas (reweighting on the second iteration)."""
+    outlier_sigmas: float = 6.0
+    """An assigned range further than this from the solution is dropped (label -1)."""
+    lost_after: int = 8
+    """A track with fewer than ``min_ranges`` inliers for this many epochs is lost."""
+    min_ranges: int = 4
+    """Inlier ranges a track needs per epoch to count as seen."""
+    duplicate_m: float = 0.03
+    """Two tracks closer than this: the one with fewer inliers is lost (it latched onto the other's ranges)."""
+    recover_every: int = 5
+    """Look for untracked transmitters in the unassigned ranges every this many epochs (always when a track is lost)."""
+    recover_support: int = 8
+    """Receivers that must agree on an untracked transmitter before a track moves there."""
+
+
+@dataclass
+class Track:
+    x: FloatArray
+    """Position (3) and velocity (3), metres and m/s."""
+    sqrt_info: FloatArray
+    """Upper-triangular square-root information (6 x 6) of the marginal."""
+    missed: int = 0
+    lost: bool = False
+    inliers: int = 0
+
+
+def _motion(dt: float, psd: float) -> tuple[FloatArray, FloatArray]:
+    """Transition F and whitening W (W^T W = Q^-1) of the constant-velocity model over dt."""
+    F = np.eye(6)
+    F[:3, 3:] = dt * np.eye(3)
+    Q = psd * np.block([[dt**3 / 3 * np.eye(3), dt**2 / 2 * np.eye(3)], [dt**2 / 2 * np.eye(3), dt * np.eye(3)]])
+    W = np.linalg.inv(np.linalg.cholesky(Q))
+    return F, W
+
+
+@dataclass
+class StepResult:
+    positions: FloatArray
+    labels: list[np.ndarray]
+    """Per receiver: the track of each sorted distance, or -1 (echo / unexplained)."""
+
+
+class UltrasonicTracker:
+    """Online tracker of N transmitters from unlabelled ranges."""
+
+    def __init__(self, receivers: FloatArray, transmitters: int, range_sigma_m: float = 0.005, config: TrackerConfig | None = None):
+        self.receivers = np.asarray(receivers, dtype=float)
+        self.n = transmitters
+        self.sigma = range_sigma_m
+        self.config = config or TrackerConfig()
+        self.tracks: list[Track] = []
+        self._t: float | None = None
+        self._epoch = 0
+        self.reinitialisations = 0
+
+    def _new_track(self, position: FloatArray) -> Track:
+        info = np.diag(np.r_[[1 / 0.02] * 3, [1 / 1.0] * 3])  # 2 cm, 1 m/s
+        return Track(np.r_[position, np.zeros(3)], info)
+
+    def step(self, t: float, ranges: list[FloatArray]) -> StepResult:
+        cfg = self.config
+        if not self.tracks:
+            found = locate(self.receivers, ranges, self.n)
+            self.tracks = [self._new_track(f.position_m) for f in found]
+            while len(self.tracks) < self.n:
+                self.tracks.append(Track(np.r_[self.receivers.mean(0) - [0, 0, 1.5], np.zeros(3)], np.eye(6) * 1e-3, lost=True))
+        dt = max(t - self._t, 1e-3) if self._t is not None else 0.025  # the first epoch: a nominal step from a static start
+        self._t = t
+        F, W = _motion(dt, cfg.accel_psd)
+        w_inv = np.linalg.inv(W)
+        Q = w_inv @ w_inv.T
+        # prediction and its covariance, for the association
+        pred_x, pred_cov = [], []
+        for tr in self.tracks:
+            r_inv = np.linalg.inv(tr.sqrt_info)  # triangular: better conditioned than inverting R^T R
+            cov = r_inv @ r_inv.T
+            pred_x.append(F @ tr.x)
+            pred_cov.append(F @ cov @ F.T + Q)
+        active = [i for i, tr in enumerate(self.tracks) if not tr.lost]
+        labels = self._associate(ranges, pred_x, pred_cov, active)
+        # update each track with its ranges
+        for i in active:
+            self._update(i, F, W, pred_x[i], ranges, labels)
+        # maintenance: duplicates and silent tracks become lost
+        self._maintain()
+        if any(tr.lost for tr in self.tracks) or self._epoch % cfg.recover_every == 0:
+            self._recover(ranges, labels)
+        self._epoch += 1
+        return StepResult(np.array([tr.x[:3] for tr in self.tracks]), labels)
+
+    def _associate(self, ranges: list[FloatArray], pred_x: list[FloatArray], pred_cov: list[FloatArray], active: list[int]) -> list[np.ndarray]:
+        labels = []
+        for r, measured in enumerate(ranges):
+            predicted, sigmas = [], []
+            for i in active:
+                diff = pred_x[i][:3] - self.receivers[r]
+                rho = float(np.linalg.norm(diff))
+                u = diff / rho
+                predicted.append(rho)
+                sigmas.append(max(float(np.sqrt(u @ pred_cov[i][:3, :3] @ u + self.sigma**2)), self.config.gate_floor_m))
+            local = assign_ranges(measured, np.array(predicted), np.array(sigmas), self.config.gate_chi2)
+            labels.append(np.where(local >= 0, np.array(active + [-1])[local], -1))
+        return labels
+
+    def _update(self, i: int, F: FloatArray, W: FloatArray, x_pred: FloatArray, ranges: list[FloatArray], labels: list[np.ndarray]) -> None:
+        tr = self.tracks[i]
+        rows = [(r, j) for r, lab in enumerate(labels) for j in np.nonzero(lab == i)[0]]
+        z = np.array([ranges[r][j] for r, j in rows])
+        anchors = self.receivers[[r for r, _ in rows]] if rows else np.zeros((0, 3))
+        x_new = x_pred
+        weights = np.ones(len(rows))
+        sqrt_info = tr.sqrt_info
+        order = gtsam.Ordering()
+        order.push_back(0)
+        order.push_back(1)
+        for iteration in range(2):
+            graph = gtsam.GaussianFactorGraph()
+            graph.add(gtsam.JacobianFactor(0, tr.sqrt_info, tr.sqrt_info @ tr.x, _UNIT6))
+            graph.add(gtsam.JacobianFactor(0, -W @ F, 1, W, np.zeros(6), _UNIT6))
+            if rows:
+                diff = x_new[:3] - anchors
+                rho = np.linalg.norm(diff, axis=1)
+                u = diff / rho[:, None]
+                if iteration == 1:
+                    scaled = (z - rho) / (self.config.cauchy_k * self.sigma)
+                    weights = 1.0 / np.sqrt(1.0 + scaled**2)  # Cauchy, as row weights (sqrt of the IRLS weight)
+                A = np.zeros((len(rows), 6))
+                A[:, :3] = u * (weights / self.sigma)[:, None]
+                b = (z - rho + np.einsum("ij,j->i", u, x_new[:3])) * weights / self.sigma
+                graph.add(gtsam.JacobianFactor(1, A, b, gtsam.noiseModel.Unit.Create(len(rows))))
+            conditional = graph.eliminateSequential(order).at(1)
+            sqrt_info = np.array(conditional.R(), copy=True)  # R() views the conditional's memory: copy before it goes
+            x_new = np.linalg.solve(sqrt_info, np.array(conditional.d(), copy=True))
+        residual = np.abs(z - np.linalg.norm(x_new[:3] - anchors, axis=1)) if rows else np.zeros(0)
+        outlier = residual > self.config.outlier_sigmas * self.sigma
+        for (r, j), bad in zip(rows, outlier, strict=True):
+            if bad:
+                labels[r][j] = -1
+        tr.x, tr.sqrt_info = x_new, sqrt_info
+        tr.inliers = int((~outlier).sum())
+        tr.missed = tr.missed + 1 if tr.inliers < self.config.min_ranges else 0
+
+    def _maintain(self) -> None:
+        cfg = self.config
+        for tr in self.tracks:
+            if not tr.lost and tr.missed >= cfg.lost_after:
+                tr.lost = True
+        live = [i for i, tr in enumerate(self.tracks) if not tr.lost]
+        for a in live:
+            for b in live:
+                if a < b and not self.tracks[a].lost and not self.tracks[b].lost:
+                    if np.linalg.norm(self.tracks[a].x[:3] - self.tracks[b].x[:3]) < cfg.duplicate_m:
+                        worse = a if self.tracks[a].inliers < self.tracks[b].inliers else b
+                        self.tracks[worse].lost = True
+
+    def _recover(self, ranges: list[FloatArray], labels: list[np.ndarray]) -> None:
+        free = [rng[lab < 0] for rng, lab in zip(ranges, labels, strict=True)]
+        if sum(len(f) >= 1 for f in free) < self.config.recover_support:
+            return
+        lost = [i for i, tr in enumerate(self.tracks) if tr.lost]
+        live = np.array([tr.x[:3] for tr in self.tracks if not tr.lost]).reshape(-1, 3)
+        found = locate(self.receivers, free, max(len(lost), 1), min_support=self.config.recover_support, exclude_near=live, max_triples=2)
+        for f in found:
+            if lost:
+                i = lost.pop(0)
+            else:
+                # an untracked transmitter while every track is live: one track wandered; move the weakest
+                i = int(np.argmin([tr.inliers for tr in self.tracks]))
+            self.tracks[i] = self._new_track(f.position_m)
+            self.reinitialisations += 1
+            # its distances now belong to it
+            for r, j in f.used:
+                idx = np.nonzero(labels[r] < 0)[0]
+                if j < len(idx):
+                    labels[r][idx[j]] = i
+
+
+@dataclass
+class TrackingRun:
+    """A method's output over a session."""
+
+    positions: FloatArray
+    """(K, N, 3) estimated positions, in the method's own transmitter order."""
+    labels: list[list[np.ndarray]]
+    """Per epoch and receiver: the method's transmitter of each distance, or -1."""
+    ms_per_epoch: FloatArray
+    """Processing time of every epoch, ms."""
+    extras: dict[str, float] = field(default_factory=dict)
+
+
+def run_fusegraph(epochs: RangeEpochs, transmitters: int, config: TrackerConfig | None = None) -> TrackingRun:
+    tracker = UltrasonicTracker(epochs.receivers, transmitters, epochs.range_sigma_m, config)
+    positions, labels, times = [], [], []
+    for k, t in enumerate(epochs.t):
+        start = time.perf_counter()
+        out = tracker.step(float(t), epochs.ranges[k])
+        times.append(1e3 * (time.perf_counter() - start))
+        positions.append(out.positions)
+        labels.append(out.labels)
+    return TrackingRun(np.array(positions), labels, np.array(times), {"reinitialisations": tracker.reinitialisations})
+
+
+def oracle_labels(epochs: RangeEpochs, gate_chi2: float = 16.0) -> list[list[np.ndarray]]:
+    """The limit: each receiver's distances assigned against the TRUE positions (same assignment and gate)."""
+    assert epochs.positions is not None
+    out = []
+    sigma = np.full(epochs.transmitters, epochs.range_sigma_m)
+    for k in range(len(epochs.t)):
+        predicted = np.linalg.norm(epochs.positions[k][None, :, :] - epochs.receivers[:, None, :], axis=2)
+        out.append([assign_ranges(epochs.ranges[k][r], predicted[r], sigma, gate_chi2) for r in range(len(epochs.receivers))])
+    return out
+
+
+def identity_map(estimate_first: FloatArray, truth_first: FloatArray) -> np.ndarray:
+    """Method's transmitter index -> truth index, matched once on the first epoch (later swaps count as errors)."""
+    from scipy.optimize import linear_sum_assignment
+
+    cost = np.linalg.norm(estimate_first[:, None, :] - truth_first[None, :, :], axis=2)
+    rows, cols = linear_sum_assignment(np.nan_to_num(cost, nan=1e6))
+    mapping = np.full(len(estimate_first), -1)
+    mapping[rows] = cols
+    return mapping
+
+
+@dataclass(frozen=True)
+class AssociationScore:
+    """Association accuracy (fractions) and position accuracy of one run."""
+
+    assoc_acc: float
+    """Over all distances: direct ones given their transmitter, echoes left out."""
+    assoc_acc_unambiguous: float
+    """Over echoes and the direct distances more than 2 cm from every other transmitter's at that receiver."""
+    rmse_m: float
+    lost_frac: float
+    """Transmitter-epochs more than 5 cm off."""
+
+
+def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: FloatArray | None, mapping: np.ndarray | None) -> AssociationScore:
+    """Score labels (method's indices, mapped to the truth by ``mapping``; None = already truth indices) and positions."""
+    assert epochs.labels is not None and epochs.positions is not None
+    correct = total = correct_u = total_u = 0
+    for k in range(len(epochs.t)):
+        direct = np.linalg.norm(epochs.positions[k][None, :, :] - epochs.receivers[:, None, :], axis=2)
+        for r in range(len(epochs.receivers)):
+            truth = epochs.labels[k][r]
+            guess = labels[k][r]
+            if mapping is not None:
+                guess = np.where(guess >= 0, mapping[np.clip(guess, 0, None)], -1)
+            want = np.where(truth >= 0, truth, -1)
+            hit = guess == want
+            correct += int(hit.sum())
+            total += len(truth)
+            # unambiguous: echoes, and direct distances > 2 cm from every OTHER transmitter's direct distance
+            others = np.abs(direct[r][None, :] - direct[r][np.clip(truth, 0, None)][:, None])
+            others[np.arange(len(truth)), np.clip(truth, 0, None)] = np.inf
+            clear = (truth < 0) | (others.min(axis=1, initial=np.inf) > 0.02)
+            correct_u += int(hit[clear].sum())
+            total_u += int(clear.sum())
+    rmse = lost = float("nan")
+    if positions is not None:
+        ordered = positions if mapping is None else _reorder(positions, mapping, epochs.transmitters)
+        err = np.linalg.norm(ordered - epochs.positions, axis=2)
+        err = np.nan_to_num(err, nan=np.inf)
+        finite = np.isfinite(err)
+        rmse = float(np.sqrt(np.mean(err[finite] ** 2))) if finite.any() else float("nan")
+        lost = float(np.mean(err > 0.05))
+    return AssociationScore(correct / max(total, 1), correct_u / max(total_u, 1), rmse, lost)
+
+
+def _reorder(positions: FloatArray, mapping: np.ndarray, n: int) -> FloatArray:
+    out = np.full((positions.shape[0], n, 3), np.nan)
+    for i, j in enumerate(mapping):
+        if j >= 0:
+            out[:, j] = positions[:, i]
+    return out
