@@ -101,7 +101,9 @@ def _trajectory(rng: np.random.Generator, t: FloatArray, start: FloatArray, cfg:
     return out
 
 
-def hear(positions: FloatArray, receivers: FloatArray, rng: np.random.Generator, cfg: UltrasonicScenarioConfig) -> tuple[list[list[FloatArray]], list[list[np.ndarray]]]:
+def hear(
+    positions: FloatArray, receivers: FloatArray, rng: np.random.Generator, cfg: UltrasonicScenarioConfig
+) -> tuple[list[list[FloatArray]], list[list[np.ndarray]]]:
     """Sorted distances per epoch and receiver (with misses and echoes), and their truth labels."""
     ranges: list[list[FloatArray]] = []
     labels: list[list[np.ndarray]] = []

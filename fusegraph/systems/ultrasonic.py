@@ -44,8 +44,9 @@ class TrackerConfig:
     """A track with fewer than ``min_ranges`` inliers for this many epochs is lost."""
     min_ranges: int = 4
     """Inlier ranges a track needs per epoch to count as seen."""
-    duplicate_m: float = 0.03
-    """Two tracks closer than this: the one with fewer inliers is lost (it latched onto the other's ranges)."""
+    duplicate_m: float = 0.008
+    """Two tracks closer than this: the one with fewer inliers is lost (it latched onto the other's ranges).
+    Real transmitters rest 3 cm apart in the scenario: 3 cm here made tracks flap between lost and found."""
     recover_every: int = 5
     """Look for untracked transmitters in the unassigned ranges every this many epochs (always when a track is lost)."""
     recover_support: int = 8
@@ -169,7 +170,7 @@ class UltrasonicTracker:
                 graph.add(gtsam.JacobianFactor(1, A, b, gtsam.noiseModel.Unit.Create(len(rows))))
             conditional = graph.eliminateSequential(order).at(1)
             sqrt_info = np.array(conditional.R(), copy=True)  # R() views the conditional's memory: copy before it goes
-            x_new = np.linalg.solve(sqrt_info, np.array(conditional.d(), copy=True))
+            x_new = np.asarray(np.linalg.solve(sqrt_info, np.array(conditional.d(), copy=True)), dtype=float)
         residual = np.abs(z - np.linalg.norm(x_new[:3] - anchors, axis=1)) if rows else np.zeros(0)
         outlier = residual > self.config.outlier_sigmas * self.sigma
         for (r, j), bad in zip(rows, outlier, strict=True):
@@ -187,10 +188,10 @@ class UltrasonicTracker:
         live = [i for i, tr in enumerate(self.tracks) if not tr.lost]
         for a in live:
             for b in live:
-                if a < b and not self.tracks[a].lost and not self.tracks[b].lost:
-                    if np.linalg.norm(self.tracks[a].x[:3] - self.tracks[b].x[:3]) < cfg.duplicate_m:
-                        worse = a if self.tracks[a].inliers < self.tracks[b].inliers else b
-                        self.tracks[worse].lost = True
+                both = a < b and not self.tracks[a].lost and not self.tracks[b].lost
+                if both and np.linalg.norm(self.tracks[a].x[:3] - self.tracks[b].x[:3]) < cfg.duplicate_m:
+                    worse = a if self.tracks[a].inliers < self.tracks[b].inliers else b
+                    self.tracks[worse].lost = True
 
     def _recover(self, ranges: list[FloatArray], labels: list[np.ndarray]) -> None:
         free = [rng[lab < 0] for rng, lab in zip(ranges, labels, strict=True)]
@@ -200,8 +201,9 @@ class UltrasonicTracker:
         live = np.array([tr.x[:3] for tr in self.tracks if not tr.lost]).reshape(-1, 3)
         found = locate(self.receivers, free, max(len(lost), 1), min_support=self.config.recover_support, exclude_near=live, max_triples=2)
         for f in found:
-            if lost:
-                i = lost.pop(0)
+            if lost:  # the lost track that was last nearest takes it (keeps identities through short losses)
+                i = min(lost, key=lambda j: float(np.linalg.norm(self.tracks[j].x[:3] - f.position_m)))
+                lost.remove(i)
             else:
                 # an untracked transmitter while every track is live: one track wandered; move the weakest
                 i = int(np.argmin([tr.inliers for tr in self.tracks]))
@@ -250,13 +252,13 @@ def oracle_labels(epochs: RangeEpochs, gate_chi2: float = 16.0) -> list[list[np.
     return out
 
 
-def identity_map(estimate_first: FloatArray, truth_first: FloatArray) -> np.ndarray:
-    """Method's transmitter index -> truth index, matched once on the first epoch (later swaps count as errors)."""
+def identity_map(estimate: FloatArray, truth: FloatArray) -> np.ndarray:
+    """Method's transmitter index -> truth index by an optimal matching of positions (one epoch)."""
     from scipy.optimize import linear_sum_assignment
 
-    cost = np.linalg.norm(estimate_first[:, None, :] - truth_first[None, :, :], axis=2)
+    cost = np.linalg.norm(estimate[:, None, :] - truth[None, :, :], axis=2)
     rows, cols = linear_sum_assignment(np.nan_to_num(cost, nan=1e6))
-    mapping = np.full(len(estimate_first), -1)
+    mapping = np.full(len(estimate), -1)
     mapping[rows] = cols
     return mapping
 
@@ -270,16 +272,32 @@ class AssociationScore:
     assoc_acc_unambiguous: float
     """Over echoes and the direct distances more than 2 cm from every other transmitter's at that receiver."""
     rmse_m: float
+    """Position RMSE over transmitter-epochs, metres."""
     lost_frac: float
-    """Transmitter-epochs more than 5 cm off."""
+    """Transmitter-epochs with no estimate within 5 cm (track loss)."""
+    identity_swaps: int
+    """Times the matching of the method's transmitters to the truth changed from one epoch to the next."""
 
 
-def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: FloatArray | None, mapping: np.ndarray | None) -> AssociationScore:
-    """Score labels (method's indices, mapped to the truth by ``mapping``; None = already truth indices) and positions."""
+def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: FloatArray | None) -> AssociationScore:
+    """Score a run. Each epoch, the method's transmitters are matched to the truth by position (the
+    association question is which distance belongs to which transmitter; keeping identities over time
+    is counted apart, as swaps). ``positions`` None: the labels are truth indices already (oracle)."""
     assert epochs.labels is not None and epochs.positions is not None
     correct = total = correct_u = total_u = 0
+    errors, swaps, previous = [], 0, None
     for k in range(len(epochs.t)):
-        direct = np.linalg.norm(epochs.positions[k][None, :, :] - epochs.receivers[:, None, :], axis=2)
+        truth_k = epochs.positions[k]
+        mapping = None
+        if positions is not None:
+            mapping = identity_map(positions[k], truth_k)
+            if previous is not None:
+                swaps += int(np.sum(mapping != previous)) // 2
+            previous = mapping
+            matched = np.full((epochs.transmitters, 3), np.nan)
+            matched[mapping[mapping >= 0]] = positions[k][mapping >= 0]
+            errors.append(np.linalg.norm(matched - truth_k, axis=1))
+        direct = np.linalg.norm(truth_k[None, :, :] - epochs.receivers[:, None, :], axis=2)
         for r in range(len(epochs.receivers)):
             truth = epochs.labels[k][r]
             guess = labels[k][r]
@@ -290,25 +308,16 @@ def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: Fl
             correct += int(hit.sum())
             total += len(truth)
             # unambiguous: echoes, and direct distances > 2 cm from every OTHER transmitter's direct distance
-            others = np.abs(direct[r][None, :] - direct[r][np.clip(truth, 0, None)][:, None])
-            others[np.arange(len(truth)), np.clip(truth, 0, None)] = np.inf
+            own = np.clip(truth, 0, None)
+            others = np.abs(direct[r][None, :] - direct[r][own][:, None])
+            others[np.arange(len(truth)), own] = np.inf
             clear = (truth < 0) | (others.min(axis=1, initial=np.inf) > 0.02)
             correct_u += int(hit[clear].sum())
             total_u += int(clear.sum())
     rmse = lost = float("nan")
-    if positions is not None:
-        ordered = positions if mapping is None else _reorder(positions, mapping, epochs.transmitters)
-        err = np.linalg.norm(ordered - epochs.positions, axis=2)
-        err = np.nan_to_num(err, nan=np.inf)
+    if errors:
+        err = np.nan_to_num(np.array(errors), nan=np.inf)
         finite = np.isfinite(err)
-        rmse = float(np.sqrt(np.mean(err[finite] ** 2))) if finite.any() else float("nan")
+        rmse = float(np.sqrt(np.mean(err[finite] ** 2)))
         lost = float(np.mean(err > 0.05))
-    return AssociationScore(correct / max(total, 1), correct_u / max(total_u, 1), rmse, lost)
-
-
-def _reorder(positions: FloatArray, mapping: np.ndarray, n: int) -> FloatArray:
-    out = np.full((positions.shape[0], n, 3), np.nan)
-    for i, j in enumerate(mapping):
-        if j >= 0:
-            out[:, j] = positions[:, i]
-    return out
+    return AssociationScore(correct / max(total, 1), correct_u / max(total_u, 1), rmse, lost, swaps)
