@@ -124,14 +124,16 @@ def build_parser() -> argparse.ArgumentParser:
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    ben.add_argument("system", choices=["head", "broad"])
+    ben.add_argument("system", choices=["head", "broad", "ultrasonic"])
     ben.add_argument("directory", nargs="?", type=Path, help="broad: directory of BROAD trials (*.mat; default ../shared/data/broad)")
-    ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600)")
+    ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600); ultrasonic: seconds per run (default 20)")
     ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
     ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="head: sensor error profile")
     ben.add_argument("--methods", default=None, help="broad: comma list of vqf,vqf_offline,ekf,online,batch (default all)")
     ben.add_argument("--trials", default=None, help="broad: comma list of file-name prefixes, e.g. 01,32 (default all)")
     ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method")
+    ben.add_argument("--seeds", type=_seeds_arg, default=None, help="ultrasonic: seeds per N (default 0-2)")
+    ben.add_argument("--transmitters", default="3,6,12", help="ultrasonic: comma list of N (default 3,6,12)")
     ben.add_argument("--json", action="store_true", help="print JSON")
     return parser
 
@@ -271,6 +273,13 @@ def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "broad":
         return _bench_broad(args)
+    if args.system == "ultrasonic":
+        from .systems import ultrasonic
+
+        counts = tuple(int(x) for x in args.transmitters.split(","))
+        found = ultrasonic.bench_ultrasonic(counts, tuple(args.seeds or (0, 1, 2)), duration_s=20.0 if args.duration == 600.0 else args.duration)
+        print(json.dumps(found, indent=2) if args.json else ultrasonic.format_ultrasonic_table(found))
+        return 0
     if args.directory is not None:
         raise ValueError("bench head takes no directory (it simulates its session)")
     from .systems import head

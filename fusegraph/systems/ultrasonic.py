@@ -321,3 +321,121 @@ def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: Fl
         rmse = float(np.sqrt(np.mean(err[finite] ** 2)))
         lost = float(np.mean(err > 0.05))
     return AssociationScore(correct / max(total, 1), correct_u / max(total_u, 1), rmse, lost, swaps)
+
+
+def run_combinatorial(epochs: RangeEpochs, transmitters: int, config: object | None = None) -> TrackingRun:
+    """The paper's search at every epoch (no tracking: each epoch stands alone)."""
+    from ..solvers.combinatorial import CombinatorialConfig, combinatorial_epoch
+
+    cfg = config if isinstance(config, CombinatorialConfig) else CombinatorialConfig()
+    positions, labels, times = [], [], []
+    capped = 0
+    for k in range(len(epochs.t)):
+        start = time.perf_counter()
+        p, lab, exhaustive = combinatorial_epoch(epochs.receivers, epochs.ranges[k], transmitters, epochs.range_sigma_m, cfg, seed=k)
+        times.append(1e3 * (time.perf_counter() - start))
+        capped += int(not exhaustive)
+        positions.append(p)
+        labels.append(lab)
+    return TrackingRun(np.array(positions), labels, np.array(times), {"capped_epochs": capped})
+
+
+def crossing_epochs(closest_m: float, speed_m_s: float, head_on: bool, seed: int = 0, rate_hz: float = 40.0) -> RangeEpochs:
+    """Two transmitters passing each other: head-on (opposite directions) or side by side (one overtakes)."""
+    from ..scenarios.ultrasonic import UltrasonicScenarioConfig, hear
+
+    cfg = UltrasonicScenarioConfig(transmitters=2, rate_hz=rate_hz)
+    t = np.arange(0.0, 3.0, 1.0 / rate_hz)
+    centre = np.array([1.0, 0.75, 0.9])
+    s = np.clip((t - 0.5) / 2.0, 0.0, 1.0)  # both move for 2 s, passing at the middle
+    a = centre + np.outer(speed_m_s * 2.0 * (s - 0.5), [1.0, 0.0, 0.0]) + [0.0, -closest_m / 2, 0.0]
+    if head_on:
+        b = centre + np.outer(-speed_m_s * 2.0 * (s - 0.5), [1.0, 0.0, 0.0]) + [0.0, closest_m / 2, 0.0]
+    else:  # side by side: b starts ahead at half the speed, a overtakes it at the middle
+        b = centre + np.outer(0.5 * speed_m_s * 2.0 * (s - 0.5), [1.0, 0.0, 0.0]) + [0.0, closest_m / 2, 0.0]
+    positions = np.stack([a, b], axis=1)
+    rng = np.random.default_rng(seed)
+    ranges, labels = hear(positions, cfg.receivers, rng, cfg)
+    return RangeEpochs(t, cfg.receivers.copy(), ranges, labels, positions, cfg.range_sigma_m)
+
+
+def bench_ultrasonic(
+    transmitter_counts: tuple[int, ...] = (3, 6, 12),
+    seeds: tuple[int, ...] = (0, 1, 2),
+    duration_s: float = 20.0,
+    baseline_s: float = 5.0,
+    show_progress: bool = True,
+) -> dict[str, object]:
+    """Simulation (both methods and the oracle per N), crossings; the JSON of ``fusegraph bench ultrasonic``."""
+    from ..progress import progress
+    from ..scenarios.ultrasonic import simulate_ultrasonic
+
+    sim: dict[str, dict[str, dict[str, float]]] = {}
+    jobs = [(n, seed) for n in transmitter_counts for seed in seeds]
+    rows: dict[tuple[int, str], list[dict[str, float]]] = {}
+    for n, seed in progress(jobs, desc="bench ultrasonic", enabled=None if show_progress else False):
+        epochs = simulate_ultrasonic(seed, transmitters=n, duration_s=duration_s)
+        oracle = score_run(epochs, oracle_labels(epochs), None)
+        short = _head(epochs, baseline_s)
+        for method, run, scored in (("fusegraph", run_fusegraph(epochs, n), epochs), ("combinatorial", run_combinatorial(short, n), short)):
+            score = score_run(scored, run.labels, run.positions)
+            oracle_here = oracle if scored is epochs else score_run(scored, oracle_labels(scored), None)
+            rows.setdefault((n, method), []).append({
+                "assoc_acc": score.assoc_acc,
+                "assoc_acc_unambiguous": score.assoc_acc_unambiguous,
+                "oracle_acc": oracle_here.assoc_acc,
+                "oracle_acc_unambiguous": oracle_here.assoc_acc_unambiguous,
+                "rmse_m": score.rmse_m,
+                "lost_frac": score.lost_frac,
+                "identity_swaps": float(score.identity_swaps),
+                "ms_per_epoch": float(np.mean(run.ms_per_epoch)),
+                "ms_p99": float(np.percentile(run.ms_per_epoch, 99)),
+                "seconds_scored": float(scored.t[-1] - scored.t[0] + 1 / 40),
+                "capped_epochs": float(run.extras.get("capped_epochs", 0)),
+            })
+    for (n, method), runs in rows.items():
+        sim.setdefault(str(n), {})[method] = {key: float(np.mean([r[key] for r in runs])) for key in runs[0]}
+        sim[str(n)][method]["ms_p99"] = float(np.max([r["ms_p99"] for r in runs]))  # the worst seed's p99
+    swaps = runs_done = 0
+    for closest in (0.05, 0.07, 0.10):
+        for speed in (0.3, 0.6, 1.0):
+            for head_on in (True, False):
+                epochs = crossing_epochs(closest, speed, head_on, seed=runs_done)
+                run = run_fusegraph(epochs, 2)
+                assert epochs.positions is not None
+                start = identity_map(run.positions[0], epochs.positions[0])
+                end = identity_map(run.positions[-1], epochs.positions[-1])
+                swaps += int(np.any(start != end))
+                runs_done += 1
+    return {"sim": sim, "crossing": {"runs": runs_done, "swaps": swaps}, "uwb": None}
+
+
+def _head(epochs: RangeEpochs, seconds: float) -> RangeEpochs:
+    keep = int(np.searchsorted(epochs.t, epochs.t[0] + seconds))
+    return RangeEpochs(
+        epochs.t[:keep], epochs.receivers, epochs.ranges[:keep], None if epochs.labels is None else epochs.labels[:keep],
+        None if epochs.positions is None else epochs.positions[:keep], epochs.range_sigma_m,
+    )
+
+
+def format_ultrasonic_table(result: dict[str, object]) -> str:
+    sim = result["sim"]
+    assert isinstance(sim, dict)
+    header = f"{'N':>3} {'method':<14}{'assoc':>8}{'unamb.':>8}{'oracle':>8}{'or.unamb':>9}{'rmse mm':>9}{'lost %':>8}{'swaps':>7}"
+    lines = [header + f"{'ms/ep':>8}{'p99 ms':>8}{'s':>6}{'capped':>8}"]
+    for n, methods in sim.items():
+        for method, r in methods.items():
+            lines.append(
+                f"{n:>3} {method:<14}{r['assoc_acc']:>8.4f}{r['assoc_acc_unambiguous']:>8.4f}{r['oracle_acc']:>8.4f}{r['oracle_acc_unambiguous']:>9.4f}"
+                f"{1e3 * r['rmse_m']:>9.1f}{100 * r['lost_frac']:>8.2f}{r['identity_swaps']:>7.1f}{r['ms_per_epoch']:>8.2f}{r['ms_p99']:>8.2f}"
+                f"{r['seconds_scored']:>6.0f}{r['capped_epochs']:>8.0f}"
+            )
+    crossing = result["crossing"]
+    assert isinstance(crossing, dict)
+    lines.append(f"crossings (closest approach 5, 7, 10 cm; 0.3-1 m/s; head-on and side by side): {crossing['swaps']} identity swaps "
+                 f"in {crossing['runs']} runs")
+    lines.append("means over seeds (p99: the worst seed); accuracies as fractions; the combinatorial search runs on the first s seconds "
+                 "(capped = epochs where its time cap stopped the search)")
+    if result.get("uwb") is None:
+        lines.append("uwb: the recorded UWB run is not in this bench yet")
+    return "\n".join(lines)
