@@ -1,0 +1,107 @@
+"""Ultrasonic tags with unknown association: assignment, prior-free location, tracker, the paper's search."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusegraph.frontends.association import assign_ranges, locate, trilaterate
+from fusegraph.scenarios.ultrasonic import ceiling_board, simulate_ultrasonic
+from fusegraph.solvers.combinatorial import combinatorial_epoch
+from fusegraph.systems.ultrasonic import RangeEpochs, UltrasonicTracker, crossing_epochs, identity_map, run_fusegraph, score_run
+
+RECEIVERS = ceiling_board()
+
+
+def _heard(positions: np.ndarray) -> list[np.ndarray]:
+    return [np.sort(np.linalg.norm(positions - r, axis=1)) for r in RECEIVERS]
+
+
+def test_assignment_on_a_hand_built_receiver() -> None:
+    # predicted 1.00, 1.20, 1.50 m; heard: an echo at 1.35, the first two, and the third missed
+    labels = assign_ranges(np.array([1.001, 1.198, 1.35]), np.array([1.0, 1.2, 1.5]), np.full(3, 0.01))
+    assert labels.tolist() == [0, 1, -1]
+    # the optimal assignment is global: nearest-neighbour would give both to track 1
+    labels = assign_ranges(np.array([1.195, 1.215]), np.array([1.21, 1.23]), np.full(2, 0.01))
+    assert labels.tolist() == [0, 1]
+    assert assign_ranges(np.zeros(0), np.array([1.0]), np.ones(1)).size == 0
+    assert assign_ranges(np.array([1.0]), np.zeros(0), np.ones(0)).tolist() == [-1]
+
+
+def test_trilaterate_picks_the_point_below_the_board() -> None:
+    point = np.array([[0.8, 0.6, 1.0]])
+    centres = RECEIVERS[[0, 5, 12]]
+    radii = np.linalg.norm(point - centres, axis=1)[None, :]
+    found, valid = trilaterate(centres, radii)
+    assert valid.all()
+    np.testing.assert_allclose(found, point, atol=1e-9)
+
+
+def test_locate_without_prior_finds_every_transmitter_despite_echoes_and_misses() -> None:
+    truth = np.array([[0.3, 0.3, 0.8], [1.2, 1.1, 1.0], [1.7, 0.4, 0.6]])
+    ranges = _heard(truth)
+    ranges[2] = np.sort(np.r_[ranges[2][1:], 2.9])  # receiver 2 missed one and heard an echo
+    ranges[7] = np.sort(np.r_[ranges[7], ranges[7][0] + 0.4])  # an echo
+    found = locate(RECEIVERS, ranges, 3)
+    assert len(found) == 3
+    positions = np.array([f.position_m for f in found])
+    error = np.linalg.norm(positions[identity_map(positions, truth).argsort()] - truth, axis=1)
+    assert error.max() < 1e-6  # noise-free distances: exact
+
+
+def test_combinatorial_search_recovers_a_noise_free_epoch() -> None:
+    truth = np.array([[0.3, 0.3, 0.8], [1.2, 1.1, 1.0], [1.7, 0.4, 0.6]])
+    positions, labels, exhaustive = combinatorial_epoch(RECEIVERS, _heard(truth), 3, 0.005)
+    assert exhaustive
+    mapping = identity_map(positions, truth)
+    np.testing.assert_allclose(positions[mapping.argsort()], truth, atol=1e-6)
+    for r, lab in enumerate(labels):
+        expected = np.argsort(np.linalg.norm(truth - RECEIVERS[r], axis=1))  # sorted distances -> transmitter
+        assert mapping[lab].tolist() == expected.tolist()
+
+
+def test_tracker_meets_the_accuracy_figures_on_a_short_scenario() -> None:
+    epochs = simulate_ultrasonic(4, transmitters=3, duration_s=6.0)
+    run = run_fusegraph(epochs, 3)
+    score = score_run(epochs, run.labels, run.positions)
+    # 5 mm ranges from a 0.6 x 1.5 m board 1.2-2 m above: ~8 mm position RMSE (mostly height)
+    assert score.rmse_m < 0.015
+    assert score.assoc_acc_unambiguous > 0.998 and score.lost_frac == 0.0
+
+
+def test_a_transmitter_that_disappears_comes_back() -> None:
+    epochs = simulate_ultrasonic(5, transmitters=3, duration_s=6.0)
+    assert epochs.labels is not None
+    # transmitter 1 is silent (every reception missed) from 2 s to 3 s
+    silent = (epochs.t >= 2.0) & (epochs.t < 3.0)
+    ranges = [[r.copy() for r in row] for row in epochs.ranges]
+    labels = [[lab.copy() for lab in row] for row in epochs.labels]
+    for k in np.nonzero(silent)[0]:
+        for r in range(len(RECEIVERS)):
+            keep = labels[k][r] != 1
+            ranges[k][r], labels[k][r] = ranges[k][r][keep], labels[k][r][keep]
+    gone = RangeEpochs(epochs.t, epochs.receivers, ranges, labels, epochs.positions, epochs.range_sigma_m)
+    tracker = UltrasonicTracker(gone.receivers, 3)
+    positions = np.array([tracker.step(float(t), gone.ranges[k]).positions for k, t in enumerate(gone.t)])
+    assert epochs.positions is not None
+    assert tracker.reinitialisations >= 1  # it was declared lost, then found again from unassigned distances
+    back = gone.t >= 3.5
+    error = np.linalg.norm(positions[back][:, :, None] - epochs.positions[back][:, None, :], axis=3).min(axis=1)
+    assert error.max() < 0.05  # every transmitter has a track within 5 cm again half a second later
+
+
+@pytest.mark.parametrize("head_on", [True, False])
+def test_no_identity_swap_when_passing_at_5_cm(head_on: bool) -> None:
+    epochs = crossing_epochs(0.05, 1.0, head_on, seed=11)
+    run = run_fusegraph(epochs, 2)
+    assert epochs.positions is not None
+    start = identity_map(run.positions[0], epochs.positions[0])
+    end = identity_map(run.positions[-1], epochs.positions[-1])
+    assert start.tolist() == end.tolist()
+
+
+def test_scenario_is_seeded_and_checks_its_size() -> None:
+    a, b = simulate_ultrasonic(7, duration_s=1.0), simulate_ultrasonic(7, duration_s=1.0)
+    assert all(np.array_equal(x, y) for x, y in zip(a.ranges[10], b.ranges[10], strict=True))
+    with pytest.raises(ValueError, match="1..16"):
+        simulate_ultrasonic(0, transmitters=17)
