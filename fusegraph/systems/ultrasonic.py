@@ -449,8 +449,8 @@ def format_ultrasonic_table(result: dict[str, object]) -> str:
         for method, r in methods.items():
             lines.append(
                 f"{n:>3} {method:<14}{r['assoc_acc']:>8.4f}{r['assoc_acc_unambiguous']:>8.4f}{r['oracle_acc']:>8.4f}{r['oracle_acc_unambiguous']:>9.4f}"
-                f"{1e3 * r['rmse_m']:>9.1f}{1e3 * r['rmse_all_m']:>8.0f}{100 * r['lost_frac']:>8.2f}{r['identity_swaps']:>7.1f}{r['ms_per_epoch']:>8.2f}{r['ms_p99']:>8.2f}"
-                f"{r['seconds_scored']:>6.0f}{r['capped_epochs']:>8.0f}"
+                f"{1e3 * r['rmse_m']:>9.1f}{1e3 * r['rmse_all_m']:>8.0f}{100 * r['lost_frac']:>8.2f}{r['identity_swaps']:>7.1f}"
+                f"{r['ms_per_epoch']:>8.2f}{r['ms_p99']:>8.2f}{r['seconds_scored']:>6.0f}{r['capped_epochs']:>8.0f}"
             )
     crossing = result["crossing"]
     assert isinstance(crossing, dict)
