@@ -134,6 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method")
     ben.add_argument("--seeds", type=_seeds_arg, default=None, help="ultrasonic: seeds per N (default 0-2)")
     ben.add_argument("--transmitters", default="3,6,12", help="ultrasonic: comma list of N (default 3,6,12)")
+    ben.add_argument("--uwb", default="default", metavar="DIR", help="ultrasonic: the recorded UWB run (default ../shared/data/uwb_lias; 'none' skips it)")
     ben.add_argument("--json", action="store_true", help="print JSON")
     return parser
 
@@ -277,7 +278,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from .systems import ultrasonic
 
         counts = tuple(int(x) for x in args.transmitters.split(","))
-        found = ultrasonic.bench_ultrasonic(counts, tuple(args.seeds or (0, 1, 2)), duration_s=20.0 if args.duration == 600.0 else args.duration)
+        found = ultrasonic.bench_ultrasonic(
+            counts, tuple(args.seeds or (0, 1, 2)), duration_s=20.0 if args.duration == 600.0 else args.duration,
+            uwb_dir=None if args.uwb == "none" else args.uwb,
+        )
         print(json.dumps(found, indent=2) if args.json else ultrasonic.format_ultrasonic_table(found))
         return 0
     if args.directory is not None:

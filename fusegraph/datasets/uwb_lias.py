@@ -1,0 +1,103 @@
+"""UWB ranging of 3 tags on a rigid trolley from 8 anchors, with motion capture (Jiang et al., ICRA 2023).
+
+Files (read in place from ``../shared/data/uwb_lias``): ``UWB_dynamic_exp_fast.csv`` (no header: a
+wall-clock time, then 24 ranges in metres ordered a0-t0, a0-t1, a0-t2, a1-t0, ... a7-t2; some
+empty), ``motion_capture_dynamic_exp_fast.csv`` (header ``time,x,y,z,rotation,,,``: centroid
+position in metres and a quaternion), ``SOURCE_README.md`` (anchor coordinates, tag offsets in the
+trolley frame, as Markdown tables).
+
+The quaternion is stored SCALAR LAST (x, y, z, w): read that way the tag positions it implies fit
+the ranges far better than scalar first (``tests/test_ultrasonic.py`` checks it on the data).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry import FloatArray
+from ..session import SessionError
+
+DEFAULT_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "uwb_lias"
+RANGES_FILE = "UWB_dynamic_exp_fast.csv"
+MOCAP_FILE = "motion_capture_dynamic_exp_fast.csv"
+
+
+@dataclass(frozen=True)
+class UwbRecording:
+    """Ranges per epoch, anchor and tag, and the motion capture of the trolley."""
+
+    t: FloatArray
+    """UWB epoch times (K,), seconds since midnight of the recording day."""
+    ranges: FloatArray
+    """(K, anchors, tags) ranges in metres, NaN where missing; labelled (tag known)."""
+    anchors: FloatArray
+    """(A, 3) anchor positions, metres."""
+    tag_offsets: FloatArray
+    """(T, 3) tag positions in the trolley frame, metres."""
+    mocap_t: FloatArray
+    """Motion capture times (M,), seconds since midnight."""
+    mocap_position: FloatArray
+    """(M, 3) trolley centroid, metres."""
+    mocap_quat_wxyz: FloatArray
+    """(M, 4) trolley attitude, scalar first (converted from the file's scalar-last order)."""
+
+    def tags_truth(self, t: FloatArray) -> FloatArray:
+        """(len(t), T, 3) tag positions from the motion capture (centroid + R offset), interpolated at t."""
+        from ..geometry import matrix_from_quat, quat_normalize
+
+        pos = np.column_stack([np.interp(t, self.mocap_t, self.mocap_position[:, i]) for i in range(3)])
+        idx = np.clip(np.searchsorted(self.mocap_t, t), 0, len(self.mocap_t) - 1)
+        rot = matrix_from_quat(quat_normalize(self.mocap_quat_wxyz[idx]))
+        return pos[:, None, :] + np.einsum("nij,tj->nti", rot, self.tag_offsets)
+
+
+def _seconds(stamp: str, path: Path, row: int) -> float:
+    try:
+        clock = stamp.strip().split(" ")[1]
+        h, m, s = clock.split(":")
+        return 3600.0 * int(h) + 60.0 * int(m) + float(s)
+    except (IndexError, ValueError):
+        raise SessionError(f"{path}: row {row}: time '{stamp}' is not 'YYYY-MM-DD H:MM:SS.fff'") from None
+
+
+def _table(text: str, label: str) -> FloatArray:
+    rows = re.findall(rf"\|\s*{label}\s+(\d+)\s*\|\s*([-\d.]+)\s*\|\s*([-\d.]+)\s*\|\s*([-\d.]+)\s*\|", text)
+    return np.array([[float(x), float(y), float(z)] for _, x, y, z in sorted(rows, key=lambda r: int(r[0]))])
+
+
+def load_uwb_lias(directory: str | Path = DEFAULT_DIR) -> UwbRecording:
+    """The fast dynamic run: ranges, anchors and tag offsets, motion capture."""
+    directory = Path(directory)
+    for name in (RANGES_FILE, MOCAP_FILE, "SOURCE_README.md"):
+        if not (directory / name).is_file():
+            raise SessionError(f"{directory / name}: UWB recording file not found")
+    readme = (directory / "SOURCE_README.md").read_text()
+    anchors, tags = _table(readme, "Anchor"), _table(readme, "Tag")
+    if anchors.shape != (8, 3) or tags.shape != (3, 3):
+        raise SessionError(f"{directory / 'SOURCE_README.md'}: expected 8 anchors and 3 tags, found {len(anchors)} and {len(tags)}")
+    t, ranges = [], []
+    with open(directory / RANGES_FILE) as f:
+        for row, line in enumerate(f, start=1):
+            cells = line.rstrip("\n").split(",")
+            if len(cells) != 25:
+                raise SessionError(f"{directory / RANGES_FILE}: row {row}: {len(cells)} columns, expected 25 (time + 24 ranges)")
+            t.append(_seconds(cells[0], directory / RANGES_FILE, row))
+            ranges.append([float(c) if c.strip() not in ("", "nan", "NaN") else np.nan for c in cells[1:]])
+    mt, mp, mq = [], [], []
+    with open(directory / MOCAP_FILE) as f:
+        next(f)
+        for row, line in enumerate(f, start=2):
+            cells = line.rstrip("\n").split(",")
+            if len(cells) < 8:
+                raise SessionError(f"{directory / MOCAP_FILE}: row {row}: {len(cells)} columns, expected 8")
+            mt.append(_seconds(cells[0], directory / MOCAP_FILE, row))
+            mp.append([float(c) for c in cells[1:4]])
+            x, y, z, w = (float(c) for c in cells[4:8])
+            mq.append([w, x, y, z])
+    return UwbRecording(
+        np.array(t), np.array(ranges).reshape(-1, 8, 3), anchors, tags, np.array(mt), np.array(mp), np.array(mq)
+    )
