@@ -1,9 +1,10 @@
 """Recorded UWB run: 3 tags tracked from unlabelled anchor ranges, against the labelled run and motion capture.
 
-Each tag: position and velocity in the horizontal plane (anchors and tags sit within 9 cm of one
-plane, so height is barely observable: it is HELD at the anchors' mean height; the 9 cm it is off
-changes a range by under 2 mm beyond 2 m) and one range bias per anchor (the ranges read ~0.2 m long,
-differently per anchor and tag) as graph variables. Per epoch, the graph is the previous marginal,
+The trolley's planar pose (x, y, heading) and its rates, the tags at their fixed offsets on it (the
+rigid body as part of the measurement model), and one range bias per anchor and tag (the ranges read
+~0.2 m long, differently per pair) as graph variables. Anchors and tags sit within 9 cm of one plane,
+so height is barely observable: it is HELD at the anchors' mean height (the 9 cm it is off changes a
+range by under 2 mm beyond 2 m). Per epoch, the graph is the previous marginal,
 the constant-velocity law, a bias random walk and the ranges the association gave the tag
 (linearised at the prediction, re-linearised once, Cauchy reweighting); gtsam eliminates it.
 Unlabelled: per anchor, the sorted ranges are assigned to the tags' predicted ranges (optimal
@@ -32,7 +33,9 @@ class UwbConfig:
     range_sigma_m: float = 0.1
     """Range noise, metres (the ranges are quantised to 1 cm; multipath spreads them)."""
     accel_psd: float = 1.0
-    """White-acceleration density of the tags, (m/s^2)^2/Hz."""
+    """White-acceleration density of the trolley, (m/s^2)^2/Hz."""
+    turn_psd: float = 4.0
+    """White angular-acceleration density of its heading, (rad/s^2)^2/Hz."""
     bias_prior_m: float = 0.5
     """Start-up sigma of each anchor's range bias, metres (mean 0: the bias is learnt)."""
     bias_walk_m_sqrt_s: float = 0.005
@@ -43,39 +46,56 @@ class UwbConfig:
     """Cauchy width in range sigmas."""
 
 
-def _state_motion(dt: float, psd: float, bias_walk: float, anchors: int) -> tuple[FloatArray, FloatArray]:
-    n = 4 + anchors
+def _state_motion(dt: float, psd: float, psd_turn: float, bias_walk: float, biases: int) -> tuple[FloatArray, FloatArray]:
+    """Constant velocity in (x, y, heading) and random-walk biases: transition and whitening."""
+    n = 6 + biases
     F = np.eye(n)
-    F[0, 2] = F[1, 3] = dt
     Q = np.zeros((n, n))
-    for i in range(2):
-        Q[i, i] = psd * dt**3 / 3
-        Q[i, i + 2] = Q[i + 2, i] = psd * dt**2 / 2
-        Q[i + 2, i + 2] = psd * dt
-    Q[4:, 4:] = np.eye(anchors) * bias_walk**2 * dt
+    for i, q in ((0, psd), (1, psd), (2, psd_turn)):
+        F[i, i + 3] = dt
+        Q[i, i] = q * dt**3 / 3
+        Q[i, i + 3] = Q[i + 3, i] = q * dt**2 / 2
+        Q[i + 3, i + 3] = q * dt
+    Q[6:, 6:] = np.eye(biases) * bias_walk**2 * dt
     return F, np.linalg.inv(np.linalg.cholesky(Q))
 
 
 class UwbTracker:
-    """Tags in the plane with per-anchor range biases, from labelled or unlabelled ranges."""
+    """The trolley's planar pose (tags at their fixed offsets) and a range bias per anchor and tag."""
 
     def __init__(self, anchors: FloatArray, tag_offsets: FloatArray, config: UwbConfig | None = None):
         self.anchors = np.asarray(anchors, dtype=float)
         self.offsets = np.asarray(tag_offsets, dtype=float)
         self.config = config or UwbConfig()
         self.height = float(self.anchors[:, 2].mean())
-        self.x: FloatArray | None = None  # (T, 4 + A)
-        self.sqrt_info: list[FloatArray] = []
+        self.tags = len(self.offsets)
+        self.mirror = 1.0
+        self.layout = self.offsets[:, :2] - self.offsets[:, :2].mean(0)
+        self.x: FloatArray | None = None  # x, y, heading, their rates, biases (anchor-major: a * tags + t)
+        self.sqrt_info = np.eye(1)
         self._t: float | None = None
+        self.cost = 0.0
+        """Sum of the Cauchy losses of the normalised range residuals so far (for model selection)."""
+
+    def tag_xy(self, x: FloatArray) -> FloatArray:
+        """(T, 2) tag positions of a state."""
+        c, s = np.cos(x[2]), np.sin(x[2])
+        body = self.layout * [self.mirror, 1.0]
+        return x[:2] + body @ np.array([[c, -s], [s, c]]).T
 
     def _predicted_ranges(self, xy: FloatArray) -> FloatArray:
         """(T, A) distances from tags at xy (T, 2), held at the anchors' height, to the anchors."""
         pts = np.column_stack([xy, np.full(len(xy), self.height)])
         return np.linalg.norm(pts[:, None, :] - self.anchors[None, :, :], axis=2)
 
-    def start(self, ranges: FloatArray) -> None:
-        """Initial tags from one epoch's (A, T) ranges, labelled or not (the columns' order is not used)."""
-        mean = np.nanmean(ranges, axis=1)
+    def start(self, first: FloatArray, labelled: bool, mirror: float | None = None) -> None:
+        """Initial pose from the first epochs' (E, A, T) ranges (the trolley barely moves in them).
+
+        Unlabelled, only each anchor's range DIFFERENCES are compared (no common bias affects them,
+        and which range is which tag is unknown); labelled, the columns say which tag each range is.
+        """
+        ranges = np.nanmedian(first, axis=0) if labelled else first[0]
+        mean = np.nanmean(first.reshape(-1, *first.shape[1:]), axis=(0, 2))
         ok = np.isfinite(mean)
         c = self.anchors[ok, :2].mean(0)
         common_bias = 0.0
@@ -84,85 +104,97 @@ class UwbTracker:
             jac = (c - self.anchors[ok, :2]) / d[:, None]
             step, *_ = np.linalg.lstsq(np.column_stack([jac, np.ones(ok.sum())]), mean[ok] - d - common_bias, rcond=None)
             c, common_bias = c + step[:2], common_bias + step[2]
-        layout = self.offsets[:, :2] - self.offsets[:, :2].mean(0)
-        best: tuple[float, FloatArray] = (np.inf, np.zeros((len(layout), 2)))
-        for mirror in (1.0, -1.0):
+        best = (np.inf, 0.0, 1.0)
+        epochs = [ranges] if labelled else list(first)
+        for handed in (1.0, -1.0) if mirror is None else (mirror,):  # the offsets' frame seen from above: either handedness
+            self.mirror = handed
             for heading in np.deg2rad(np.arange(0, 360, 5)):
-                rot = np.array([[np.cos(heading), -np.sin(heading)], [np.sin(heading), np.cos(heading)]])
-                xy = c + (layout * [mirror, 1.0]) @ rot.T
-                predicted = self._predicted_ranges(xy)  # (T, A)
+                predicted = self._predicted_ranges(self.tag_xy(np.r_[c, heading]))  # (T, A)
+                rel_p = predicted - predicted.mean(axis=0)
                 cost = 0.0
-                for a in range(len(self.anchors)):
-                    heard = np.sort(ranges[a][np.isfinite(ranges[a])])
-                    if len(heard) < 2:
-                        continue
-                    rel_p = predicted[:, a] - predicted[:, a].mean()
-                    rel_h = heard - heard.mean()
-                    cost += float(np.min(np.abs(rel_h[:, None] - rel_p[None, :]), axis=1).sum())
+                for epoch in epochs:
+                    for a in range(len(self.anchors)):
+                        heard = np.isfinite(epoch[a])
+                        if heard.sum() < 2:
+                            continue
+                        rel_h = epoch[a][heard] - epoch[a][heard].mean()
+                        if labelled:
+                            cost += float(np.abs(rel_h - (rel_p[heard, a] - rel_p[heard, a].mean())).sum())
+                        else:
+                            cost += float(np.min(np.abs(rel_h[:, None] - rel_p[None, :, a]), axis=1).sum())
                 if cost < best[0]:
-                    best = (cost, xy)
-        self.x = np.zeros((len(layout), 4 + len(self.anchors)))
-        self.x[:, :2] = best[1]
-        self.x[:, 4:] = common_bias  # learnt per anchor and tag from here on
+                    best = (cost, float(heading), handed)
+        self.mirror = best[2]
         cfg = self.config
-        info = np.diag(np.r_[[1 / 0.3] * 2, [1 / 0.5] * 2, [1 / cfg.bias_prior_m] * len(self.anchors)])
-        self.sqrt_info = [info.copy() for _ in range(len(layout))]
+        biases = len(self.anchors) * self.tags
+        self.x = np.r_[c, best[1], np.zeros(3), np.full(biases, common_bias)]
+        self.sqrt_info = np.diag(np.r_[[1 / 0.3] * 2, 1 / 0.3, [1 / 0.5] * 2, 1 / 1.0, [1 / cfg.bias_prior_m] * biases])
 
     def step(self, t: float, ranges: FloatArray, labelled: bool) -> tuple[FloatArray, FloatArray]:
         """One epoch of (A, T) ranges (NaN = missing; ``labelled`` False: each row's order is meaningless).
 
-        Returns the tags' positions (T, 2) and the tag given to each range (A, T) (-1 = rejected).
+        Returns the tags' positions (T, 2) and the tag given to each range (A, T) (-1 = none).
         """
         cfg = self.config
         if self.x is None:
-            self.start(ranges)
+            self.start(ranges[None], labelled)
             self._t = t
         assert self.x is not None
         dt = max(t - (self._t if self._t is not None else t), 1e-3)
         self._t = t
-        F, W = _state_motion(dt, cfg.accel_psd, cfg.bias_walk_m_sqrt_s, len(self.anchors))
-        pred = self.x @ F.T
-        tags = len(self.x)
+        n_anchor = len(self.anchors)
+        F, W = _state_motion(dt, cfg.accel_psd, cfg.turn_psd, cfg.bias_walk_m_sqrt_s, n_anchor * self.tags)
+        pred = F @ self.x
         labels = np.full(ranges.shape, -1)
         if labelled:
-            labels[np.isfinite(ranges)] = np.broadcast_to(np.arange(tags), ranges.shape)[np.isfinite(ranges)]
+            labels[np.isfinite(ranges)] = np.broadcast_to(np.arange(self.tags), ranges.shape)[np.isfinite(ranges)]
         else:
-            predicted = self._predicted_ranges(pred[:, :2]) + pred[:, 4:]  # (T, A) with each tag's bias
-            for a in range(len(self.anchors)):
+            predicted = self._predicted_ranges(self.tag_xy(pred)) + pred[6:].reshape(n_anchor, self.tags).T
+            for a in range(n_anchor):
                 heard = np.isfinite(ranges[a])
-                found = assign_ranges(ranges[a][heard], predicted[:, a], np.full(tags, 2 * cfg.range_sigma_m), cfg.gate_chi2)
+                found = assign_ranges(ranges[a][heard], predicted[:, a], np.full(self.tags, 2 * cfg.range_sigma_m), cfg.gate_chi2)
                 labels[a, np.nonzero(heard)[0]] = found
+        a_idx, t_idx = np.nonzero(labels >= 0)
+        tag_of = labels[a_idx, t_idx]
+        z = ranges[a_idx, t_idx]
+        n = len(self.x)
+        unit = gtsam.noiseModel.Unit.Create(n)
         order = gtsam.Ordering()
         order.push_back(0)
         order.push_back(1)
-        n = self.x.shape[1]
-        unit = gtsam.noiseModel.Unit.Create(n)
-        for i in range(tags):
-            a_idx, c_idx = np.nonzero(labels == i)
-            z = ranges[a_idx, c_idx]
-            x_new = pred[i].copy()
-            weights = np.ones(len(z))
-            for iteration in range(2):
-                graph = gtsam.GaussianFactorGraph()
-                graph.add(gtsam.JacobianFactor(0, self.sqrt_info[i], self.sqrt_info[i] @ self.x[i], unit))
-                graph.add(gtsam.JacobianFactor(0, -W @ F, 1, W, np.zeros(n), unit))
-                if len(z):
-                    diff = np.column_stack([x_new[:2] - self.anchors[a_idx, :2], self.height - self.anchors[a_idx, 2]])
-                    rho = np.linalg.norm(diff, axis=1)
-                    h = rho + x_new[4 + a_idx]
-                    if iteration == 1:
-                        weights = 1.0 / np.sqrt(1.0 + ((z - h) / (cfg.cauchy_k * cfg.range_sigma_m)) ** 2)
-                    A = np.zeros((len(z), n))
-                    A[:, :2] = diff[:, :2] / rho[:, None]
-                    A[np.arange(len(z)), 4 + a_idx] = 1.0
-                    b = z - h + A @ x_new
-                    graph.add(gtsam.JacobianFactor(1, A * (weights / cfg.range_sigma_m)[:, None], b * weights / cfg.range_sigma_m,
-                                                   gtsam.noiseModel.Unit.Create(len(z))))
-                conditional = graph.eliminateSequential(order).at(1)
-                R = np.array(conditional.R(), copy=True)
-                x_new = np.linalg.solve(R, np.array(conditional.d(), copy=True))
-            self.x[i], self.sqrt_info[i] = x_new, R
-        return self.x[:, :2].copy(), labels
+        x_new = pred.copy()
+        R = self.sqrt_info
+        for iteration in range(2):
+            graph = gtsam.GaussianFactorGraph()
+            graph.add(gtsam.JacobianFactor(0, self.sqrt_info, self.sqrt_info @ self.x, unit))
+            graph.add(gtsam.JacobianFactor(0, -W @ F, 1, W, np.zeros(n), unit))
+            if len(z):
+                cth, sth = np.cos(x_new[2]), np.sin(x_new[2])
+                body = self.layout[tag_of] * [self.mirror, 1.0]
+                turned = body @ np.array([[cth, -sth], [sth, cth]]).T
+                d_turned = body @ np.array([[-sth, -cth], [cth, -sth]]).T  # d(turned)/d(heading)
+                diff = np.column_stack([x_new[:2] + turned - self.anchors[a_idx, :2], self.height - self.anchors[a_idx, 2]])
+                rho = np.linalg.norm(diff, axis=1)
+                bias_col = 6 + a_idx * self.tags + tag_of
+                h = rho + x_new[bias_col]
+                weights = np.ones(len(z))
+                if iteration == 1:
+                    scaled = (z - h) / (cfg.cauchy_k * cfg.range_sigma_m)
+                    weights = 1.0 / np.sqrt(1.0 + scaled**2)
+                    self.cost += float(np.log1p(scaled**2).sum())
+                u = diff[:, :2] / rho[:, None]
+                A = np.zeros((len(z), n))
+                A[:, :2] = u
+                A[:, 2] = np.einsum("ij,ij->i", u, d_turned)
+                A[np.arange(len(z)), bias_col] = 1.0
+                b = z - h + A @ x_new
+                scale = weights / cfg.range_sigma_m
+                graph.add(gtsam.JacobianFactor(1, A * scale[:, None], b * scale, gtsam.noiseModel.Unit.Create(len(z))))
+            conditional = graph.eliminateSequential(order).at(1)
+            R = np.array(conditional.R(), copy=True)
+            x_new = np.asarray(np.linalg.solve(R, np.array(conditional.d(), copy=True)), dtype=float)
+        self.x, self.sqrt_info = x_new, R
+        return self.tag_xy(self.x), labels
 
 
 @dataclass(frozen=True)
@@ -176,8 +208,20 @@ class UwbResult:
     ms_per_epoch: float
 
 
-def _track(rec: UwbRecording, labelled: bool, config: UwbConfig | None) -> tuple[FloatArray, FloatArray, float]:
+def _track(rec: UwbRecording, labelled: bool, config: UwbConfig | None, select_s: float = 20.0) -> tuple[FloatArray, FloatArray, float]:
+    """Track the whole run. The offsets' handedness seen from above (the motion-capture body frame is
+    upside down here) is not decidable from one epoch: both are tracked for ``select_s`` seconds and the
+    one whose ranges fit better (Cauchy cost) is kept; the run then restarts with it."""
+    window = int(np.searchsorted(rec.t, rec.t[0] + select_s))
+    costs = {}
+    for handed in (1.0, -1.0):
+        trial = UwbTracker(rec.anchors, rec.tag_offsets, config)
+        trial.start(rec.ranges[:100], labelled, mirror=handed)
+        for k in range(window):
+            trial.step(float(rec.t[k]), rec.ranges[k], labelled)
+        costs[handed] = trial.cost
     tracker = UwbTracker(rec.anchors, rec.tag_offsets, config)
+    tracker.start(rec.ranges[:100], labelled, mirror=min(costs, key=costs.__getitem__))  # the first second, buffered
     xy, labels = np.zeros((len(rec.t), 3, 2)), np.zeros(rec.ranges.shape, dtype=int)
     start = time.perf_counter()
     for k, t in enumerate(rec.t):
