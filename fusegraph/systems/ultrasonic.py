@@ -135,8 +135,12 @@ class UltrasonicTracker:
             for tr in self.tracks:
                 r_inv = np.linalg.inv(tr.sqrt_info)
                 post_cov.append(r_inv @ r_inv.T)
+            first = label_of
             label_of = np.concatenate(self._associate(ranges, post_x, post_cov, active))
             for i in active:
+                # only a track whose distances changed is solved again (most epochs: none)
+                if np.array_equal(first == i, label_of == i):
+                    continue
                 self.tracks[i].x, self.tracks[i].sqrt_info, self.tracks[i].missed = before[i]
                 self._update(i, F, W, pred_x[i], (z_all, receiver_of, label_of))
         labels = np.split(label_of, np.cumsum(counts)[:-1])
