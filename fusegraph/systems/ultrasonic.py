@@ -24,6 +24,10 @@ from ..geometry import FloatArray
 from ..scenarios.ultrasonic import RangeEpochs
 
 _UNIT6 = gtsam.noiseModel.Unit.Create(6)
+_ZERO6 = np.zeros(6)
+_ORDER = gtsam.Ordering()  # previous state, then the new one: the new one's marginal is the last conditional
+_ORDER.push_back(0)
+_ORDER.push_back(1)
 
 
 @dataclass(frozen=True)
@@ -173,13 +177,12 @@ class UltrasonicTracker:
         x_new = x_pred
         weights = np.ones(len(rows))
         sqrt_info = tr.sqrt_info
-        order = gtsam.Ordering()
-        order.push_back(0)
-        order.push_back(1)
+        prior = gtsam.JacobianFactor(0, tr.sqrt_info, tr.sqrt_info @ tr.x, _UNIT6)
+        motion = gtsam.JacobianFactor(0, -W @ F, 1, W, _ZERO6, _UNIT6)
         for iteration in range(2):
             graph = gtsam.GaussianFactorGraph()
-            graph.add(gtsam.JacobianFactor(0, tr.sqrt_info, tr.sqrt_info @ tr.x, _UNIT6))
-            graph.add(gtsam.JacobianFactor(0, -W @ F, 1, W, np.zeros(6), _UNIT6))
+            graph.add(prior)
+            graph.add(motion)
             if len(rows):
                 diff = x_new[:3] - anchors
                 rho = np.linalg.norm(diff, axis=1)
@@ -191,7 +194,7 @@ class UltrasonicTracker:
                 A[:, :3] = u * (weights / self.sigma)[:, None]
                 b = (z - rho + np.einsum("ij,j->i", u, x_new[:3])) * weights / self.sigma
                 graph.add(gtsam.JacobianFactor(1, A, b, gtsam.noiseModel.Unit.Create(len(rows))))
-            conditional = graph.eliminateSequential(order).at(1)
+            conditional = graph.eliminateSequential(_ORDER).at(1)
             sqrt_info = np.array(conditional.R(), copy=True)  # R() views the conditional's memory: copy before it goes
             x_new = np.asarray(np.linalg.solve(sqrt_info, np.array(conditional.d(), copy=True)), dtype=float)
         residual = np.abs(z - np.linalg.norm(x_new[:3] - anchors, axis=1))
