@@ -16,18 +16,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-import gtsam
 import numpy as np
 
 from ..frontends.association import assign_ranges, locate
 from ..geometry import FloatArray
 from ..scenarios.ultrasonic import RangeEpochs
-
-_UNIT6 = gtsam.noiseModel.Unit.Create(6)
-_ZERO6 = np.zeros(6)
-_ORDER = gtsam.Ordering()  # previous state, then the new one: the new one's marginal is the last conditional
-_ORDER.push_back(0)
-_ORDER.push_back(1)
+from ..solvers.sequential import MarginalStep, constant_velocity, covariance, whitening
 
 
 @dataclass(frozen=True)
@@ -70,15 +64,6 @@ class Track:
     inliers: int = 0
 
 
-def _motion(dt: float, psd: float) -> tuple[FloatArray, FloatArray]:
-    """Transition F and whitening W (W^T W = Q^-1) of the constant-velocity model over dt."""
-    F = np.eye(6)
-    F[:3, 3:] = dt * np.eye(3)
-    Q = psd * np.block([[dt**3 / 3 * np.eye(3), dt**2 / 2 * np.eye(3)], [dt**2 / 2 * np.eye(3), dt * np.eye(3)]])
-    W = np.linalg.inv(np.linalg.cholesky(Q))
-    return F, W
-
-
 @dataclass
 class StepResult:
     positions: FloatArray
@@ -112,16 +97,11 @@ class UltrasonicTracker:
                 self.tracks.append(Track(np.r_[self.receivers.mean(0) - [0, 0, 1.5], np.zeros(3)], np.eye(6) * 1e-3, lost=True))
         dt = max(t - self._t, 1e-3) if self._t is not None else 0.025  # the first epoch: a nominal step from a static start
         self._t = t
-        F, W = _motion(dt, cfg.accel_psd)
-        w_inv = np.linalg.inv(W)
-        Q = w_inv @ w_inv.T
+        F, Q = constant_velocity(dt, [cfg.accel_psd] * 3)
+        W = whitening(Q)
         # prediction and its covariance, for the association
-        pred_x, pred_cov = [], []
-        for tr in self.tracks:
-            r_inv = np.linalg.inv(tr.sqrt_info)  # triangular: better conditioned than inverting R^T R
-            cov = r_inv @ r_inv.T
-            pred_x.append(F @ tr.x)
-            pred_cov.append(F @ cov @ F.T + Q)
+        pred_x = [F @ tr.x for tr in self.tracks]
+        pred_cov = [F @ covariance(tr.sqrt_info) @ F.T + Q for tr in self.tracks]
         active = [i for i, tr in enumerate(self.tracks) if not tr.lost]
         labels = self._associate(ranges, pred_x, pred_cov, active)
         # update each track with its ranges
@@ -135,10 +115,7 @@ class UltrasonicTracker:
         if cfg.reassociate and active:
             # associate again with the solved positions (mm, not the prediction's cm), and solve again from the prior
             post_x = [tr.x for tr in self.tracks]
-            post_cov = []
-            for tr in self.tracks:
-                r_inv = np.linalg.inv(tr.sqrt_info)
-                post_cov.append(r_inv @ r_inv.T)
+            post_cov = [covariance(tr.sqrt_info) for tr in self.tracks]
             first = label_of
             label_of = np.concatenate(self._associate(ranges, post_x, post_cov, active))
             for i in active:
@@ -177,12 +154,9 @@ class UltrasonicTracker:
         x_new = x_pred
         weights = np.ones(len(rows))
         sqrt_info = tr.sqrt_info
-        prior = gtsam.JacobianFactor(0, tr.sqrt_info, tr.sqrt_info @ tr.x, _UNIT6)
-        motion = gtsam.JacobianFactor(0, -W @ F, 1, W, _ZERO6, _UNIT6)
+        step = MarginalStep(tr.sqrt_info, tr.x, F, W)
         for iteration in range(2):
-            graph = gtsam.GaussianFactorGraph()
-            graph.add(prior)
-            graph.add(motion)
+            A = b = None
             if len(rows):
                 diff = x_new[:3] - anchors
                 rho = np.linalg.norm(diff, axis=1)
@@ -193,10 +167,7 @@ class UltrasonicTracker:
                 A = np.zeros((len(rows), 6))
                 A[:, :3] = u * (weights / self.sigma)[:, None]
                 b = (z - rho + np.einsum("ij,j->i", u, x_new[:3])) * weights / self.sigma
-                graph.add(gtsam.JacobianFactor(1, A, b, gtsam.noiseModel.Unit.Create(len(rows))))
-            conditional = graph.eliminateSequential(_ORDER).at(1)
-            sqrt_info = np.array(conditional.R(), copy=True)  # R() views the conditional's memory: copy before it goes
-            x_new = np.asarray(np.linalg.solve(sqrt_info, np.array(conditional.d(), copy=True)), dtype=float)
+            sqrt_info, x_new = step.solve(A, b)
         residual = np.abs(z - np.linalg.norm(x_new[:3] - anchors, axis=1))
         outlier = residual > self.config.outlier_sigmas * self.sigma
         label_of[rows[outlier]] = -1

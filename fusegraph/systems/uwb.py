@@ -18,12 +18,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-import gtsam
 import numpy as np
 
 from ..datasets.uwb_lias import UwbRecording
 from ..frontends.association import assign_ranges
 from ..geometry import FloatArray
+from ..solvers.sequential import MarginalStep, constant_velocity, whitening
 
 
 @dataclass(frozen=True)
@@ -52,16 +52,12 @@ class UwbConfig:
 
 def _state_motion(dt: float, psd: float, psd_turn: float, bias_walk: float, biases: int) -> tuple[FloatArray, FloatArray]:
     """Constant velocity in (x, y, heading) and random-walk biases: transition and whitening."""
-    n = 6 + biases
-    F = np.eye(n)
-    Q = np.zeros((n, n))
-    for i, q in ((0, psd), (1, psd), (2, psd_turn)):
-        F[i, i + 3] = dt
-        Q[i, i] = q * dt**3 / 3
-        Q[i, i + 3] = Q[i + 3, i] = q * dt**2 / 2
-        Q[i + 3, i + 3] = q * dt
-    Q[6:, 6:] = np.eye(biases) * bias_walk**2 * dt
-    return F, np.linalg.inv(np.linalg.cholesky(Q))
+    F_cv, Q_cv = constant_velocity(dt, [psd, psd, psd_turn])
+    F = np.eye(6 + biases)
+    F[:6, :6] = F_cv
+    Q = np.eye(6 + biases) * bias_walk**2 * dt
+    Q[:6, :6] = Q_cv
+    return F, whitening(Q)
 
 
 class UwbTracker:
@@ -164,16 +160,11 @@ class UwbTracker:
         tag_of = labels[a_idx, t_idx]
         z = ranges[a_idx, t_idx]
         n = len(self.x)
-        unit = gtsam.noiseModel.Unit.Create(n)
-        order = gtsam.Ordering()
-        order.push_back(0)
-        order.push_back(1)
         x_new = pred.copy()
         R = self.sqrt_info
+        step = MarginalStep(self.sqrt_info, self.x, F, W)
         for iteration in range(2):
-            graph = gtsam.GaussianFactorGraph()
-            graph.add(gtsam.JacobianFactor(0, self.sqrt_info, self.sqrt_info @ self.x, unit))
-            graph.add(gtsam.JacobianFactor(0, -W @ F, 1, W, np.zeros(n), unit))
+            rows: tuple[FloatArray, FloatArray] | tuple[None, None] = (None, None)
             if len(z):
                 cth, sth = np.cos(x_new[2]), np.sin(x_new[2])
                 body = self.layout[tag_of] * [self.mirror, 1.0]
@@ -195,10 +186,8 @@ class UwbTracker:
                 A[np.arange(len(z)), bias_col] = 1.0
                 b = z - h + A @ x_new
                 scale = weights / cfg.range_sigma_m
-                graph.add(gtsam.JacobianFactor(1, A * scale[:, None], b * scale, gtsam.noiseModel.Unit.Create(len(z))))
-            conditional = graph.eliminateSequential(order).at(1)
-            R = np.array(conditional.R(), copy=True)
-            x_new = np.asarray(np.linalg.solve(R, np.array(conditional.d(), copy=True)), dtype=float)
+                rows = (A * scale[:, None], b * scale)
+            R, x_new = step.solve(*rows)
         self.x, self.sqrt_info = x_new, R
         return self.tag_xy(self.x), labels
 
