@@ -206,11 +206,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 nees = f", NEES {score.nees:.2f}" if score.nees is not None else ""
                 print(f"RMS after 1 s [1e-2 rad]: azimuth {rms[0]:.3f}, elevation {rms[1]:.3f}, roll {rms[2]:.3f}{nees}")
     if args.plot:
-        from .plots import plot_attitude_axes
-
-        truth_t = session.truth.t if session.truth is not None else estimate.t
-        truth_q = session.truth.values if session.truth is not None else estimate.quat_wxyz
-        print(f"wrote {plot_attitude_axes(truth_t, truth_q, [estimate], args.plot, title=str(args.session))}")
+        print(f"wrote {_plot_estimate(args, session, estimate)}")
     return 0
 
 
@@ -232,12 +228,17 @@ def _run_attitude9(args: argparse.Namespace, session: Any) -> int:
         else:
             print(f"RMSE [deg]: total {errors.total:.3f}, heading {errors.heading:.3f}, inclination {errors.inclination:.3f}")
     if args.plot:
-        from .plots import plot_attitude_axes
-
-        truth_t = session.truth.t if session.truth is not None else estimate.t
-        truth_q = session.truth.values if session.truth is not None else estimate.quat_wxyz
-        print(f"wrote {plot_attitude_axes(truth_t, truth_q, [estimate], args.plot, title=str(args.session))}")
+        print(f"wrote {_plot_estimate(args, session, estimate)}")
     return 0
+
+
+def _plot_estimate(args: argparse.Namespace, session: Any, estimate: Any) -> Path:
+    """The estimate's axes against the truth (or alone), as ``fusegraph run --plot`` writes them."""
+    from .plots import plot_attitude_axes
+
+    truth_t = session.truth.t if session.truth is not None else estimate.t
+    truth_q = session.truth.values if session.truth is not None else estimate.quat_wxyz
+    return Path(plot_attitude_axes(truth_t, truth_q, [estimate], args.plot, title=str(args.session)))
 
 
 def _same_times(estimate: object, session: object) -> bool:

@@ -97,9 +97,9 @@ def velocity_prior_factor(velocity_key: int, sigma_m_s: float) -> gtsam.PriorFac
     return gtsam.PriorFactorVector(velocity_key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma_m_s))
 
 
-def at_rest(gyro_rad_s: np.ndarray, accel_m_s2: np.ndarray, priors: MotionPriors, gravity_m_s2: float = GRAVITY_M_S2) -> bool:
-    """Every sample of the window is still (gyro norm small, |a| close to g)."""
-    return bool(
-        np.all(np.einsum("ij,ij->i", gyro_rad_s, gyro_rad_s) < priors.rest_gyro_rad_s**2)
-        and np.all(np.abs(np.sqrt(np.einsum("ij,ij->i", accel_m_s2, accel_m_s2)) - gravity_m_s2) < priors.rest_accel_m_s2)
+def still_samples(gyro_rad_s: np.ndarray, accel_m_s2: np.ndarray, priors: MotionPriors, gravity_m_s2: float = GRAVITY_M_S2) -> np.ndarray:
+    """Per sample: is it still (gyro norm small, |a| close to g)? A rest is a long enough run of these."""
+    return np.asarray(
+        (np.einsum("ij,ij->i", gyro_rad_s, gyro_rad_s) < priors.rest_gyro_rad_s**2)
+        & (np.abs(np.sqrt(np.einsum("ij,ij->i", accel_m_s2, accel_m_s2)) - gravity_m_s2) < priors.rest_accel_m_s2)
     )

@@ -28,6 +28,7 @@ from ..factors.imu import (
     bias_walk_factor,
     position_prior_factor,
     preintegration_params,
+    still_samples,
     velocity_prior_factor,
 )
 from ..factors.mag import FieldReference, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
@@ -156,10 +157,7 @@ class Attitude9Builder:
         gyro = np.atleast_2d(np.asarray(gyro_rad_s, dtype=float))
         accel = np.atleast_2d(np.asarray(accel_m_s2, dtype=float))
         mag = None if mag_raw is None or not self.model.use_mag else self.model.mag_calibration.apply(np.atleast_2d(mag_raw))
-        motion = self.model.motion
-        still = (np.einsum("ij,ij->i", gyro, gyro) < motion.rest_gyro_rad_s**2) & (
-            np.abs(np.linalg.norm(accel, axis=1) - self.model.imu.gravity_m_s2) < motion.rest_accel_m_s2
-        )
+        still = still_samples(gyro, accel, self.model.motion, self.model.imu.gravity_m_s2)
         period = self.model.keyframe_period_s
         for i in range(len(t)):
             self._still_run = self._still_run + 1 if still[i] else 0
@@ -245,7 +243,7 @@ class Attitude9Builder:
         sigma = heading_sigma_rad(self.model.mag, self.reference, norm, dip)
         return heading_factor(X(k), world_R_body, mag, sigma, self.model.mag.cauchy_k if robust else 0.0)
 
-    def heading_factors(self, attitude: dict[int, gtsam.Rot3] | list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
+    def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""
         out = []
         for k, mag in self.mag_readings:

@@ -16,10 +16,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, matrix_from_quat, quat_conjugate, quat_from_euler_zyx, quat_multiply, rotvec_from_quat
 from ..session import KIND_COLUMNS, Session, Stream
-
-GRAVITY_M_S2 = 9.81
 
 
 @dataclass(frozen=True)

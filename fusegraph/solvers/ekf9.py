@@ -14,10 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, euler_rate_matrix, quat_from_euler_zyx, wrap_angle
 from .ekf import joseph_update
-
-GRAVITY = 9.81
 
 
 @dataclass(frozen=True)
@@ -70,9 +69,9 @@ def run_ekf9(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray
         P = P + Q  # the Euler-rate Jacobian w.r.t. the angles is O(dt * omega); the papers drop it
         # gravity direction: R^T [0, 0, g] = g (-sin(pitch), sin(roll) cos(pitch), cos(roll) cos(pitch))
         sp, cp, sr, cr = np.sin(x[1]), np.cos(x[1]), np.sin(x[2]), np.cos(x[2])
-        predicted = GRAVITY * np.array([-sp, sr * cp, cr * cp])
-        H = GRAVITY * np.array([[0.0, -cp, 0.0], [0.0, -sr * sp, cr * cp], [0.0, -cr * sp, -sr * cp]])
-        departure = abs(np.linalg.norm(accel[i]) - GRAVITY)
+        predicted = GRAVITY_M_S2 * np.array([-sp, sr * cp, cr * cp])
+        H = GRAVITY_M_S2 * np.array([[0.0, -cp, 0.0], [0.0, -sr * sp, cr * cp], [0.0, -cr * sp, -sr * cp]])
+        departure = abs(np.linalg.norm(accel[i]) - GRAVITY_M_S2)
         sigma = cfg.accel_sigma_m_s2 + cfg.accel_inflation * departure
         x, P = joseph_update(x, P, accel[i] - predicted, H, sigma**2 * np.eye(3), angle_rows=slice(0, 1))
         # magnetometer yaw
