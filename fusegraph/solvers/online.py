@@ -11,7 +11,7 @@ Memory stays bounded; the causal estimate is unchanged up to relinearisation of 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import gtsam
 import numpy as np
@@ -36,7 +36,7 @@ class IncrementalBuilder(Protocol):
 
     def state_keys(self, k: int) -> tuple[int, int | None]: ...
 
-    def set_latest(self, world_R_body: gtsam.Rot3, bias: FloatArray) -> None: ...
+    def set_latest(self, state: Any, bias: FloatArray, /) -> None: ...  # a Rot3, or a Pose3 from read_latest
 
 
 @dataclass(frozen=True)

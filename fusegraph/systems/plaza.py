@@ -19,7 +19,7 @@ from ..datasets.plaza import PlazaRecording, load_plaza
 from ..factors.odometry import OdometryNoise, PlanarMotion, dead_reckon, level_pose
 from ..factors.ranging import RangeNoise
 from ..geometry import FloatArray
-from ..graphs.planar import PlanarGraph, X, poses_of
+from ..graphs.planar import PlanarGraph, poses_of
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig, OnlineSmoother
 
@@ -28,7 +28,8 @@ ODOMETRY = OdometryNoise(distance_frac=0.02, lateral_frac=0.02, floor_m=0.005, y
 RANGES = RangeNoise(sigma_m=1.0, kernel="huber", kernel_width=1.5, bias_sigma_m=5.0)
 """Radio ranges: 1 m noise, Huber against multipath, a bias per beacon with a 5 m prior."""
 ONLINE = OnlineConfig(window_s=5.0, reanchor_every=50, relinearize_threshold=0.05, covariance=False)
-"""iSAM2 keeps the last 5 s as variables and re-anchors every 50 states (5-10 s): iSAM2 hands every Python range factor a copy of all its variables, so a small window is what keeps it fast."""
+"""iSAM2 keeps the last 5 s as variables and re-anchors every 50 states (5-10 s): iSAM2 hands every
+Python range factor a copy of all its variables, so a small window is what keeps it fast."""
 START_SIGMAS = np.array([1e-3, 1e-3, math.radians(1.0), 0.1, 0.1, 1e-3])
 """The start pose is known (from ground truth, as in every odometry-only comparison)."""
 

@@ -1,0 +1,305 @@
+"""Pedestrian positioning over floors: PDR steps as odometry, image fixes, elevator map constraints.
+
+Front end (``frontends.pdr``) -> one odometry factor per detected step (stride in the direction of
+travel, gyro heading change, a riser up or down for a stair step) and one per elevator ride (the
+floors it moved, from the double-integrated vertical acceleration), image-match fixes as robust
+pose priors, and the map constraint that a ride ends in the elevator. Methods on the same
+measurements: dead reckoning (steps and rides only), the paper's Kalman framework (EKF on
+x, y, z, heading; fixes gated by their innovation), iSAM2 online (causal) and batch.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import gtsam
+import numpy as np
+from scipy.stats import chi2
+
+from ..datasets import steps_oxford
+from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose, odometry_sigmas
+from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model
+from ..geometry import FloatArray
+from ..graphs.planar import PlanarGraph, poses_of
+from ..scenarios.walking import ACTIVITIES, Building, WalkingSession, simulate_calibration_walk, simulate_walking
+from ..solvers.online import OnlineConfig, OnlineSmoother
+
+STEP_NOISE = OdometryNoise(distance_frac=0.08, lateral_frac=0.05, floor_m=0.02, yaw_rad=math.radians(0.5), yaw_frac=0.03, vertical_m=0.03)
+"""A detected step: 8 % of its length along, 5 % across, 0.5 deg heading, 3 cm height."""
+RIDE_NOISE = OdometryNoise(floor_m=0.2, yaw_rad=math.radians(1.0), vertical_m=0.1)
+"""An elevator ride: the person stands (20 cm shuffle), floors are whole."""
+FIX_NOISE = FixNoise(position_m=0.5, heading_rad=math.radians(5.0), height_m=0.3, kernel="cauchy", kernel_width=1.0)
+"""An image-match fix, Cauchy-robust (a fifth of them are wrong by metres)."""
+ELEVATOR_SIGMAS_M = np.array([0.7, 0.7, 50.0])
+"""A ride starts and ends in the elevator car (position known to 0.7 m; the height is left to the ride)."""
+START_SIGMAS = np.array([1e-3, 1e-3, math.radians(2.0), 0.2, 0.2, 0.05])
+"""The start pose is known (the entrance)."""
+ONLINE = OnlineConfig(window_s=30.0, reanchor_every=100, relinearize_threshold=0.05, covariance=False)
+"""iSAM2 keeps the last 30 s as variables (a wrong fix can still be outvoted), re-anchors every 100 steps."""
+WAIST = PdrConfig()
+"""Front-end settings for the waist IMU."""
+PHONE = PdrConfig(require_forward_pair=False, peak_threshold_m_s2=0.5)
+"""Accelerometer-only phone (Oxford): vertical peak pairs only (a pocket has no steady forward axis)."""
+METHODS = ("dead_reckoning", "ekf", "online", "batch")
+
+
+@dataclass(frozen=True)
+class Event:
+    """One odometry increment on the timeline: a step or a ride."""
+
+    t: float
+    motion: PlanarMotion
+    noise: OdometryNoise
+    ride: bool
+
+
+def events_from(cycles: list[Cycle], rides: list[Ride], speed: SpeedModel, building: Building) -> list[Event]:
+    """Steps and rides as odometry increments in time order."""
+    out: list[Event] = []
+    for c in cycles:
+        if c.activity == "flat":
+            length, up = speed.speed(c.vertical_pp_m_s2) * c.period_s, 0.0
+        else:
+            length, up = building.tread_m, building.riser_m * (1.0 if c.activity == "stairs_up" else -1.0)
+        motion = PlanarMotion(forward_m=length * math.cos(c.travel_rad), left_m=length * math.sin(c.travel_rad), up_m=up, dyaw_rad=c.dyaw_rad)
+        out.append(Event(c.t, motion, STEP_NOISE, False))
+    for r in rides:
+        floors = round(r.up_m / building.floor_height_m)
+        out.append(Event(r.end_s, PlanarMotion(forward_m=0.0, up_m=floors * building.floor_height_m), RIDE_NOISE, True))
+    return sorted(out, key=lambda e: e.t)
+
+
+@dataclass(frozen=True)
+class WalkRun:
+    """One method's trajectory: a position per event (start included)."""
+
+    method: str
+    t: FloatArray
+    xyz: FloatArray
+    seconds: float
+
+
+def _fix_schedule(session: WalkingSession, times: FloatArray) -> list[list[int]]:
+    """Fixes per state index (nearest state in time), in the order they become known."""
+    per_state: list[list[int]] = [[] for _ in times]
+    for k, ft in enumerate(session.fixes.t):
+        per_state[int(np.argmin(np.abs(times - ft)))].append(k)
+    return per_state
+
+
+def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_state: object = None) -> PlanarGraph:
+    start = level_pose(*session.start_pose)
+    graph = PlanarGraph(start, START_SIGMAS, start_t=0.0)
+    times = np.array([0.0] + [e.t for e in events])
+    schedule = _fix_schedule(session, times)
+    elevator = np.array([*session.building.elevator_xy_m, 0.0])
+    for i, e in enumerate(events, start=1):
+        if e.ride:
+            graph.add_position(i - 1, elevator, ELEVATOR_SIGMAS_M)
+        graph.add_odometry(e.motion, e.noise, e.t)
+        if e.ride:
+            graph.add_position(i, elevator, ELEVATOR_SIGMAS_M)
+        for k in schedule[i - 1] + (schedule[i] if i == len(events) else []):
+            graph.add_fix(i - 1 if k in schedule[i - 1] else i, level_pose(*fixes[k]), FIX_NOISE)
+        if callable(on_state):
+            on_state(graph, i)
+    return graph
+
+
+def run_dead_reckoning(session: WalkingSession, events: list[Event]) -> WalkRun:
+    t0 = time.perf_counter()
+    poses = dead_reckon(level_pose(*session.start_pose), [e.motion for e in events])
+    return WalkRun("dead_reckoning", np.array([0.0] + [e.t for e in events]), np.array([p.translation() for p in poses]), time.perf_counter() - t0)
+
+
+def run_batch(session: WalkingSession, events: list[Event], fixes: FloatArray) -> WalkRun:
+    t0 = time.perf_counter()
+    graph = _build(session, events, fixes)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-6)
+    values = gtsam.LevenbergMarquardtOptimizer(graph.graph, graph.initial, params).optimize()
+    return WalkRun("batch", np.array(graph.keyframe_t), poses_of(values, graph.count)[:, :3], time.perf_counter() - t0)
+
+
+def run_online(session: WalkingSession, events: list[Event], fixes: FloatArray) -> WalkRun:
+    """iSAM2 after every step; the position kept for a step is the estimate when it was added (causal)."""
+    t0 = time.perf_counter()
+    xyz = np.zeros((len(events) + 1, 3))
+    xyz[0] = session.start_pose[:3]
+    solver: OnlineSmoother | None = None
+
+    def on_state(graph: PlanarGraph, i: int) -> None:
+        nonlocal solver
+        if solver is None:
+            solver = OnlineSmoother(graph, ONLINE)
+        solver.update()
+        xyz[i] = graph.latest.translation()
+
+    graph = _build(session, events, fixes, on_state)
+    return WalkRun("online", np.array(graph.keyframe_t), xyz, time.perf_counter() - t0)
+
+
+def run_ekf(session: WalkingSession, events: list[Event], fixes: FloatArray, gate_prob: float = 0.999) -> WalkRun:
+    """The paper's Kalman framework: x, y, z, heading predicted by each step, corrected by fixes
+    (an innovation gate at ``gate_prob`` turns away fixes too far from the prediction) and by the
+    elevator position."""
+    t0 = time.perf_counter()
+    x = np.array(session.start_pose, dtype=float)
+    P = np.diag(np.square([START_SIGMAS[3], START_SIGMAS[4], START_SIGMAS[5], START_SIGMAS[2]]))
+    times = np.array([0.0] + [e.t for e in events])
+    schedule = _fix_schedule(session, times)
+    R_fix = np.diag(np.square([FIX_NOISE.position_m, FIX_NOISE.position_m, FIX_NOISE.height_m, FIX_NOISE.heading_rad]))
+    gate4 = chi2.ppf(gate_prob, 4)
+    out = np.zeros((len(events) + 1, 3))
+    out[0] = x[:3]
+
+    def update(z: FloatArray, H: FloatArray, R: FloatArray, gate: float | None, angle_row: int | None = None) -> None:
+        nonlocal x, P
+        y = z - H @ x
+        if angle_row is not None:
+            y[angle_row] = math.remainder(y[angle_row], 2 * math.pi)
+        S = H @ P @ H.T + R
+        if gate is not None and float(y @ np.linalg.solve(S, y)) > gate:
+            return
+        K = P @ H.T @ np.linalg.inv(S)
+        x = x + K @ y
+        P = (np.eye(4) - K @ H) @ P
+
+    elevator_H = np.eye(4)[:2]
+    R_elev = np.diag(np.square(ELEVATOR_SIGMAS_M[:2]))
+    for i, e in enumerate(events, start=1):
+        if e.ride:
+            update(np.array(session.building.elevator_xy_m), elevator_H, R_elev, None)
+        m, yaw = e.motion, x[3]
+        c, s = math.cos(yaw), math.sin(yaw)
+        x = x + np.array([c * m.forward_m - s * m.left_m, s * m.forward_m + c * m.left_m, m.up_m, m.dyaw_rad])
+        F = np.eye(4)
+        F[0, 3] = -s * m.forward_m - c * m.left_m
+        F[1, 3] = c * m.forward_m - s * m.left_m
+        sig = odometry_sigmas(m, e.noise)
+        G = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        P = F @ P @ F.T + G @ np.diag(np.square([sig[3], sig[4], sig[5], sig[2]])) @ G.T
+        if e.ride:
+            update(np.array(session.building.elevator_xy_m), elevator_H, R_elev, None)
+        for k in schedule[i]:
+            update(fixes[k], np.eye(4), R_fix, gate4, angle_row=3)
+        out[i] = x[:3]
+    return WalkRun("ekf", times, out, time.perf_counter() - t0)
+
+
+def score(run: WalkRun, session: WalkingSession) -> dict[str, float]:
+    """3D position RMSE over the run's states and the error at the end."""
+    truth = np.stack([np.interp(run.t, session.t, session.truth_xyz_m[:, j]) for j in range(3)], axis=1)
+    err = np.linalg.norm(run.xyz - truth, axis=1)
+    end_error = float(np.linalg.norm(run.xyz[-1] - session.truth_xyz_m[-1]))
+    return {"rmse_m": float(np.sqrt(np.mean(err**2))), "final_error_m": end_error}
+
+
+def confusion(session: WalkingSession, cycles: list[Cycle], rides: list[Ride]) -> dict[str, dict[str, int]]:
+    """Per true step: the activity of the detected cycle within a quarter second (else none); per true ride: elevator or none."""
+    table: dict[str, Counter[str]] = {a: Counter() for a in ACTIVITIES}
+    ct = np.array([c.t for c in cycles])
+    for ts, activity in zip(session.step_t, session.step_activity, strict=True):
+        j = int(np.argmin(np.abs(ct - ts))) if len(ct) else -1
+        table[activity][cycles[j].activity if j >= 0 and abs(ct[j] - ts) < 0.25 else "none"] += 1
+    for start, end, _ in session.rides:
+        hit = any(r.start_s < end and r.end_s > start for r in rides)
+        table["elevator"]["elevator" if hit else "none"] += 1
+    return {a: dict(c) for a, c in table.items()}
+
+
+def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIST) -> tuple[list[Cycle], list[Ride], list[Event]]:
+    cycles = detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config)
+    rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, cycles, config)
+    return cycles, rides, events_from(cycles, rides, speed, session.building)
+
+
+def run_all(session: WalkingSession, events: list[Event], fixes: FloatArray) -> dict[str, WalkRun]:
+    return {
+        "dead_reckoning": run_dead_reckoning(session, events),
+        "ekf": run_ekf(session, events, fixes),
+        "online": run_online(session, events, fixes),
+        "batch": run_batch(session, events, fixes),
+    }
+
+
+def count_steps(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> int:
+    """Walking cycles (steps) in an accelerometer-only recording."""
+    return len(detect_cycles(t, accel, None, config))
+
+
+def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True) -> dict[str, object]:
+    """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape."""
+    from . import plaza as plaza_system
+
+    session = simulate_walking(seed)
+    calibration = simulate_calibration_walk(seed)
+    speed = fit_speed_model(detect_cycles(calibration.t, calibration.accel_m_s2, calibration.gyro_rad_s, WAIST), calibration.bouts)
+    cycles, rides, events = analyse(session, speed)
+    out: dict[str, object] = {"confusion": confusion(session, cycles, rides), "speed_model": {"intercept_m_s": speed.intercept_m_s, "slope_s": speed.slope_s}}
+    for key, fixes in (("walking", session.fixes.pose), ("walking_no_wrong_fixes", session.fixes.correct_pose)):
+        runs = run_all(session, events, fixes)
+        out[key] = {name: {**score(run, session), "seconds": run.seconds} for name, run in runs.items()}
+    out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
+                           "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
+                           "wrong_fixes": int(session.fixes.wrong.sum())}
+    oxford: dict[str, dict[str, int]] = {}
+    if oxford_dir is not None and Path(oxford_dir).is_dir():
+        stats = steps_oxford.read_stats(Path(oxford_dir))
+        for name in steps_oxford.recordings(Path(oxford_dir)):
+            rec = steps_oxford.load_recording(Path(oxford_dir), name, stats)
+            oxford[name] = {"true": rec.true_steps, "counted": count_steps(rec.t, rec.accel_m_s2)}
+    out["oxford"] = oxford
+    if plaza:
+        out["plaza"] = plaza_system.bench_plaza()
+    return out
+
+
+def with_all_fixes_correct(session: WalkingSession) -> WalkingSession:
+    """The same walk with every fix a correct match."""
+    return replace(session, fixes=replace(session.fixes, pose=session.fixes.correct_pose, wrong=np.zeros_like(session.fixes.wrong)))
+
+
+def format_walking_table(result: dict[str, object]) -> str:
+    """The bench's tables as text."""
+    lines = []
+    conf = result["confusion"]
+    assert isinstance(conf, dict)
+    cols = [*ACTIVITIES, "none"]
+    lines.append("activity (rows true, columns detected; per walking cycle, per ride for the elevator)")
+    lines.append(f"{'':12s}" + "".join(f"{c:>12s}" for c in cols) + f"{'correct':>10s}")
+    for a in ACTIVITIES:
+        row = conf.get(a, {})
+        total = sum(row.values())
+        lines.append(f"{a:12s}" + "".join(f"{row.get(c, 0):12d}" for c in cols) + (f"{100 * row.get(a, 0) / total:9.1f}%" if total else f"{'-':>10s}"))
+    for key, title in (("walking", "walking (20% wrong fixes)"), ("walking_no_wrong_fixes", "walking (every fix correct)")):
+        table = result[key]
+        assert isinstance(table, dict)
+        lines.append("")
+        lines.append(f"{title:34s}{'rmse_m':>10s}{'final_m':>10s}{'seconds':>10s}")
+        for name in METHODS:
+            r = table[name]
+            lines.append(f"{name:34s}{r['rmse_m']:10.2f}{r['final_error_m']:10.2f}{r['seconds']:10.2f}")
+    walking, clean = result["walking"], result["walking_no_wrong_fixes"]
+    assert isinstance(walking, dict) and isinstance(clean, dict)
+    lines.append(f"batch rmse with wrong fixes / without: {walking['batch']['rmse_m'] / clean['batch']['rmse_m']:.2f}")
+    oxford = result.get("oxford") or {}
+    assert isinstance(oxford, dict)
+    if oxford:
+        lines.append("")
+        lines.append(f"{'oxford recording':40s}{'true':>8s}{'counted':>9s}{'error':>8s}")
+        for name, r in oxford.items():
+            lines.append(f"{name:40s}{r['true']:8d}{r['counted']:9d}{100 * (r['counted'] - r['true']) / r['true']:7.1f}%")
+    plaza = result.get("plaza") or {}
+    assert isinstance(plaza, dict)
+    if plaza:
+        lines.append("")
+        lines.append(f"{'plaza':10s}{'odometry_m':>12s}{'online_m':>10s}{'batch_m':>10s}{'batch/odo':>10s}{'online x rt':>13s}")
+        for name, r in plaza.items():
+            lines.append(f"{name:10s}{r['odometry_rmse_m']:12.2f}{r['online_rmse_m']:10.2f}{r['batch_rmse_m']:10.2f}"
+                         f"{r['batch_rmse_m'] / r['odometry_rmse_m']:10.2f}{r['online_x_realtime']:13.0f}")
+    return "\n".join(lines)
