@@ -123,22 +123,28 @@ def build_parser() -> argparse.ArgumentParser:
                          "total/heading/inclination RMSE (deg, the benchmark's metric) and speed (x real time) per trial and mean.\n"
                          "ultrasonic: simulated transmitters with unknown association (N = 3, 6, 12, several seeds), fusegraph and the paper's "
                          "combinatorial search and the true-position oracle: association accuracy, position RMSE, track loss, time per epoch; "
-                         "crossings; and the recorded UWB run with and without tag labels.",
+                         "crossings; and the recorded UWB run with and without tag labels.\n"
+                         "walking: the simulated 3-floor walk through the PDR front end (activity confusion per walking cycle / ride), "
+                         "dead reckoning vs EKF vs iSAM2 online vs batch with 20% wrong image fixes and with none; step counts on the "
+                         "Oxford phone recordings; the Plaza range + odometry runs (odometry only, online, batch).",
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png\n"
-                         "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json",
+                         "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json\n"
+                         "  fusegraph bench walking --plot walk.png\n  fusegraph bench walking --oxford ../shared/data/steps_oxford --json",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    ben.add_argument("system", choices=["head", "broad", "ultrasonic"])
+    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking"])
     ben.add_argument("directory", nargs="?", type=Path, help="broad: directory of BROAD trials (*.mat; default ../shared/data/broad)")
     ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600); ultrasonic: seconds per run (default 20)")
     ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
     ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="head: sensor error profile")
     ben.add_argument("--methods", default=None, help="broad: comma list of vqf,vqf_offline,ekf,online,batch (default all)")
     ben.add_argument("--trials", default=None, help="broad: comma list of file-name prefixes, e.g. 01,32 (default all)")
-    ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method")
-    ben.add_argument("--seeds", type=_seeds_arg, default=None, help="ultrasonic: seeds per N (default 0-2)")
+    ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method; walking: the trajectories")
+    ben.add_argument("--seeds", type=_seeds_arg, default=None, help="ultrasonic: seeds per N (default 0-2); walking: the first is the walk's seed (default 0)")
     ben.add_argument("--transmitters", default="3,6,12", help="ultrasonic: comma list of N (default 3,6,12)")
     ben.add_argument("--uwb", default="default", metavar="DIR", help="ultrasonic: the recorded UWB run (default ../shared/data/uwb_lias; 'none' skips it)")
+    ben.add_argument("--oxford", default="default", metavar="DIR", help="walking: Oxford step recordings (default ../shared/data/steps_oxford; 'none' skips)")
+    ben.add_argument("--no-plaza", action="store_true", help="walking: skip the Plaza runs")
     ben.add_argument("--json", action="store_true", help="print JSON")
     return parser
 
@@ -279,6 +285,17 @@ def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "broad":
         return _bench_broad(args)
+    if args.system == "walking":
+        from .datasets import steps_oxford
+        from .systems import walking
+
+        oxford = None if args.oxford == "none" else (steps_oxford.DEFAULT_DIR if args.oxford == "default" else Path(args.oxford))
+        if oxford is not None and not Path(oxford).is_dir():
+            raise FileNotFoundError(f"Oxford recordings not found at {oxford} (use --oxford DIR or --oxford none)")
+        seed = (args.seeds or (0,))[0]
+        walk = walking.bench_walking(seed, oxford, plaza=not args.no_plaza, plot=args.plot)
+        print(json.dumps(walk, indent=2) if args.json else walking.format_walking_table(walk))
+        return 0
     if args.system == "ultrasonic":
         from .systems import ultrasonic
 

@@ -232,7 +232,7 @@ def count_steps(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> 
     return len(detect_cycles(t, accel, None, config))
 
 
-def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True) -> dict[str, object]:
+def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None) -> dict[str, object]:
     """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape."""
     from . import plaza as plaza_system
 
@@ -244,6 +244,8 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     for key, fixes in (("walking", session.fixes.pose), ("walking_no_wrong_fixes", session.fixes.correct_pose)):
         runs = run_all(session, events, fixes)
         out[key] = {name: {**score(run, session), "seconds": run.seconds} for name, run in runs.items()}
+        if plot is not None and key == "walking":
+            plot_walk(session, runs, plot)
     out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
                            "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
                            "wrong_fixes": int(session.fixes.wrong.sum())}
@@ -257,6 +259,30 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     if plaza:
         out["plaza"] = plaza_system.bench_plaza()
     return out
+
+
+def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> None:
+    """Top view and height over time of the truth and every method, fixes marked (wrong ones as x)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (top, height) = plt.subplots(1, 2, figsize=(15, 6), gridspec_kw={"width_ratios": [1.3, 1]})
+    top.plot(session.truth_xyz_m[:, 0], session.truth_xyz_m[:, 1], "k-", lw=2, alpha=0.4, label="truth")
+    height.plot(session.t, session.truth_xyz_m[:, 2], "k-", lw=2, alpha=0.4, label="truth")
+    for name, run in runs.items():
+        top.plot(run.xyz[:, 0], run.xyz[:, 1], lw=1, label=name)
+        height.plot(run.t, run.xyz[:, 2], lw=1, label=name)
+    f = session.fixes
+    top.plot(f.pose[~f.wrong, 0], f.pose[~f.wrong, 1], "g^", label="image fix")
+    top.plot(f.pose[f.wrong, 0], f.pose[f.wrong, 1], "rx", ms=9, label="wrong image fix")
+    top.set(xlabel="east (m)", ylabel="north (m)", title="walk, top view", aspect="equal")
+    height.set(xlabel="time (s)", ylabel="height (m)", title="floors (3.5 m apart)")
+    top.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def with_all_fixes_correct(session: WalkingSession) -> WalkingSession:
