@@ -60,6 +60,9 @@ class PdrConfig:
     """Steep-slope test: the forward rise from its valley to its peak, m/s^3 at least."""
     pca_window_s: float = 2.0
     """Window of horizontal acceleration around a cycle for the PCA heading, seconds."""
+    travel_median_cycles: int = 7
+    """Heading of travel: median of the PCA direction over this many windows up to the current one
+    (the sensor does not turn on the body, so the direction changes slowly; one window's PCA scatters ~10 deg)."""
     roll_window_s: float = 4.0
     """Window of roll rate around a cycle for its period (two strides or more), seconds."""
     stairs_up_ratio: tuple[float, float] = (1.6, 2.5)
@@ -199,6 +202,7 @@ def detect_cycles(t: FloatArray, accel: FloatArray, gyro: FloatArray | None = No
     dv = np.gradient(v) * fs
     half = int(config.pca_window_s * fs / 2)
     cycles: list[Cycle] = []
+    recent: list[float] = []
     last_yaw = 0.0
     previous_period = math.nan
     for k, p in enumerate(pos):
@@ -219,11 +223,18 @@ def detect_cycles(t: FloatArray, accel: FloatArray, gyro: FloatArray | None = No
         # the forward surge follows the vertical acceleration's derivative (see the module docstring)
         if float(np.dot(forward - forward.mean(), dv[lo:hi])) < 0:
             axis = -axis
-            forward = -forward
+        # the sensor does not turn on the body: the median over recent cycles is the direction used
+        # (one window's PCA scatters ~10 deg, and a turn's centripetal acceleration can take it over)
+        recent.append(float(math.atan2(axis[1], axis[0])))
+        travel = _circular_median(recent[-config.travel_median_cycles :])
+        axis = np.array([math.cos(travel), math.sin(travel)])
         f_cycle = h[p:end] @ axis
         if len(f_cycle) < 3:
             continue
         if config.require_forward_pair:
+            # a speed change between steps adds a ramp to the forward acceleration; the gait surge is
+            # periodic (equal at both ends of the cycle), so the line through the ends is taken out
+            f_cycle = f_cycle - np.linspace(f_cycle[0], f_cycle[-1], len(f_cycle)) + f_cycle[0]
             i_min = int(np.argmin(f_cycle))
             i_max = i_min + int(np.argmax(f_cycle[i_min:]))
             rise = (f_cycle[i_max] - f_cycle[i_min]) / max((i_max - i_min) / fs, 1.0 / fs)
@@ -247,8 +258,14 @@ def detect_cycles(t: FloatArray, accel: FloatArray, gyro: FloatArray | None = No
         last_yaw = float(yaw[p])
         previous_period = period
         cycles.append(Cycle(t=float(t[p]), period_s=period, vertical_pp_m_s2=v_pp, forward_pp_m_s2=f_pp,
-                            travel_rad=float(math.atan2(axis[1], axis[0])), dyaw_rad=dyaw, activity=activity))
+                            travel_rad=travel, dyaw_rad=dyaw, activity=activity))
     return cycles
+
+
+def _circular_median(angles: list[float]) -> float:
+    """Median of angles taken as offsets from the newest one (safe across +-pi)."""
+    ref = angles[-1]
+    return float(ref + np.median(np.remainder(np.array(angles) - ref + np.pi, 2 * np.pi) - np.pi))
 
 
 def fit_speed_model(cycles: list[Cycle], bouts: FloatArray) -> SpeedModel:

@@ -32,8 +32,10 @@ STEP_NOISE = OdometryNoise(distance_frac=0.08, lateral_frac=0.05, floor_m=0.02, 
 """A detected step: 8 % of its length along, 5 % across, 0.5 deg heading, 3 cm height."""
 RIDE_NOISE = OdometryNoise(floor_m=0.2, yaw_rad=math.radians(1.0), vertical_m=0.1)
 """An elevator ride: the person stands (20 cm shuffle), floors are whole."""
-FIX_NOISE = FixNoise(position_m=0.5, heading_rad=math.radians(5.0), height_m=0.3, kernel="cauchy", kernel_width=1.0)
-"""An image-match fix, Cauchy-robust (a fifth of them are wrong by metres)."""
+FIX_NOISE = FixNoise(position_m=0.5, heading_rad=math.radians(5.0), height_m=0.3, kernel="cauchy", kernel_width=5.0)
+"""An image-match fix, Cauchy-robust (a fifth of them are wrong by metres). The kernel is wide (5 sigma):
+after 20 s of steps a correct fix is often 3 m from the prediction, and a 1-sigma kernel threw those
+away too (measured on seeds 0-2: batch RMSE 1.6-3.4 m with width 1, 1.1-1.6 m with width 5)."""
 ELEVATOR_SIGMAS_M = np.array([0.7, 0.7, 50.0])
 """A ride starts and ends in the elevator car (position known to 0.7 m; the height is left to the ride)."""
 START_SIGMAS = np.array([1e-3, 1e-3, math.radians(2.0), 0.2, 0.2, 0.05])
