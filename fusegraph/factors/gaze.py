@@ -1,0 +1,87 @@
+"""Eye-tracker gaze pixel: the projection of the fixated world point into the head-fixed scene camera.
+
+The scene camera looks along the head's +x axis (head frame x forward, y left, z up); a gaze pixel
+is ``(u, v)`` with the origin at the image centre, u to the right and v UP (the image's X and Z).
+``SceneCamera`` is a pinhole (``focal_px``); the paper's "239.5 px per maximum head angle" mapping is
+one calibration of it. The factor is gtsam's C++ ``GenericProjectionFactorCal3_S2`` on the head
+keyframe's pose and the fixation point: the sample's time offset from the keyframe enters as the
+``body_P_sensor`` transform (the gyro's rotation from the keyframe to the sample, then the
+head-to-camera rotation), so one keyframe carries every 60 Hz sample exactly without a variable
+per sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from ..geometry import FloatArray
+
+# gtsam's camera frame: z forward, x right, y down; ours (head): x forward, y left, z up
+HEAD_R_CAMERA = gtsam.Rot3(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]))
+
+
+@dataclass(frozen=True)
+class SceneCamera:
+    """The head-fixed scene camera of the eye tracker."""
+
+    focal_px: float = 500.0
+    """Pinhole focal length, pixels."""
+    width_px: int = 640
+    """Image width, pixels (the origin is at the centre)."""
+    height_px: int = 480
+    """Image height, pixels."""
+    pixel_sigma: float = 5.0
+    """Gaze pixel noise (tracker noise + fixational jitter), pixels."""
+    cauchy_k: float = 3.0
+    """Cauchy kernel width in sigmas (blinks, tracker glitches)."""
+
+    def calibration(self) -> gtsam.Cal3_S2:
+        return gtsam.Cal3_S2(self.focal_px, self.focal_px, 0.0, 0.0, 0.0)
+
+    def project(self, head_t_point: FloatArray) -> FloatArray:
+        """Pixels (u right, v up) of points given in the head frame, shape (N, 3) -> (N, 2)."""
+        p = np.atleast_2d(head_t_point)
+        return np.stack([-self.focal_px * p[:, 1] / p[:, 0], self.focal_px * p[:, 2] / p[:, 0]], axis=1)
+
+    def ray(self, uv: FloatArray) -> FloatArray:
+        """Unit direction in the head frame through pixel(s) (u right, v up), shape (N, 3)."""
+        uv = np.atleast_2d(uv)
+        d = np.stack([np.full(len(uv), self.focal_px), -uv[:, 0], uv[:, 1]], axis=1)
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def gaze_factor(pose_key: int, point_key: int, uv: FloatArray, keyframe_R_sample: gtsam.Rot3, camera: SceneCamera) -> gtsam.GenericProjectionFactorCal3_S2:
+    """The gaze pixel of a sample taken ``keyframe_R_sample`` (gyro rotation) after the keyframe."""
+    measured = np.array([float(uv[0]), -float(uv[1])])  # gtsam's v points down
+    model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, camera.pixel_sigma)
+    if camera.cauchy_k > 0:
+        model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(camera.cauchy_k), model)
+    body_P_sensor = gtsam.Pose3(keyframe_R_sample.compose(HEAD_R_CAMERA), np.zeros(3))
+    return gtsam.GenericProjectionFactorCal3_S2(measured, model, pose_key, point_key, camera.calibration(), body_P_sensor)
+
+
+@dataclass(frozen=True)
+class FixationNoise:
+    """How the fixated world point moves: slowly, with saccades the robust kernel absorbs."""
+
+    drift_m_per_sqrt_s: float = 0.01
+    """Random walk of the point during a fixation, metres per sqrt(second)."""
+    cauchy_k: float = 1.0
+    """Cauchy kernel width in sigmas: a saccade (a jump of centimetres to metres) is absorbed."""
+    plane_sigma_m: float = 0.002
+    """How well the point is known to lie on the wall plane, metres."""
+
+
+def fixation_walk(prev_key: int, next_key: int, dt_s: float, noise: FixationNoise) -> gtsam.BetweenFactorPoint3:
+    sigma = noise.drift_m_per_sqrt_s * np.sqrt(max(dt_s, 1e-6))
+    model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(noise.cauchy_k), gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+    return gtsam.BetweenFactorPoint3(prev_key, next_key, np.zeros(3), model)
+
+
+def wall_plane_prior(point_key: int, wall_x_m: float, noise: FixationNoise) -> gtsam.PriorFactorPoint3:
+    """The point lies on the wall x = wall_x_m (its other coordinates are free)."""
+    sigmas = np.array([noise.plane_sigma_m, 100.0, 100.0])
+    return gtsam.PriorFactorPoint3(point_key, np.array([wall_x_m, 0.0, 0.0]), gtsam.noiseModel.Diagonal.Sigmas(sigmas))

@@ -1,0 +1,115 @@
+"""Scenario ``gaze``: a subject 1 m from a wall fixates a mark while nodding and shaking the head,
+then looks at a second mark.
+
+World ENU; the subject sits at the origin facing east (+x); the wall is the plane x = ``wall_m``.
+Wall coordinates: X = world y (north, to the subject's left), Z = world z (up). The head turns about
+the eye (the camera and the IMU sit there), so the IMU feels no translational acceleration. The eye
+keeps the mark on the fovea (the vestibulo-ocular reflex), so the tracker's gaze pixel is the mark's
+projection into the head-fixed scene camera, plus fixational jitter on the wall and pixel noise.
+Head IMU at 100 Hz (gyro with bias, accelerometer, calibrated magnetometer), tracker at 60 Hz.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..factors.gaze import SceneCamera
+from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx
+from .attitude9 import _readings
+
+
+@dataclass(frozen=True)
+class GazeScenarioConfig:
+    """Everything that defines a simulated gaze session."""
+
+    duration_s: float = 40.0
+    """Length, seconds."""
+    switch_s: float = 25.0
+    """When the subject looks from the first mark to the second, seconds."""
+    wall_m: float = 1.0
+    """Distance to the wall, metres."""
+    first_mark_xz_m: tuple[float, float] = (0.0, 0.0)
+    """First mark on the wall (X, Z), metres."""
+    second_mark_xz_m: tuple[float, float] = (-0.25, -0.15)
+    """Second mark (X, Z), metres."""
+    imu_rate_hz: float = 100.0
+    """Head IMU rate, Hz."""
+    tracker_rate_hz: float = 60.0
+    """Eye tracker rate, Hz."""
+    camera: SceneCamera = field(default_factory=SceneCamera)
+    """Scene camera (the pixel noise is drawn with its ``pixel_sigma``)."""
+    jitter_m: float = 0.003
+    """Fixational jitter of the true gaze point on the wall, metres."""
+    gyro_sigma_rad_s: float = 0.003
+    """Gyro white noise, rad/s per sample."""
+    gyro_bias_deg_s: float = 0.3
+    """Gyro bias per axis (sigma), deg/s."""
+    accel_sigma_m_s2: float = 0.05
+    """Accelerometer noise, m/s^2."""
+    mag_sigma: float = 0.01
+    """Magnetometer noise (field of norm 1)."""
+    nod_deg: float = 15.0
+    """Nodding amplitude (pitch), degrees."""
+    shake_deg: float = 20.0
+    """Shaking amplitude (yaw), degrees."""
+
+
+@dataclass(frozen=True)
+class GazeSession:
+    """A simulated gaze session with its truth."""
+
+    t: FloatArray
+    gyro_rad_s: FloatArray
+    accel_m_s2: FloatArray
+    mag: FloatArray
+    tracker_t: FloatArray
+    """Tracker sample times, seconds."""
+    gaze_px: FloatArray
+    """Gaze pixels (u right, v up), origin at the image centre, shape (M, 2)."""
+    truth_quat_wxyz: FloatArray
+    """Head attitude world_R_head at the IMU times."""
+    truth_gaze_xz_m: FloatArray
+    """True gaze point on the wall (X, Z) at the tracker times, shape (M, 2)."""
+    config: GazeScenarioConfig
+
+
+def head_motion(t: FloatArray, config: GazeScenarioConfig, rng: np.random.Generator) -> FloatArray:
+    """Yaw, pitch, roll (rad): nodding, then shaking, then both, at varying rates, calm at the switch."""
+    f_nod, f_shake = rng.uniform(0.4, 0.9), rng.uniform(0.3, 0.7)
+    ramp = np.clip(t / 2.0, 0, 1) * np.clip((config.duration_s - t) / 2.0, 0, 1)
+    nod_on = np.clip((t - 2) / 2, 0, 1) * np.clip((14 - t) / 2, 0, 1) + np.clip((t - 18) / 2, 0, 1)
+    shake_on = np.clip((t - 10) / 2, 0, 1)
+    calm = 1.0 - 0.8 * np.exp(-(((t - config.switch_s) / 1.5) ** 2))
+    yaw = math.radians(config.shake_deg) * np.sin(2 * np.pi * f_shake * t) * shake_on * ramp * calm
+    pitch = math.radians(config.nod_deg) * np.sin(2 * np.pi * f_nod * t + 0.3) * nod_on * ramp * calm
+    roll = math.radians(3.0) * np.sin(2 * np.pi * 0.23 * t) * ramp
+    return np.stack([yaw, pitch, roll], axis=1)
+
+
+def simulate_gaze(seed: int = 0, config: GazeScenarioConfig | None = None) -> GazeSession:
+    config = config or GazeScenarioConfig()
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, config.duration_s, 1.0 / config.imu_rate_hz)
+    angles = head_motion(t, config, rng)
+    quat = quat_from_euler_zyx(angles)
+    m_world = np.array([0.0, math.cos(math.radians(60)), -math.sin(math.radians(60))])  # northern field, 60 deg dip
+    gyro, accel, mag = _readings(quat, np.zeros((len(t), 3)), t, np.tile(m_world, (len(t), 1)))
+    bias = rng.normal(0.0, math.radians(config.gyro_bias_deg_s), 3)
+    gyro = gyro + bias + rng.normal(0.0, config.gyro_sigma_rad_s, gyro.shape)
+    accel = accel + rng.normal(0.0, config.accel_sigma_m_s2, accel.shape)
+    mag = mag + rng.normal(0.0, config.mag_sigma, mag.shape)
+    tt = np.arange(0.0, config.duration_s - 1.0 / config.imu_rate_hz, 1.0 / config.tracker_rate_hz)
+    marks = np.where((tt < config.switch_s)[:, None], np.array(config.first_mark_xz_m), np.array(config.second_mark_xz_m))
+    # a fixation wanders slowly (a random walk of a few mm), the saccade is instantaneous
+    jitter = np.cumsum(rng.normal(0.0, config.jitter_m / np.sqrt(config.tracker_rate_hz), (len(tt), 2)), axis=0)
+    gaze_xz = marks + np.clip(jitter, -3 * config.jitter_m, 3 * config.jitter_m)
+    world_point = np.stack([np.full(len(tt), config.wall_m), gaze_xz[:, 0], gaze_xz[:, 1]], axis=1)
+    q_tracker = np.stack([np.interp(tt, t, quat[:, j]) for j in range(4)], axis=1)
+    q_tracker /= np.linalg.norm(q_tracker, axis=1, keepdims=True)
+    head_point = np.einsum("nji,nj->ni", matrix_from_quat(q_tracker), world_point)
+    px = config.camera.project(head_point) + rng.normal(0.0, config.camera.pixel_sigma, (len(tt), 2))
+    return GazeSession(t=t, gyro_rad_s=gyro, accel_m_s2=accel, mag=mag, tracker_t=tt, gaze_px=px, truth_quat_wxyz=quat,
+                       truth_gaze_xz_m=gaze_xz, config=config)
