@@ -82,12 +82,15 @@ def build_parser() -> argparse.ArgumentParser:
                          "processing time per 40 ms of data and NEES.\n"
                          "gaze: a subject 1 m from a wall fixates a mark while nodding and shaking the head, then a second mark; "
                          "the gaze point on the wall (X, Z RMS in mm) from the paper's EKF (yaw, pitch, roll, GX, GZ), fusegraph online "
-                         "and batch, and speed (x real time).",
+                         "and batch, and speed (x real time).\n"
+                         "bicycle: a cyclist's thigh and the bicycle frame, two 9-axis IMUs, downhill with hard braking at 30 s (and on an "
+                         "indoor trainer): thigh pitch/roll RMS in the braking phase for the thigh alone (no_removal), the paper's pipeline "
+                         "(frame EKF -> subtract -> thigh EKF), fusegraph online and batch (both bodies in one graph).",
                          epilog="examples:\n  fusegraph report head --seeds 0-9 --plot head.png\n  fusegraph report gaze --seeds 0-4 --json\n"
-                         "  fusegraph report gaze --plot gaze.png",
+                         "  fusegraph report gaze --plot gaze.png\n  fusegraph report bicycle --seeds 0-2 --json --plot bicycle.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    rep.add_argument("system", choices=["head", "gaze"])
-    rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default; gaze: 0-2) or 0,3,7")
+    rep.add_argument("system", choices=["head", "gaze", "bicycle"])
+    rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default; gaze, bicycle: 0-2) or 0,3,7")
     rep.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
     rep.add_argument("--duration", type=float, default=10.0, help="seconds per session (default 10, like the paper)")
     rep.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency in seconds (default: the scenario's 0.1)")
@@ -262,6 +265,15 @@ def _same_times(estimate: object, session: object) -> bool:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    if args.system == "bicycle":
+        from .systems import bicycle
+
+        seeds = tuple(args.seeds) if args.seeds != list(range(10)) else (0, 1, 2)
+        ride = bicycle.bicycle_report(seeds, plot=str(args.plot) if args.plot else None)
+        print(json.dumps(ride, indent=2) if args.json else bicycle.format_bicycle_table(ride))
+        if args.plot:
+            print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
+        return 0
     if args.system == "gaze":
         from .systems import gaze
 

@@ -92,8 +92,10 @@ class Attitude9Builder:
 
     linear_keys: tuple[int, ...] = ()
 
-    def __init__(self, model: Attitude9Model | None = None, deferred_mag: bool = False):
+    def __init__(self, model: Attitude9Model | None = None, deferred_mag: bool = False, prefix: str = ""):
         self.model = model or Attitude9Model()
+        self.prefix = prefix
+        """Key prefix: '' gives x/v/b keys; another letter ('t' -> 'T'...) lets two bodies share a graph."""
         self.deferred_mag = deferred_mag
         self._pending = GraphIncrement()
         self.keyframe_t: list[float] = []
@@ -115,6 +117,19 @@ class Attitude9Builder:
         self._still_run = 0  # consecutive still samples
         self._solved = False
 
+    # ------------------------------------------------------------------ keys
+    def X(self, k: int) -> int:
+        """This body's pose key at keyframe k."""
+        return X(k) if not self.prefix else int(gtsam.symbol(self.prefix.upper(), k))
+
+    def V(self, k: int) -> int:
+        """This body's velocity key at keyframe k."""
+        return V(k) if not self.prefix else int(gtsam.symbol(self.prefix.lower(), k))
+
+    def B(self, k: int) -> int:
+        """This body's bias key at keyframe k."""
+        return B(k) if not self.prefix else int(gtsam.symbol(chr(ord(self.prefix.upper()) + 1), k))
+
     # ------------------------------------------------------------------ protocol of the online solver
 
     @property
@@ -126,13 +141,13 @@ class Attitude9Builder:
         return len(self.keyframe_t) - 1
 
     def state_keys(self, k: int) -> tuple[int, int | None]:
-        return X(k), B(k)
+        return self.X(k), self.B(k)
 
     def read_latest(self, isam: gtsam.ISAM2, k: int) -> tuple[gtsam.Rot3, FloatArray]:
         """Read keyframe k's posterior (pose, velocity, bias): the next prediction starts from it."""
-        pose = isam.calculateEstimatePose3(X(k))
-        self._nav = gtsam.NavState(pose, isam.calculateEstimateVector(V(k)))
-        self._bias = isam.calculateEstimateConstantBias(B(k))
+        pose = isam.calculateEstimatePose3(self.X(k))
+        self._nav = gtsam.NavState(pose, isam.calculateEstimateVector(self.V(k)))
+        self._bias = isam.calculateEstimateConstantBias(self.B(k))
         self._solved = True
         gyro_bias = np.asarray(self._bias.gyroscope())
         while len(self.posterior_quat) <= k:
@@ -179,12 +194,12 @@ class Attitude9Builder:
         self._nav = gtsam.NavState(rot, np.zeros(3), np.zeros(3))
         sigma = np.deg2rad(model.initial_attitude_sigma_deg)
         pose_noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma] * 3, [0.01] * 3])
-        self._pending.add(0, gtsam.PriorFactorPose3(X(0), self._nav.pose(), pose_noise))
-        self._pending.add(0, velocity_prior_factor(V(0), model.motion.velocity_sigma_m_s))
-        self._pending.add(0, bias_prior_factor(B(0), model.imu))
-        self._pending.values.insert(X(0), self._nav.pose())
-        self._pending.values.insert(V(0), np.zeros(3))
-        self._pending.values.insert(B(0), self._bias)
+        self._pending.add(0, gtsam.PriorFactorPose3(self.X(0), self._nav.pose(), pose_noise))
+        self._pending.add(0, velocity_prior_factor(self.V(0), model.motion.velocity_sigma_m_s if np.isfinite(model.motion.velocity_sigma_m_s) else 50.0))
+        self._pending.add(0, bias_prior_factor(self.B(0), model.imu))
+        self._pending.values.insert(self.X(0), self._nav.pose())
+        self._pending.values.insert(self.V(0), np.zeros(3))
+        self._pending.values.insert(self.B(0), self._bias)
         self.keyframe_t.append(t)
         self.keyframe_index.append(self._count)
         self._after_keyframe(0, rot, mag)
@@ -210,18 +225,21 @@ class Attitude9Builder:
             # no posterior yet (batch): keep the attitude, not the accelerometer's drifting double integral
             predicted = gtsam.NavState(predicted.attitude(), np.zeros(3), np.zeros(3))
         add = self._pending.add
-        add(k - 1, gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), pim))
-        add(k - 1, bias_walk_factor(B(k - 1), B(k), pim.deltaTij(), model.imu))
-        add(k, position_prior_factor(X(k), model.motion.position_sigma_m))
-        add(k, velocity_prior_factor(V(k), model.motion.velocity_sigma_m_s))
+        add(k - 1, gtsam.ImuFactor(self.X(k - 1), self.V(k - 1), self.X(k), self.V(k), self.B(k - 1), pim))
+        add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), pim.deltaTij(), model.imu))
+        # an infinite sigma drops the pseudo-measurement (a vehicle travels; the start pose fixes the gauge)
+        if np.isfinite(model.motion.position_sigma_m):
+            add(k, position_prior_factor(self.X(k), model.motion.position_sigma_m))
+        if np.isfinite(model.motion.velocity_sigma_m_s):
+            add(k, velocity_prior_factor(self.V(k), model.motion.velocity_sigma_m_s))
         rest_samples = int(round(model.motion.rest_window_s / max(pim.deltaTij(), 1e-9) * (self._count - self.keyframe_index[-1])))
         if self._still_run >= max(rest_samples, 1):
-            add(k, velocity_prior_factor(V(k), model.motion.rest_velocity_sigma_m_s))
+            add(k, velocity_prior_factor(self.V(k), model.motion.rest_velocity_sigma_m_s))
         if model.gravity is not None:
-            add(k, gravity_factor(X(k), accel, model.gravity, model.imu.gravity_m_s2))
-        self._pending.values.insert(X(k), predicted.pose())
-        self._pending.values.insert(V(k), predicted.velocity())
-        self._pending.values.insert(B(k), self._bias)
+            add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
+        self._pending.values.insert(self.X(k), predicted.pose())
+        self._pending.values.insert(self.V(k), predicted.velocity())
+        self._pending.values.insert(self.B(k), self._bias)
         self.keyframe_t.append(self._last_t)
         self.keyframe_index.append(self._count)
         self._nav = predicted
@@ -241,7 +259,7 @@ class Attitude9Builder:
     def _heading(self, k: int, world_R_body: gtsam.Rot3, mag: FloatArray, norm: float, dip: float, robust: bool) -> gtsam.AttitudeFactorPose3:
         assert self.reference is not None
         sigma = heading_sigma_rad(self.model.mag, self.reference, norm, dip)
-        return heading_factor(X(k), world_R_body, mag, sigma, self.model.mag.cauchy_k if robust else 0.0)
+        return heading_factor(self.X(k), world_R_body, mag, sigma, self.model.mag.cauchy_k if robust else 0.0)
 
     def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""

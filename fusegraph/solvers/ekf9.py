@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..factors.imu import GRAVITY_M_S2
-from ..geometry import FloatArray, euler_rate_matrix, quat_from_euler_zyx, wrap_angle
+from ..geometry import FloatArray, euler_rate_matrix, matrix_from_quat, quat_from_euler_zyx, wrap_angle
 from .ekf import joseph_update
 
 
@@ -47,8 +47,14 @@ def _tilt_compensated_yaw(angles: FloatArray, mag: FloatArray) -> float:
     return float(np.pi / 2 - np.arctan2(level_y, level_x))
 
 
-def run_ekf9(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray, config: Ekf9Config | None = None) -> FloatArray:
-    """Attitude quaternions (N, 4) wxyz, earth_R_sensor in ENU, at every sample."""
+def run_ekf9(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray, config: Ekf9Config | None = None,
+             linear_accel_world: FloatArray | None = None) -> FloatArray:
+    """Attitude quaternions (N, 4) wxyz, earth_R_sensor in ENU, at every sample.
+
+    ``linear_accel_world`` (N, 3), when given, is a translational acceleration known from elsewhere
+    (the cyclist paper's frame IMU): it is rotated into the sensor frame with the predicted attitude
+    and subtracted from the accelerometer before the gravity update.
+    """
     cfg = config or Ekf9Config()
     mag_cal = np.asarray(mag, dtype=float) * np.asarray(cfg.mag_gain) + np.asarray(cfg.mag_offset)
     # initial attitude from the first accelerometer and magnetometer samples
@@ -71,9 +77,12 @@ def run_ekf9(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray
         sp, cp, sr, cr = np.sin(x[1]), np.cos(x[1]), np.sin(x[2]), np.cos(x[2])
         predicted = GRAVITY_M_S2 * np.array([-sp, sr * cp, cr * cp])
         H = GRAVITY_M_S2 * np.array([[0.0, -cp, 0.0], [0.0, -sr * sp, cr * cp], [0.0, -cr * sp, -sr * cp]])
-        departure = abs(np.linalg.norm(accel[i]) - GRAVITY_M_S2)
+        measured = accel[i]
+        if linear_accel_world is not None:
+            measured = measured - matrix_from_quat(quat_from_euler_zyx(x)).T @ linear_accel_world[i]
+        departure = abs(np.linalg.norm(measured) - GRAVITY_M_S2)
         sigma = cfg.accel_sigma_m_s2 + cfg.accel_inflation * departure
-        x, P = joseph_update(x, P, accel[i] - predicted, H, sigma**2 * np.eye(3), angle_rows=slice(0, 1))
+        x, P = joseph_update(x, P, measured - predicted, H, sigma**2 * np.eye(3), angle_rows=slice(0, 1))
         # magnetometer yaw
         residual = wrap_angle(_tilt_compensated_yaw(x, mag_cal[i]) - x[0])
         x, P = joseph_update(x, P, np.array([residual]), np.array([[1.0, 0.0, 0.0]]), np.array([[cfg.mag_yaw_sigma_rad**2]]), angle_rows=slice(0, 1))

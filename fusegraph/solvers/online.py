@@ -59,6 +59,9 @@ class OnlineConfig:
     """Back-substitution stops where the solution changes less than this (gtsam's default 0.001)."""
     covariance: bool = True
     """Compute the newest keyframe's marginal covariance after each update."""
+    factorization: str = "CHOLESKY"
+    """iSAM2's factorisation, CHOLESKY or QR (slower, but it survived the cyclist graph where Cholesky
+    reported an indeterminate system on a well-posed problem)."""
     bias_covariance_every: int = 10
     """Refresh the bias marginal covariance every this many updates."""
 
@@ -91,6 +94,7 @@ class OnlineSmoother:
         params.setRelinearizeThreshold(self.config.relinearize_threshold)
         params.relinearizeSkip = self.config.relinearize_skip
         params.enableRelinearization = self.config.relinearize
+        params.setFactorization(self.config.factorization)
         gauss_newton = gtsam.ISAM2GaussNewtonParams()
         gauss_newton.setWildfireThreshold(self.config.wildfire_threshold)
         params.setOptimizationParams(gauss_newton)
