@@ -181,12 +181,14 @@ class UltrasonicTracker:
             if not tr.lost and tr.missed >= cfg.lost_after:
                 tr.lost = True
         live = [i for i, tr in enumerate(self.tracks) if not tr.lost]
-        for a in live:
-            for b in live:
-                both = a < b and not self.tracks[a].lost and not self.tracks[b].lost
-                if both and np.linalg.norm(self.tracks[a].x[:3] - self.tracks[b].x[:3]) < cfg.duplicate_m:
-                    worse = a if self.tracks[a].inliers < self.tracks[b].inliers else b
-                    self.tracks[worse].lost = True
+        if len(live) < 2:
+            return
+        points = np.array([self.tracks[i].x[:3] for i in live])
+        close = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2) < cfg.duplicate_m
+        for a, b in zip(*np.nonzero(np.triu(close, 1)), strict=True):
+            ta, tb = self.tracks[live[a]], self.tracks[live[b]]
+            if not ta.lost and not tb.lost:
+                (ta if ta.inliers < tb.inliers else tb).lost = True
 
     def _recover(self, ranges: list[FloatArray], labels: list[np.ndarray]) -> None:
         free = [rng[lab < 0] for rng, lab in zip(ranges, labels, strict=True)]
