@@ -56,23 +56,28 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="write a simulated session directory (session.toml + CSVs + truth)",
                          description="Simulate a scenario and write it as a session directory you can read and edit.")
-    sim.add_argument("scenario", choices=["head", "attitude9"], help="which system to simulate")
+    sim.add_argument("scenario", choices=["head", "attitude9", "gaze", "bicycle"], help="which system to simulate")
     sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     sim.add_argument("--out", type=Path, required=True, help="directory to write (created)")
     sim.add_argument("--profile", choices=["ideal", "realistic", "noise_free"], default="realistic",
                      help="sensor error profile (default realistic); head: ideal or realistic; attitude9: realistic or noise_free")
-    sim.add_argument("--duration", type=float, default=10.0, help="seconds of data (default 10)")
+    sim.add_argument("--duration", type=float, default=None, help="seconds of data (default: head, attitude9 10; gaze, bicycle 40)")
     sim.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency, seconds (default 0.1)")
     sim.add_argument("--latency-assumed", type=float, metavar="S",
                      help="write stamps made with this assumed latency and declare it unknown (latency_sigma_s), so solvers estimate it")
 
     run = sub.add_parser("run", help="estimate a session with one solver; metrics when it has truth",
                          description="Run one solver over a session directory and write the estimate as CSV "
-                         "(t, quaternion, azimuth/elevation/roll in degrees, covariance).")
+                         "(t, quaternion, azimuth/elevation/roll in degrees, covariance; gaze sessions: t, wall point X, Z). "
+                         "The session's system (session.toml) picks the graph: head, attitude9, gaze, bicycle.",
+                         epilog="examples:\n  fusegraph simulate gaze --out sessions/gaze0 && fusegraph run sessions/gaze0 --solver batch\n"
+                         "  fusegraph simulate bicycle --seed 1 --out sessions/bike1 && fusegraph run sessions/bike1 --solver ekf --plot bike.png",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
     run.add_argument("session", type=Path, help="session directory (with session.toml)")
-    run.add_argument("--solver", choices=["online", "batch", "ekf", "vqf", "vqf_offline"], default="online",
+    run.add_argument("--solver", choices=["online", "batch", "ekf", "vqf", "vqf_offline", "no_removal"], default="online",
                      help="online = iSAM2 causal estimate at every gyro sample; batch = smoother over the whole session; ekf = the paper's "
-                     "EKF (head: Method II; attitude9: the 9-axis EKF); vqf, vqf_offline = the peer (attitude9 only)")
+                     "EKF (head: Method II; attitude9: the 9-axis EKF; gaze: (yaw, pitch, roll, GX, GZ); bicycle: frame EKF -> subtract -> "
+                     "thigh EKF); vqf, vqf_offline = the peer (attitude9 only); no_removal = the thigh EKF alone (bicycle only)")
     run.add_argument("--out", type=Path, help="CSV to write (default: <session>/estimate_<solver>.csv)")
     run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
     run.add_argument("--json", action="store_true", help="print the metrics as JSON")
@@ -184,7 +189,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ValueError(f"--profile {args.profile} does not apply to {args.scenario} (head: ideal, realistic; attitude9: realistic, noise_free)")
     if args.scenario != "head" and extra:
         raise ValueError("--latency-true/--latency-assumed apply to the head scenario only")
-    session = SCENARIOS[args.scenario](args.seed, profile=args.profile, duration_s=args.duration, **extra)
+    duration = args.duration if args.duration is not None else (10.0 if args.scenario in ("head", "attitude9") else None)
+    session = SCENARIOS[args.scenario](args.seed, profile=args.profile, duration_s=duration, **extra)
     path = save_session(session, args.out)
     files = ", ".join(sorted(p.name for p in path.iterdir()))
     print(f"wrote {path}/ ({files})")
@@ -199,8 +205,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     session = load_session(args.session)
     if session.system == "attitude9":
         return _run_attitude9(args, session)
+    if session.system in ("gaze", "bicycle"):
+        return _run_coupled(args, session)
     if session.system != "head":
-        raise ValueError(f"{args.session}/session.toml: system '{session.system}' has no solver yet (available: head, attitude9)")
+        raise ValueError(f"{args.session}/session.toml: system '{session.system}' has no solver yet (available: head, attitude9, gaze, bicycle)")
     if args.solver not in ("online", "batch", "ekf"):
         raise ValueError(f"--solver {args.solver} is for attitude9 sessions; head has online, batch, ekf")
     method = {"online": "isam2", "batch": "batch", "ekf": "method2"}[args.solver]
@@ -242,6 +250,47 @@ def _run_attitude9(args: argparse.Namespace, session: Any) -> int:
             print(json.dumps({"method": args.solver, "total": errors.total, "heading": errors.heading, "inclination": errors.inclination}, indent=2))
         else:
             print(f"RMSE [deg]: total {errors.total:.3f}, heading {errors.heading:.3f}, inclination {errors.inclination:.3f}")
+    if args.plot:
+        print(f"wrote {_plot_estimate(args, session, estimate)}")
+    return 0
+
+
+def _run_coupled(args: argparse.Namespace, session: Any) -> int:
+    """Gaze (wall point per tracker sample) and bicycle (thigh attitude per sample) sessions."""
+    import time as _time
+
+    import numpy as np
+
+    from .estimate import Estimate
+    from .systems import bicycle, gaze
+
+    if session.system == "gaze":
+        solvers = {"online": "online", "batch": "batch", "ekf": "ekf"}
+        if args.solver not in solvers:
+            raise ValueError(f"--solver {args.solver}: gaze sessions have online, batch, ekf")
+        data = gaze.from_session(session)
+        point, seconds = gaze.RUNNERS[args.solver](data)  # type: ignore[operator]
+        out = args.out or args.session / f"gaze_{args.solver}.csv"
+        np.savetxt(out, np.column_stack([data.tracker_t, point]), delimiter=",", header="t,X_m,Z_m", comments="", fmt="%.10g")
+        print(f"wrote {out} ({len(point)} rows: the gaze point on the wall, X = world y, Z = world z; {session.duration_s:.1f} s of data in {seconds:.2f} s)")
+        if np.isfinite(data.truth_gaze_xz_m).any():
+            rms = gaze.rms_mm(point, data)
+            print(json.dumps({"method": args.solver, "rms": rms}, indent=2) if args.json else f"RMS after 1 s [mm]: X {rms['x_mm']:.1f}, Z {rms['z_mm']:.1f}")
+        return 0
+    solvers = {"online": "online", "batch": "batch", "ekf": "paper_pipeline", "no_removal": "no_removal"}
+    if args.solver not in solvers:
+        raise ValueError(f"--solver {args.solver}: bicycle sessions have online, batch, ekf (the paper's pipeline), no_removal")
+    ride = bicycle.from_session(session)
+    start = _time.perf_counter()
+    quat = bicycle.RUNNERS[solvers[args.solver]](ride)  # type: ignore[operator]
+    estimate = Estimate(solvers[args.solver], ride.t.copy(), quat, None, _time.perf_counter() - start)
+    out = args.out or args.session / f"estimate_{args.solver}.csv"
+    estimate.save_csv(out)
+    print(f"wrote {out} ({len(estimate.t)} rows: the thigh attitude, {session.duration_s:.1f} s of data in {estimate.runtime_s:.2f} s)")
+    if np.isfinite(ride.thigh_quat_wxyz).all() and np.isfinite(ride.config.brake_s):
+        rms = bicycle.braking_rms_deg(quat, ride)
+        print(json.dumps({"method": args.solver, "rms": rms}, indent=2) if args.json else
+              f"braking phase ({ride.config.brake_s:.1f}-{ride.config.brake_s + 5:.1f} s) RMS [deg]: pitch {rms['pitch_deg']:.2f}, roll {rms['roll_deg']:.2f}")
     if args.plot:
         print(f"wrote {_plot_estimate(args, session, estimate)}")
     return 0

@@ -35,6 +35,7 @@ KIND_COLUMNS: dict[str, tuple[str, ...]] = {
     "attitude": ("qw", "qx", "qy", "qz"),
     "position": ("x", "y", "z"),
     "flag": ("value",),
+    "pixel": ("u", "v"),
 }
 
 #: Gap between samples, in multiples of the median period, above which a dropout is reported.

@@ -57,3 +57,26 @@ def test_report_with_an_assumed_latency_adds_rows_and_the_latency_block(capsys: 
     assert set(report["latency"]) == {"true", "assumed", "estimated", "sigma"}
     assert report["latency"]["true"] == 0.13 and report["latency"]["assumed"] == 0.1
     assert abs(report["latency"]["estimated"] - 0.13) < 0.01  # 3 s of motion: within 10 ms
+
+
+def test_gaze_and_bicycle_sessions_simulate_and_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A simulated session written to disk and run back gives the same figures as the in-memory system."""
+    from fusegraph.scenarios.bicycle import BicycleScenarioConfig, simulate_bicycle
+    from fusegraph.systems import bicycle
+
+    assert main(["simulate", "gaze", "--out", str(tmp_path / "g")]) == 0
+    assert main(["run", str(tmp_path / "g"), "--solver", "batch", "--json"]) == 0
+    out = capsys.readouterr().out
+    rms = json.loads(out[out.index("{"):])["rms"]
+    assert rms["x_mm"] < 8 and rms["z_mm"] < 8  # mm: the batch measured 3.6 and 2.2 on this seed
+    assert (tmp_path / "g" / "gaze_batch.csv").read_text().startswith("t,X_m,Z_m")
+    assert main(["simulate", "bicycle", "--duration", "16", "--out", str(tmp_path / "b")]) == 0
+    assert main(["run", str(tmp_path / "b"), "--solver", "no_removal", "--json"]) == 0
+    out = capsys.readouterr().out
+    from_disk = json.loads(out[out.index("{"):])["rms"]
+    direct = simulate_bicycle(0, BicycleScenarioConfig(duration_s=16.0, brake_s=12.0))
+    in_memory = bicycle.braking_rms_deg(bicycle.run_no_removal(direct), direct)
+    # the CSVs keep 17 digits: the same figures to rounding
+    assert abs(from_disk["pitch_deg"] - in_memory["pitch_deg"]) < 1e-6
+    assert main(["run", str(tmp_path / "b"), "--solver", "vqf"]) == 2
+    assert "bicycle sessions have" in capsys.readouterr().err

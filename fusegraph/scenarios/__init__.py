@@ -4,9 +4,11 @@ from collections.abc import Callable
 
 from ..session import Session
 from .attitude9 import Attitude9ScenarioConfig, simulate_attitude9
+from .bicycle import bicycle_session
+from .gaze import gaze_session
 from .head import PROFILES, HeadScenarioConfig, simulate_head
 
-SCENARIOS: dict[str, Callable[..., Session]] = {"head": simulate_head, "attitude9": simulate_attitude9}
+SCENARIOS: dict[str, Callable[..., Session]] = {"head": simulate_head, "attitude9": simulate_attitude9, "gaze": gaze_session, "bicycle": bicycle_session}
 """Scenario name -> simulator ``f(seed, **overrides) -> Session``."""
 
-__all__ = ["PROFILES", "SCENARIOS", "Attitude9ScenarioConfig", "HeadScenarioConfig", "simulate_attitude9", "simulate_head"]
+__all__ = ["PROFILES", "SCENARIOS", "Attitude9ScenarioConfig", "HeadScenarioConfig", "bicycle_session", "gaze_session", "simulate_attitude9", "simulate_head"]

@@ -12,11 +12,12 @@ bicycle's translational acceleration. World ENU; body frames x forward, y left, 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx, quat_multiply
+from ..session import KIND_COLUMNS, Session, Stream
 from .attitude9 import _readings
 
 
@@ -127,3 +128,23 @@ def simulate_bicycle(seed: int = 0, config: BicycleScenarioConfig | None = None)
     return BicycleSession(t=t, thigh_gyro=out["thigh"][0], thigh_accel=out["thigh"][1], thigh_mag=out["thigh"][2],
                           frame_gyro=out["frame"][0], frame_accel=out["frame"][1], frame_mag=out["frame"][2],
                           thigh_quat_wxyz=thigh_q, frame_quat_wxyz=frame_q, config=config)
+
+
+def bicycle_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None, ride: str = "downhill") -> Session:
+    """The scenario as a session (``fusegraph simulate bicycle``): ``thigh_*`` and ``frame_*`` gyro,
+    accel and mag streams; the ride and the braking time in the metadata; the thigh attitude as truth."""
+    if profile not in (None, "realistic"):
+        raise ValueError(f"--profile {profile} does not apply to bicycle (its noise is the realistic one)")
+    config = BicycleScenarioConfig(ride=ride)
+    if duration_s is not None:
+        config = replace(config, duration_s=duration_s, brake_s=duration_s * config.brake_s / config.duration_s)
+    b = simulate_bicycle(seed, config)
+    streams = {}
+    for body in ("thigh", "frame"):
+        for kind, attr in (("gyro", "gyro"), ("accel", "accel"), ("mag", "mag")):
+            name = f"{body}_{kind}"
+            streams[name] = Stream(name, kind, b.t, getattr(b, f"{body}_{attr}"), KIND_COLUMNS[kind])
+    truth = Stream("truth", "attitude", b.t, b.thigh_quat_wxyz, KIND_COLUMNS["attitude"])
+    meta = {"session": {"description": f"bicycle scenario ({config.ride}), seed {seed}", "world_frame": "ENU",
+                        "ride": config.ride, "brake_s": config.brake_s}}
+    return Session("bicycle", streams, truth, meta)

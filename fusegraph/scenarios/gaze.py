@@ -12,12 +12,13 @@ Head IMU at 100 Hz (gyro with bias, accelerometer, calibrated magnetometer), tra
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..factors.gaze import SceneCamera
 from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx
+from ..session import KIND_COLUMNS, Session, Stream
 from .attitude9 import _readings
 
 
@@ -113,3 +114,26 @@ def simulate_gaze(seed: int = 0, config: GazeScenarioConfig | None = None) -> Ga
     px = config.camera.project(head_point) + rng.normal(0.0, config.camera.pixel_sigma, (len(tt), 2))
     return GazeSession(t=t, gyro_rad_s=gyro, accel_m_s2=accel, mag=mag, tracker_t=tt, gaze_px=px, truth_quat_wxyz=quat,
                        truth_gaze_xz_m=gaze_xz, config=config)
+
+
+def gaze_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None) -> Session:
+    """The scenario as a session directory's content (``fusegraph simulate gaze``): head IMU streams,
+    the tracker's ``gaze`` pixels (kind ``pixel``: u right, v up, origin at the image centre), the wall
+    and camera in the metadata, and the true gaze point (world x, y, z) as the truth."""
+    if profile not in (None, "realistic"):
+        raise ValueError(f"--profile {profile} does not apply to gaze (its noise is the realistic one)")
+    config = GazeScenarioConfig()
+    if duration_s is not None:
+        config = replace(config, duration_s=duration_s, switch_s=duration_s * config.switch_s / config.duration_s)
+    g = simulate_gaze(seed, config)
+    cam = config.camera
+    imu = {"gyro": (g.gyro_rad_s, KIND_COLUMNS["gyro"]), "accel": (g.accel_m_s2, KIND_COLUMNS["accel"]), "mag": (g.mag, KIND_COLUMNS["mag"])}
+    streams = {name: Stream(name, name, g.t, values, cols) for name, (values, cols) in imu.items()}
+    streams["gaze"] = Stream("gaze", "pixel", g.tracker_t, g.gaze_px, KIND_COLUMNS["pixel"],
+                             meta={"focal_px": cam.focal_px, "width_px": cam.width_px, "height_px": cam.height_px, "pixel_sigma": cam.pixel_sigma})
+    point = np.column_stack([np.full(len(g.tracker_t), config.wall_m), g.truth_gaze_xz_m])
+    truth = Stream("truth", "position", g.tracker_t, point, KIND_COLUMNS["position"])
+    meta = {"session": {"description": f"gaze scenario, seed {seed}: a wall {config.wall_m} m ahead (+x), marks, nodding and shaking",
+                        "world_frame": "ENU; wall plane x = wall_m; wall X = world y, Z = world z", "wall_m": config.wall_m,
+                        "switch_s": config.switch_s}}
+    return Session("gaze", streams, truth, meta)

@@ -19,11 +19,12 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from ..factors.gaze import FixationNoise, fixation_walk, gaze_factor, wall_plane_prior
+from ..factors.gaze import FixationNoise, SceneCamera, fixation_walk, gaze_factor, wall_plane_prior
 from ..factors.imu import MotionPriors
 from ..geometry import FloatArray
 from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
-from ..scenarios.gaze import GazeSession, simulate_gaze
+from ..scenarios.gaze import GazeScenarioConfig, GazeSession, simulate_gaze
+from ..session import Session, SessionError
 from ..solvers.ekf_gaze import run_gaze_ekf
 from ..solvers.online import OnlineConfig, OnlineSmoother
 
@@ -132,6 +133,32 @@ class GazeGraph:
         self.sample_keyframe[j] = k
 
 
+def from_session(session: Session) -> GazeSession:
+    """A gaze session directory's content as the system's input: head ``gyro``/``accel``/``mag`` sampled
+    together, the tracker's ``gaze`` pixels (kind ``pixel``, camera in its metadata), ``wall_m`` in
+    ``[session]``; the truth (gaze point, world x, y, z at the tracker times) is optional."""
+    where = f"{session.path / 'session.toml'}" if session.path else "gaze session"
+    imu = {name: session.stream(name) for name in ("gyro", "accel", "mag")}
+    t = imu["gyro"].t
+    for name, stream in imu.items():
+        if len(stream) != len(t) or not np.allclose(stream.t, t):
+            raise SessionError(f"{where}: stream '{name}' must be sampled with the gyro (same times)")
+    gaze_stream = session.stream("gaze")
+    if gaze_stream.kind != "pixel":
+        raise SessionError(f"{where}: stream 'gaze' must be of kind 'pixel', not '{gaze_stream.kind}'")
+    header = session.meta.get("session", {})
+    if "wall_m" not in header:
+        raise SessionError(f"{where}: [session] needs wall_m (distance to the wall, metres)")
+    m = gaze_stream.meta
+    camera = SceneCamera(**{k: type(getattr(SceneCamera(), k))(m[k]) for k in ("focal_px", "width_px", "height_px", "pixel_sigma") if k in m})
+    config = GazeScenarioConfig(duration_s=float(t[-1] - t[0]), switch_s=float(header.get("switch_s", np.nan)), wall_m=float(header["wall_m"]), camera=camera)
+    truth = np.full((len(gaze_stream), 2), np.nan)
+    if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream):
+        truth = session.truth.values[:, 1:3].copy()
+    return GazeSession(t=t, gyro_rad_s=imu["gyro"].values, accel_m_s2=imu["accel"].values, mag=imu["mag"].values, tracker_t=gaze_stream.t,
+                       gaze_px=gaze_stream.values, truth_quat_wxyz=np.full((len(t), 4), np.nan), truth_gaze_xz_m=truth, config=config)
+
+
 def _block(session: GazeSession, model: GazeModel) -> int:
     dt = float(np.median(np.diff(session.t)))
     return max(1, int(round(model.head.keyframe_period_s / dt)))
@@ -204,7 +231,7 @@ def run_ekf(session: GazeSession) -> tuple[FloatArray, float]:
 
 def rms_mm(estimate: FloatArray, session: GazeSession, skip_s: float = 1.0) -> dict[str, float]:
     """RMS of the gaze point error on the wall, X and Z, millimetres (after the first ``skip_s``)."""
-    keep = (session.tracker_t >= skip_s) & np.all(np.isfinite(estimate), axis=1)
+    keep = (session.tracker_t >= skip_s) & np.all(np.isfinite(estimate), axis=1) & np.all(np.isfinite(session.truth_gaze_xz_m), axis=1)
     err = (estimate[keep] - session.truth_gaze_xz_m[keep]) * 1000.0
     return {"x_mm": float(np.sqrt(np.mean(err[:, 0] ** 2))), "z_mm": float(np.sqrt(np.mean(err[:, 1] ** 2)))}
 
@@ -270,4 +297,6 @@ def format_gaze_table(report: dict[str, object]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["GazeGraph", "GazeModel", "format_gaze_table", "gaze_report", "run_batch", "run_ekf", "run_online"]
+RUNNERS = {"ekf": run_ekf, "online": run_online, "batch": run_batch}
+
+__all__ = ["RUNNERS", "GazeGraph", "GazeModel", "format_gaze_table", "from_session", "gaze_report", "run_batch", "run_ekf", "run_online"]
