@@ -56,12 +56,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="write a simulated session directory (session.toml + CSVs + truth)",
                          description="Simulate a scenario and write it as a session directory you can read and edit.")
-    sim.add_argument("scenario", choices=["head", "attitude9", "gaze", "bicycle"], help="which system to simulate")
+    sim.add_argument("scenario", choices=["head", "attitude9", "gaze", "bicycle", "walking"], help="which system to simulate")
     sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     sim.add_argument("--out", type=Path, required=True, help="directory to write (created)")
     sim.add_argument("--profile", choices=["ideal", "realistic", "noise_free"], default="realistic",
                      help="sensor error profile (default realistic); head: ideal or realistic; attitude9: realistic or noise_free")
-    sim.add_argument("--duration", type=float, default=None, help="seconds of data (default: head, attitude9 10; gaze, bicycle 40)")
+    sim.add_argument("--duration", type=float, default=None, help="seconds of data (default: head, attitude9 10; gaze, bicycle 40; walking: its tour)")
     sim.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency, seconds (default 0.1)")
     sim.add_argument("--latency-assumed", type=float, metavar="S",
                      help="write stamps made with this assumed latency and declare it unknown (latency_sigma_s), so solvers estimate it")
@@ -69,15 +69,16 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="estimate a session with one solver; metrics when it has truth",
                          description="Run one solver over a session directory and write the estimate as CSV "
                          "(t, quaternion, azimuth/elevation/roll in degrees, covariance; gaze sessions: t, wall point X, Z). "
-                         "The session's system (session.toml) picks the graph: head, attitude9, gaze, bicycle.",
+                         "The session's system (session.toml) picks the graph: head, attitude9, gaze, bicycle, walking.",
                          epilog="examples:\n  fusegraph simulate gaze --out sessions/gaze0 && fusegraph run sessions/gaze0 --solver batch\n"
                          "  fusegraph simulate bicycle --seed 1 --out sessions/bike1 && fusegraph run sessions/bike1 --solver ekf --plot bike.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     run.add_argument("session", type=Path, help="session directory (with session.toml)")
-    run.add_argument("--solver", choices=["online", "batch", "ekf", "vqf", "vqf_offline", "no_removal"], default="online",
+    run.add_argument("--solver", choices=["online", "batch", "ekf", "vqf", "vqf_offline", "no_removal", "dead_reckoning"], default="online",
                      help="online = iSAM2 causal estimate at every gyro sample; batch = smoother over the whole session; ekf = the paper's "
                      "EKF (head: Method II; attitude9: the 9-axis EKF; gaze: (yaw, pitch, roll, GX, GZ); bicycle: frame EKF -> subtract -> "
-                     "thigh EKF); vqf, vqf_offline = the peer (attitude9 only); no_removal = the thigh EKF alone (bicycle only)")
+                     "thigh EKF; walking: the paper's Kalman framework); vqf, vqf_offline = the peer (attitude9 only); no_removal = the "
+                     "thigh EKF alone (bicycle only); dead_reckoning = steps and rides only (walking only)")
     run.add_argument("--out", type=Path, help="CSV to write (default: <session>/estimate_<solver>.csv)")
     run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
     run.add_argument("--json", action="store_true", help="print the metrics as JSON")
@@ -207,6 +208,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return _run_attitude9(args, session)
     if session.system in ("gaze", "bicycle"):
         return _run_coupled(args, session)
+    if session.system == "walking":
+        return _run_walking(args, session)
     if session.system != "head":
         raise ValueError(f"{args.session}/session.toml: system '{session.system}' has no solver yet (available: head, attitude9, gaze, bicycle)")
     if args.solver not in ("online", "batch", "ekf"):
@@ -293,6 +296,31 @@ def _run_coupled(args: argparse.Namespace, session: Any) -> int:
               f"braking phase ({ride.config.brake_s:.1f}-{ride.config.brake_s + 5:.1f} s) RMS [deg]: pitch {rms['pitch_deg']:.2f}, roll {rms['roll_deg']:.2f}")
     if args.plot:
         print(f"wrote {_plot_estimate(args, session, estimate)}")
+    return 0
+
+
+def _run_walking(args: argparse.Namespace, session: Any) -> int:
+    """A walking session: the PDR front end, then dead reckoning, the EKF, iSAM2 online or batch."""
+    import numpy as np
+
+    from .systems import walking
+
+    solvers = {"online": "online", "batch": "batch", "ekf": "ekf", "dead_reckoning": "dead_reckoning"}
+    if args.solver not in solvers:
+        raise ValueError(f"--solver {args.solver}: walking sessions have online, batch, ekf, dead_reckoning")
+    walk, speed = walking.from_session(session)
+    cycles, rides, events = walking.analyse(walk, speed)
+    runs = {"online": walking.run_online, "batch": walking.run_batch, "ekf": walking.run_ekf}
+    run = walking.run_dead_reckoning(walk, events) if args.solver == "dead_reckoning" else runs[args.solver](walk, events, walk.fixes.pose)
+    out = args.out or args.session / f"trajectory_{args.solver}.csv"
+    np.savetxt(out, np.column_stack([run.t, run.xyz]), delimiter=",", header="t,x,y,z", comments="", fmt="%.10g")
+    activity = {a: sum(c.activity == a for c in cycles) for a in ("flat", "stairs_up", "stairs_down")}
+    print(f"wrote {out} ({len(run.t)} states: {len(cycles)} steps {activity}, {len(rides)} elevator rides; "
+          f"{session.duration_s:.0f} s of data in {run.seconds:.2f} s)")
+    if np.isfinite(walk.truth_xyz_m).all():
+        score = walking.score(run, walk)
+        print(json.dumps({"method": args.solver, **score}, indent=2) if args.json else
+              f"position RMSE {score['rmse_m']:.2f} m, final error {score['final_error_m']:.2f} m")
     return 0
 
 

@@ -36,6 +36,7 @@ KIND_COLUMNS: dict[str, tuple[str, ...]] = {
     "position": ("x", "y", "z"),
     "flag": ("value",),
     "pixel": ("u", "v"),
+    "pose": ("x", "y", "z", "yaw"),
 }
 
 #: Gap between samples, in multiples of the median period, above which a dropout is reported.

@@ -7,8 +7,20 @@ from .attitude9 import Attitude9ScenarioConfig, simulate_attitude9
 from .bicycle import bicycle_session
 from .gaze import gaze_session
 from .head import PROFILES, HeadScenarioConfig, simulate_head
+from .walking import walking_session
 
-SCENARIOS: dict[str, Callable[..., Session]] = {"head": simulate_head, "attitude9": simulate_attitude9, "gaze": gaze_session, "bicycle": bicycle_session}
+SCENARIOS: dict[str, Callable[..., Session]] = {"head": simulate_head, "attitude9": simulate_attitude9, "gaze": gaze_session, "bicycle": bicycle_session,
+                                               "walking": walking_session}
 """Scenario name -> simulator ``f(seed, **overrides) -> Session``."""
 
-__all__ = ["PROFILES", "SCENARIOS", "Attitude9ScenarioConfig", "HeadScenarioConfig", "bicycle_session", "gaze_session", "simulate_attitude9", "simulate_head"]
+__all__ = [
+    "PROFILES",
+    "SCENARIOS",
+    "Attitude9ScenarioConfig",
+    "HeadScenarioConfig",
+    "bicycle_session",
+    "gaze_session",
+    "simulate_attitude9",
+    "simulate_head",
+    "walking_session",
+]

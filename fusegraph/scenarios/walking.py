@@ -27,6 +27,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray
+from ..session import KIND_COLUMNS, Session, Stream
 
 ACTIVITIES = ("flat", "stairs_up", "stairs_down", "elevator")
 
@@ -395,3 +396,34 @@ def simulate_calibration_walk(seed: int = 0, speeds_m_s: tuple[float, ...] = (0.
         truth_xyz_m=pos, truth_yaw_rad=yaw, step_t=np.array(tour.step_t), step_activity=tuple(tour.step_activity),
         rides=np.zeros((0, 3)), building=config.building, start_pose=np.zeros(4), bouts=np.array(bouts),
     )
+
+
+def walking_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None) -> Session:
+    """The walk as a session (``fusegraph simulate walking``): waist ``gyro`` and ``accel``, the image
+    ``fixes`` (kind ``pose``: x, y, z, yaw in radians), the building and the start in the metadata,
+    the waist position as truth. The per-person speed model is fitted on the scenario's calibration
+    walk (as a user would on theirs) and stored in ``[speed_model]``."""
+    from ..frontends.pdr import detect_cycles, fit_speed_model
+
+    if profile not in (None, "realistic"):
+        raise ValueError(f"--profile {profile} does not apply to walking (its noise is the realistic one)")
+    if duration_s is not None:
+        raise ValueError("--duration does not apply to walking: the tour decides its length (about 12 minutes)")
+    w = simulate_walking(seed)
+    cal = simulate_calibration_walk(seed)
+    speed = fit_speed_model(detect_cycles(cal.t, cal.accel_m_s2, cal.gyro_rad_s), cal.bouts)
+    streams = {
+        "gyro": Stream("gyro", "gyro", w.t, w.gyro_rad_s, KIND_COLUMNS["gyro"]),
+        "accel": Stream("accel", "accel", w.t, w.accel_m_s2, KIND_COLUMNS["accel"]),
+        "fixes": Stream("fixes", "pose", w.fixes.t, w.fixes.pose, KIND_COLUMNS["pose"]),
+    }
+    b = w.building
+    meta = {
+        "session": {"description": f"walking scenario, seed {seed}: a 3-floor building tour, waist IMU, image fixes (some wrong)",
+                    "world_frame": "ENU", "start_pose": [float(v) for v in w.start_pose]},
+        "building": {"floor_height_m": b.floor_height_m, "floors": b.floors, "elevator_xy_m": list(b.elevator_xy_m),
+                     "stairs_foot_xy_m": list(b.stairs_foot_xy_m), "riser_m": b.riser_m, "tread_m": b.tread_m},
+        "speed_model": {"intercept_m_s": speed.intercept_m_s, "slope_s": speed.slope_s},
+    }
+    truth = Stream("truth", "position", w.t, w.truth_xyz_m, KIND_COLUMNS["position"])
+    return Session("walking", streams, truth, meta)

@@ -25,7 +25,8 @@ from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_recko
 from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model
 from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, poses_of
-from ..scenarios.walking import ACTIVITIES, Building, WalkingSession, simulate_calibration_walk, simulate_walking
+from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingSession, simulate_calibration_walk, simulate_walking
+from ..session import Session, SessionError
 from ..solvers.online import OnlineConfig, OnlineSmoother
 
 STEP_NOISE = OdometryNoise(distance_frac=0.08, lateral_frac=0.05, floor_m=0.02, yaw_rad=math.radians(0.5), yaw_frac=0.03, vertical_m=0.03)
@@ -218,6 +219,39 @@ def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIS
     cycles = detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config)
     rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, cycles, config)
     return cycles, rides, events_from(cycles, rides, speed, session.building)
+
+
+def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
+    """A walking session directory's content: waist ``gyro`` and ``accel`` sampled together, optional
+    ``fixes`` (kind ``pose``), ``[building]`` (the map), ``start_pose`` in ``[session]``, the person's
+    ``[speed_model]``; the truth (waist position) is optional."""
+    where = f"{session.path / 'session.toml'}" if session.path else "walking session"
+    gyro, accel = session.stream("gyro"), session.stream("accel")
+    if len(gyro) != len(accel) or not np.allclose(gyro.t, accel.t):
+        raise SessionError(f"{where}: gyro and accel must be sampled together (same times)")
+    header, table = session.meta.get("session", {}), session.meta.get("building", {})
+    if "start_pose" not in header:
+        raise SessionError(f"{where}: [session] needs start_pose = [x, y, z, yaw] (the known start)")
+    try:
+        building = Building(**{k: tuple(v) if isinstance(v, list) else v for k, v in table.items()})
+    except TypeError as err:
+        raise SessionError(f"{where}: [building]: {err}") from None
+    model = session.meta.get("speed_model", {})
+    speed = SpeedModel(**model) if model else SpeedModel()
+    if "fixes" in session.streams:
+        f = session.stream("fixes")
+        if f.kind != "pose":
+            raise SessionError(f"{where}: stream 'fixes' must be of kind 'pose', not '{f.kind}'")
+        fixes = Fixes(f.t, f.values, f.values, np.zeros(len(f), dtype=bool))
+    else:
+        fixes = Fixes(np.zeros(0), np.zeros((0, 4)), np.zeros((0, 4)), np.zeros(0, dtype=bool))
+    truth = np.full((len(gyro), 3), np.nan)
+    if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gyro):
+        truth = session.truth.values.copy()
+    walk = WalkingSession(t=gyro.t, accel_m_s2=accel.values, gyro_rad_s=gyro.values, fixes=fixes, truth_xyz_m=truth,
+                          truth_yaw_rad=np.full(len(gyro), np.nan), step_t=np.zeros(0), step_activity=(), rides=np.zeros((0, 3)),
+                          building=building, start_pose=np.asarray(header["start_pose"], dtype=float))
+    return walk, speed
 
 
 def run_all(session: WalkingSession, events: list[Event], fixes: FloatArray) -> dict[str, WalkRun]:
