@@ -15,6 +15,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -233,7 +234,8 @@ def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
     if "start_pose" not in header:
         raise SessionError(f"{where}: [session] needs start_pose = [x, y, z, yaw] (the known start)")
     try:
-        building = Building(**{k: tuple(v) if isinstance(v, list) else v for k, v in table.items()})
+        fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
+        building = Building(**fields)
     except TypeError as err:
         raise SessionError(f"{where}: [building]: {err}") from None
     model = session.meta.get("speed_model", {})
