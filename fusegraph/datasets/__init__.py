@@ -1,5 +1,8 @@
 """Loaders that turn real recordings into Sessions."""
 
 from .broad import BroadErrors, broad_errors, load_broad, trial_paths
+from .plaza import PlazaRecording, load_plaza
+from .steps_oxford import StepRecording, load_recording, read_stats, recordings
 
-__all__ = ["BroadErrors", "broad_errors", "load_broad", "trial_paths"]
+__all__ = ["BroadErrors", "PlazaRecording", "StepRecording", "broad_errors", "load_broad", "load_plaza", "load_recording", "read_stats",
+           "recordings", "trial_paths"]

@@ -9,11 +9,32 @@ from .attitude import (
     gauss_markov_factor,
     markov_prior_factor,
 )
+from .gaze import FixationNoise, SceneCamera, fixation_walk, gaze_factor, wall_plane_prior
 from .gyro import GyroInterval, GyroNoise, bias_prior_factor, bias_walk_factor, integrate_gyro, preintegration_params
 from .imu import ImuNoise, MotionPriors
 from .mag import FieldReference, MagCalibration, MagNoise, fit_mag_calibration, heading_factor
+from .odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, fix_factor, level_pose, odometry_factor, position_factor
+from .ranging import RangeNoise, range_factor
+from .vehicle import NonholonomicNoise, nonholonomic_factor
 
 __all__ = [
+    "FixNoise",
+    "FixationNoise",
+    "NonholonomicNoise",
+    "OdometryNoise",
+    "PlanarMotion",
+    "RangeNoise",
+    "SceneCamera",
+    "dead_reckon",
+    "fix_factor",
+    "fixation_walk",
+    "gaze_factor",
+    "level_pose",
+    "nonholonomic_factor",
+    "odometry_factor",
+    "position_factor",
+    "range_factor",
+    "wall_plane_prior",
     "AttitudeMeasurement",
     "AttitudeNoise",
     "FieldReference",

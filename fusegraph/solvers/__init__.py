@@ -1,7 +1,23 @@
 """Solvers: online iSAM2 (re-anchored), batch Levenberg-Marquardt, and the papers' EKF baselines."""
 
-from .batch import BatchConfig, BatchResult, solve_batch
+from .batch import BatchConfig, BatchResult, solve_batch, solve_python_loop
 from .ekf import HeadEkf, HeadEkfConfig, run_head_ekf
+from .ekf9 import Ekf9Config, run_ekf9
+from .ekf_gaze import GazeEkfConfig, run_gaze_ekf
 from .online import OnlineConfig, OnlineSmoother
 
-__all__ = ["BatchConfig", "BatchResult", "HeadEkf", "HeadEkfConfig", "OnlineConfig", "OnlineSmoother", "run_head_ekf", "solve_batch"]
+__all__ = [
+    "BatchConfig",
+    "BatchResult",
+    "Ekf9Config",
+    "GazeEkfConfig",
+    "HeadEkf",
+    "HeadEkfConfig",
+    "OnlineConfig",
+    "OnlineSmoother",
+    "run_ekf9",
+    "run_gaze_ekf",
+    "run_head_ekf",
+    "solve_batch",
+    "solve_python_loop",
+]
