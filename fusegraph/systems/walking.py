@@ -38,6 +38,8 @@ FIX_NOISE = FixNoise(position_m=0.5, heading_rad=math.radians(5.0), height_m=0.3
 """An image-match fix, Cauchy-robust (a fifth of them are wrong by metres). The kernel is wide (5 sigma):
 after 20 s of steps a correct fix is often 3 m from the prediction, and a 1-sigma kernel threw those
 away too (measured on seeds 0-2: batch RMSE 1.6-3.4 m with width 1, 1.1-1.6 m with width 5)."""
+REJECT_SIGMAS = 5.0
+"""Batch: a fix further than this many position sigmas from the robust solution is dropped and the graph solved again."""
 ELEVATOR_SIGMAS_M = np.array([0.7, 0.7, 50.0])
 """A ride starts and ends in the elevator car (position known to 0.7 m; the height is left to the ride)."""
 START_SIGMAS = np.array([1e-3, 1e-3, math.radians(2.0), 0.2, 0.2, 0.05])
@@ -95,7 +97,7 @@ def _fix_schedule(session: WalkingSession, times: FloatArray) -> list[list[int]]
     return per_state
 
 
-def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_state: object = None) -> PlanarGraph:
+def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_state: object = None, keep: np.ndarray | None = None) -> PlanarGraph:
     start = level_pose(*session.start_pose)
     graph = PlanarGraph(start, START_SIGMAS, start_t=0.0)
     times = np.array([0.0] + [e.t for e in events])
@@ -108,6 +110,8 @@ def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_s
         if e.ride:
             graph.add_position(i, elevator, ELEVATOR_SIGMAS_M)
         for k in schedule[i - 1] + (schedule[i] if i == len(events) else []):
+            if keep is not None and not keep[k]:
+                continue
             graph.add_fix(i - 1 if k in schedule[i - 1] else i, level_pose(*fixes[k]), FIX_NOISE)
         if callable(on_state):
             on_state(graph, i)
@@ -121,12 +125,25 @@ def run_dead_reckoning(session: WalkingSession, events: list[Event]) -> WalkRun:
 
 
 def run_batch(session: WalkingSession, events: list[Event], fixes: FloatArray) -> WalkRun:
+    """Levenberg-Marquardt with the Cauchy fixes, then once more without the fixes the solution puts
+    more than ``REJECT_SIGMAS`` position sigmas away (a wrong match still pulls a little through a wide
+    kernel; seed 1 measured 1.18 m RMSE with 20 % wrong fixes against 0.98 m with none)."""
     t0 = time.perf_counter()
     graph = _build(session, events, fixes)
     params = gtsam.LevenbergMarquardtParams()
     params.setRelativeErrorTol(1e-6)
     values = gtsam.LevenbergMarquardtOptimizer(graph.graph, graph.initial, params).optimize()
-    return WalkRun("batch", np.array(graph.keyframe_t), poses_of(values, graph.count)[:, :3], time.perf_counter() - t0)
+    times = np.array(graph.keyframe_t)
+    solved = poses_of(values, graph.count)
+    if len(fixes):
+        state = [int(np.argmin(np.abs(times - ft))) for ft in session.fixes.t]
+        gap = np.linalg.norm(fixes[:, :2] - solved[state, :2], axis=1)
+        keep = gap <= REJECT_SIGMAS * FIX_NOISE.position_m
+        if not keep.all():
+            graph = _build(session, events, fixes, keep=keep)
+            values = gtsam.LevenbergMarquardtOptimizer(graph.graph, values, params).optimize()
+            solved = poses_of(values, graph.count)
+    return WalkRun("batch", times, solved[:, :3], time.perf_counter() - t0)
 
 
 def run_online(session: WalkingSession, events: list[Event], fixes: FloatArray) -> WalkRun:
