@@ -6,14 +6,18 @@ empty), ``motion_capture_dynamic_exp_fast.csv`` (header ``time,x,y,z,rotation,,,
 position in metres and a quaternion), ``SOURCE_README.md`` (anchor coordinates, tag offsets in the
 trolley frame, as Markdown tables).
 
-The quaternion is stored SCALAR LAST (x, y, z, w): read that way the tag positions it implies fit
-the ranges far better than scalar first (``tests/test_ultrasonic.py`` checks it on the data).
+The quaternion is stored SCALAR FIRST (w, x, y, z), as SOURCE_README.md says; its rigid body frame
+is the motion capture's, turned half a turn about x from the frame the tag offsets are given in
+(z down: the first sample reads w = 0.004, x = 0.9998). Composing the offsets through that half turn
+explains the labelled ranges with a spread (MAD after a bias per anchor) of 4.9 cm; the earlier
+reading (scalar last, offsets as given) left 10.4 cm, the documented order without the half turn
+20 cm. ``tests/test_ultrasonic.py`` checks it on the data.
 """
 
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -43,16 +47,19 @@ class UwbRecording:
     mocap_position: FloatArray
     """(M, 3) trolley centroid, metres."""
     mocap_quat_wxyz: FloatArray
-    """(M, 4) trolley attitude, scalar first (converted from the file's scalar-last order)."""
+    """(M, 4) attitude of the motion-capture rigid body (z down), scalar first as in the file."""
+    local_R_offsets: FloatArray = field(default_factory=lambda: np.diag([1.0, -1.0, -1.0]))
+    """Rotation from the frame the tag offsets are given in (z up) to the rigid-body frame (z down):
+    half a turn about x."""
 
     def tags_truth(self, t: FloatArray) -> FloatArray:
-        """(len(t), T, 3) tag positions from the motion capture (centroid + R offset), interpolated at t."""
+        """(len(t), T, 3) tag positions from the motion capture (centroid + R local_R_offsets offset), interpolated at t."""
         from ..geometry import matrix_from_quat, quat_normalize
 
         pos = np.column_stack([np.interp(t, self.mocap_t, self.mocap_position[:, i]) for i in range(3)])
         idx = np.clip(np.searchsorted(self.mocap_t, t), 0, len(self.mocap_t) - 1)
         rot = matrix_from_quat(quat_normalize(self.mocap_quat_wxyz[idx]))
-        return pos[:, None, :] + np.einsum("nij,tj->nti", rot, self.tag_offsets)
+        return pos[:, None, :] + np.einsum("nij,tj->nti", rot, self.tag_offsets @ self.local_R_offsets.T)
 
 
 def _seconds(stamp: str, path: Path, row: int) -> float:
@@ -96,8 +103,7 @@ def load_uwb_lias(directory: str | Path = DEFAULT_DIR) -> UwbRecording:
                 raise SessionError(f"{directory / MOCAP_FILE}: row {row}: {len(cells)} columns, expected 8")
             mt.append(_seconds(cells[0], directory / MOCAP_FILE, row))
             mp.append([float(c) for c in cells[1:4]])
-            x, y, z, w = (float(c) for c in cells[4:8])
-            mq.append([w, x, y, z])
+            mq.append([float(c) for c in cells[4:8]])  # w, x, y, z
     return UwbRecording(
         np.array(t), np.array(ranges).reshape(-1, 8, 3), anchors, tags, np.array(mt), np.array(mp), np.array(mq)
     )
