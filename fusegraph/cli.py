@@ -342,21 +342,13 @@ def _same_times(estimate: object, session: object) -> bool:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    if args.system == "bicycle":
-        from .systems import bicycle
+    if args.system in ("bicycle", "gaze"):
+        from .systems import bicycle, gaze
 
+        make, table = {"bicycle": (bicycle.bicycle_report, bicycle.format_bicycle_table), "gaze": (gaze.gaze_report, gaze.format_gaze_table)}[args.system]
         seeds = tuple(args.seeds) if args.seeds != list(range(10)) else (0, 1, 2)
-        ride = bicycle.bicycle_report(seeds, plot=str(args.plot) if args.plot else None)
-        print(json.dumps(ride, indent=2) if args.json else bicycle.format_bicycle_table(ride))
-        if args.plot:
-            print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
-        return 0
-    if args.system == "gaze":
-        from .systems import gaze
-
-        seeds = tuple(args.seeds) if args.seeds != list(range(10)) else (0, 1, 2)
-        found = gaze.gaze_report(seeds, plot=str(args.plot) if args.plot else None)
-        print(json.dumps(found, indent=2) if args.json else gaze.format_gaze_table(found))
+        found = make(seeds, plot=str(args.plot) if args.plot else None)
+        print(json.dumps(found, indent=2) if args.json else table(found))
         if args.plot:
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
         return 0

@@ -16,6 +16,11 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 
 
+def skew(v: FloatArray) -> FloatArray:
+    """The cross-product matrix [v]x (skew(a) @ b == a x b)."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
 def rot3_from_quat_wxyz(quat_wxyz: FloatArray) -> gtsam.Rot3:
     """One unit quaternion (w, x, y, z) as a gtsam rotation."""
     w, x, y, z = (float(v) for v in quat_wxyz)

@@ -111,6 +111,16 @@ class Session:
             where = f"{self.path / 'session.toml'}: " if self.path else ""
             raise SessionError(f"{where}no stream '{name}' (have: {', '.join(self.streams)})") from None
 
+    def synchronous(self, *names: str) -> list[Stream]:
+        """The named streams, checked to be sampled together with the first (a SessionError names the odd one)."""
+        streams = [self.stream(name) for name in names]
+        first = streams[0]
+        for stream in streams[1:]:
+            if len(stream) != len(first) or not np.allclose(stream.t, first.t):
+                where = f"{self.path / 'session.toml'}" if self.path else f"{self.system} session"
+                raise SessionError(f"{where}: stream '{stream.name}' must be sampled with '{first.name}' (same times)")
+        return streams
+
     def streams_of_kind(self, kind: str) -> list[Stream]:
         """All streams of one kind, in declaration order."""
         return [s for s in self.streams.values() if s.kind == kind]

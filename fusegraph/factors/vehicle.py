@@ -15,7 +15,7 @@ from typing import Any
 import gtsam
 import numpy as np
 
-from ..geometry import FloatArray
+from ..geometry import FloatArray, skew
 
 
 @dataclass(frozen=True)
@@ -28,10 +28,6 @@ class NonholonomicNoise:
     """Vertical velocity sigma (bumps), m/s."""
 
 
-def _skew(u: FloatArray) -> FloatArray:
-    return np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-
-
 def nonholonomic_factor(pose_key: int, velocity_key: int, noise: NonholonomicNoise) -> gtsam.CustomFactor:
     """Sideways and vertical body-frame velocity ~ 0 (pose: world_T_body Pose3, velocity: world Vector3)."""
 
@@ -40,7 +36,7 @@ def nonholonomic_factor(pose_key: int, velocity_key: int, noise: NonholonomicNoi
         v = values.atVector(this.keys()[1])
         u = R.T @ v
         if jacobians is not None:
-            jacobians[0] = np.hstack([_skew(u)[1:], np.zeros((2, 3))])
+            jacobians[0] = np.hstack([skew(u)[1:], np.zeros((2, 3))])
             jacobians[1] = R.T[1:]
         return u[1:]
 

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.signal import butter, filtfilt, find_peaks
 
 from ..factors.imu import GRAVITY_M_S2
-from ..geometry import FloatArray
+from ..geometry import FloatArray, skew
 
 
 @dataclass(frozen=True)
@@ -138,7 +138,7 @@ def gravity_filter(t: FloatArray, accel: FloatArray, gyro: FloatArray | None, co
         previous = t[i]
         if gyro is not None and dt > 0:
             # g_{t+1} = g_t - (omega x g) dt: the world's gravity seen from a turning body
-            F = np.eye(3) - dt * _skew(gyro[i])
+            F = np.eye(3) - dt * skew(gyro[i])
             g = F @ g
             P = F @ P @ F.T
         P = P + np.eye(3) * q * q * dt
@@ -151,10 +151,6 @@ def gravity_filter(t: FloatArray, accel: FloatArray, gyro: FloatArray | None, co
         g = g / np.linalg.norm(g) * GRAVITY_M_S2
         out[i] = g
     return out
-
-
-def _skew(w: FloatArray) -> FloatArray:
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
 def vertical_horizontal(accel: FloatArray, gravity: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -188,10 +184,12 @@ def _dominant_period(x: FloatArray, fs: float, lo_s: float, hi_s: float) -> floa
     return math.nan
 
 
-def detect_cycles(t: FloatArray, accel: FloatArray, gyro: FloatArray | None = None, config: PdrConfig = PdrConfig()) -> list[Cycle]:
-    """Walking cycles with their heading of travel, amplitudes, heading change and activity."""
+def detect_cycles(t: FloatArray, accel: FloatArray, gyro: FloatArray | None = None, config: PdrConfig = PdrConfig(),
+                  gravity: FloatArray | None = None) -> list[Cycle]:
+    """Walking cycles with their heading of travel, amplitudes, heading change and activity
+    (``gravity``: ``gravity_filter``'s output when the caller already has it)."""
     fs = 1.0 / float(np.median(np.diff(t)))
-    gravity = gravity_filter(t, accel, gyro, config)
+    gravity = gravity_filter(t, accel, gyro, config) if gravity is None else gravity
     vertical, horizontal = vertical_horizontal(accel, gravity)
     v = _lowpass(vertical, fs, config.lowpass_hz)
     h = _lowpass(horizontal, fs, config.lowpass_hz)
@@ -282,11 +280,12 @@ def fit_speed_model(cycles: list[Cycle], bouts: FloatArray) -> SpeedModel:
     return SpeedModel(intercept_m_s=float(intercept), slope_s=float(slope))
 
 
-def detect_rides(t: FloatArray, accel: FloatArray, gyro: FloatArray | None, cycles: list[Cycle], config: PdrConfig = PdrConfig()) -> list[Ride]:
+def detect_rides(t: FloatArray, accel: FloatArray, gyro: FloatArray | None, cycles: list[Cycle], config: PdrConfig = PdrConfig(),
+                 gravity: FloatArray | None = None) -> list[Ride]:
     """Elevator rides: a pulse and the opposite pulse of the strongly low-passed vertical acceleration
     while no walking cycle happens; the height change is the double integral between them."""
     fs = 1.0 / float(np.median(np.diff(t)))
-    gravity = gravity_filter(t, accel, gyro, config)
+    gravity = gravity_filter(t, accel, gyro, config) if gravity is None else gravity
     vertical, _ = vertical_horizontal(accel, gravity)
     low = _lowpass(vertical, fs, config.ride_lowpass_hz)
     step_t = np.array([c.t for c in cycles])

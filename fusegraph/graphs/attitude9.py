@@ -164,6 +164,19 @@ class Attitude9Builder:
         out, self._pending = self._pending, GraphIncrement()
         return out
 
+    def add_factor(self, oldest_keyframe: int, factor: gtsam.NonlinearFactor) -> None:
+        """A factor another sensor makes on this graph's keyframes (it goes out with the next ``take``)."""
+        self._pending.add(oldest_keyframe, factor)
+
+    def add_variable(self, key: int, value: FloatArray) -> None:
+        """The initial guess of a point or vector variable another sensor adds (goes out with the next ``take``)."""
+        self._pending.values.insert(key, np.asarray(value, dtype=float))
+
+    @property
+    def predicted_attitude(self) -> gtsam.Rot3:
+        """The newest keyframe's attitude as predicted (dead reckoning from the last posterior)."""
+        return self._nav.attitude()
+
     # ------------------------------------------------------------------ measurements
 
     def add_samples(self, t: FloatArray, gyro_rad_s: FloatArray, accel_m_s2: FloatArray, mag_raw: FloatArray | None) -> None:

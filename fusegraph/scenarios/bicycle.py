@@ -97,7 +97,6 @@ def simulate_bicycle(seed: int = 0, config: BicycleScenarioConfig | None = None)
     yaw_rate = (0.08 * np.sin(2 * np.pi * rng.uniform(0.03, 0.06) * t + rng.uniform(0, 6)) * (v / max(config.top_speed_m_s, 1e-9))) if moving else np.zeros(n)
     yaw = np.cumsum(yaw_rate) * dt + rng.uniform(-np.pi, np.pi)
     pitch_road = math.radians(config.slope_deg) if moving else 0.0
-    pedalling = (t > 1.0) & (t < config.brake_s)
     pedal_env = np.clip((t - 1.0) / 1.0, 0, 1) * np.clip((config.brake_s - t) / 0.5, 0, 1)
     phase = 2 * np.pi * config.cadence_hz * t
     lean = np.arctan(v * yaw_rate / 9.81) + math.radians(1.5) * np.sin(phase) * pedal_env
@@ -124,7 +123,6 @@ def simulate_bicycle(seed: int = 0, config: BicycleScenarioConfig | None = None)
         out[name] = (gyro + bias + rng.normal(0, config.gyro_sigma_rad_s, gyro.shape),
                      accel + rng.normal(0, config.accel_sigma_m_s2, accel.shape),
                      mag + rng.normal(0, config.mag_sigma, mag.shape))
-    _ = pedalling
     return BicycleSession(t=t, thigh_gyro=out["thigh"][0], thigh_accel=out["thigh"][1], thigh_mag=out["thigh"][2],
                           frame_gyro=out["frame"][0], frame_accel=out["frame"][1], frame_mag=out["frame"][2],
                           thigh_quat_wxyz=thigh_q, frame_quat_wxyz=frame_q, config=config)

@@ -42,16 +42,10 @@ class Imu9:
 
 def imu9(session: Session) -> Imu9:
     """The gyro, accel and (optional) mag streams, checked to share one clock."""
-    gyro, accel = session.stream("gyro"), session.stream("accel")
-    if len(gyro) != len(accel) or not np.allclose(gyro.t, accel.t):
-        raise ValueError(f"{session.path or session.system}: gyro and accel must be sampled together (same times)")
-    mag = None
-    if "mag" in session.streams:
-        m = session.stream("mag")
-        if len(m) != len(gyro) or not np.allclose(m.t, gyro.t):
-            raise ValueError(f"{session.path or session.system}: mag must be sampled with the gyro (same times)")
-        mag = m.values
-    return Imu9(gyro.t, gyro.values, accel.values, mag)
+    names = ("gyro", "accel", "mag") if "mag" in session.streams else ("gyro", "accel")
+    streams = session.synchronous(*names)
+    gyro, accel = streams[0], streams[1]
+    return Imu9(gyro.t, gyro.values, accel.values, streams[2].values if len(streams) == 3 else None)
 
 
 def model_for(session: Session, model: Attitude9Model | None = None) -> Attitude9Model:

@@ -23,7 +23,7 @@ from ..geometry import FloatArray, euler_zyx_from_quat, matrix_from_quat, quat_w
 from ..graphs.attitude9 import fill_samples
 from ..graphs.bicycle import BicycleModel, CoupledBuilder
 from ..scenarios.bicycle import BicycleScenarioConfig, BicycleSession, simulate_bicycle
-from ..session import Session, SessionError
+from ..session import Session
 from ..solvers.batch import solve_python_loop
 from ..solvers.ekf9 import Ekf9Config, run_ekf9
 from ..solvers.online import OnlineConfig, OnlineSmoother
@@ -40,13 +40,9 @@ relinearise the kept factors anyway): same braking RMS to 0.02 deg on seeds 0-2,
 def from_session(session: Session) -> BicycleSession:
     """A bicycle session directory's content: ``thigh_*`` and ``frame_*`` gyro/accel/mag streams sampled
     together; ``brake_s`` in ``[session]`` (the braking phase scored); the thigh attitude as the optional truth."""
-    where = f"{session.path / 'session.toml'}" if session.path else "bicycle session"
     names = [f"{body}_{kind}" for body in ("thigh", "frame") for kind in ("gyro", "accel", "mag")]
-    streams = {name: session.stream(name) for name in names}
+    streams = dict(zip(names, session.synchronous(*names), strict=True))
     t = streams["thigh_gyro"].t
-    for name, stream in streams.items():
-        if len(stream) != len(t) or not np.allclose(stream.t, t):
-            raise SessionError(f"{where}: stream '{name}' must be sampled with thigh_gyro (same times)")
     header = session.meta.get("session", {})
     config = BicycleScenarioConfig(ride=str(header.get("ride", "downhill")), duration_s=float(t[-1] - t[0]), brake_s=float(header.get("brake_s", np.nan)))
     truth = np.full((len(t), 4), np.nan)

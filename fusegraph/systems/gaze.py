@@ -61,16 +61,18 @@ class GazeGraph:
         self._points = 0  # keyframes that have a fixation point
         self.sample_keyframe = np.full(len(session.tracker_t), -1)
         """Keyframe each gaze sample was attached to."""
-        self._gyro_bias = np.zeros(3)
+        self.gyro_bias = np.zeros(3)
+        """Gyro bias used to carry a gaze sample from its keyframe (the online solver refreshes it)."""
         self._cumulative_k = -1
         self._cumulative: list[gtsam.Rot3] = []
 
-    def push(self, i0: int, i1: int) -> None:
-        """IMU samples [i0, i1), then every gaze sample up to the newest keyframe."""
+    def push(self, i0: int, i1: int) -> range:
+        """IMU samples [i0, i1), then every gaze sample up to the newest keyframe; returns the gaze samples added."""
+        first = self._next_gaze
         s = self.session
         self.builder.add_samples(s.t[i0:i1], s.gyro_rad_s[i0:i1], s.accel_m_s2[i0:i1], s.mag[i0:i1])
         if not self.builder.started:
-            return
+            return range(first, first)
         kf_t = self.builder.keyframe_t
         while self._points < len(kf_t):
             self._add_point(self._points)
@@ -83,6 +85,7 @@ class GazeGraph:
             if k >= 0:
                 self._add_gaze(j, k)
             self._next_gaze += 1
+        return range(first, self._next_gaze)
 
     def _initial_point(self, k: int) -> FloatArray:
         """Where the newest gaze ray meets the wall, seen with keyframe k's predicted attitude.
@@ -95,19 +98,18 @@ class GazeGraph:
         j = int(np.searchsorted(s.tracker_t, self.builder.keyframe_t[k], side="right") - 1)
         if j < 0:
             return np.array([self.wall_m, 0.0, 0.0])
-        world_R_head = self.builder._nav.attitude().matrix() if k == self.builder.latest_keyframe else np.eye(3)
+        world_R_head = self.builder.predicted_attitude.matrix() if k == self.builder.latest_keyframe else np.eye(3)
         ray = world_R_head @ self.camera.ray(s.gaze_px[j])[0]
         if ray[0] <= 1e-3:
             return np.array([self.wall_m, 0.0, 0.0])
         return ray * (self.wall_m / ray[0])
 
     def _add_point(self, k: int) -> None:
-        pending = self.builder._pending
-        pending.values.insert(G(k), self._initial_point(k))
-        pending.add(k, wall_plane_prior(G(k), self.wall_m, self.model.fixation))
+        self.builder.add_variable(G(k), self._initial_point(k))
+        self.builder.add_factor(k, wall_plane_prior(G(k), self.wall_m, self.model.fixation))
         if k > 0:
             dt = self.builder.keyframe_t[k] - self.builder.keyframe_t[k - 1]
-            pending.add(k - 1, fixation_walk(G(k - 1), G(k), dt, self.model.fixation))
+            self.builder.add_factor(k - 1, fixation_walk(G(k - 1), G(k), dt, self.model.fixation))
 
     def _rotation_since_keyframe(self, k: int, t: float) -> gtsam.Rot3:
         """The bias-corrected gyro's rotation from keyframe k to time t (cumulative per keyframe, cached)."""
@@ -118,18 +120,18 @@ class GazeGraph:
         i = int(np.searchsorted(s.t, t, side="right"))  # samples i0+1 .. i-1 lie in (t_k, t]
         while i0 + len(self._cumulative) < min(i, len(s.t)):
             n = i0 + len(self._cumulative)
-            step = gtsam.Rot3.Expmap((s.gyro_rad_s[n] - self._gyro_bias) * (s.t[n] - s.t[n - 1]))
+            step = gtsam.Rot3.Expmap((s.gyro_rad_s[n] - self.gyro_bias) * (s.t[n] - s.t[n - 1]))
             self._cumulative.append(self._cumulative[-1].compose(step))
         last = min(i, len(s.t)) - 1
         rot = self._cumulative[max(last - i0, 0)]
         if i < len(s.t) and t > s.t[last]:  # the part of the next sample's interval up to t
-            rot = rot.compose(gtsam.Rot3.Expmap((s.gyro_rad_s[i] - self._gyro_bias) * (t - s.t[last])))
+            rot = rot.compose(gtsam.Rot3.Expmap((s.gyro_rad_s[i] - self.gyro_bias) * (t - s.t[last])))
         return rot
 
     def _add_gaze(self, j: int, k: int) -> None:
         s = self.session
         factor = gaze_factor(X(k), G(k), s.gaze_px[j], self._rotation_since_keyframe(k, float(s.tracker_t[j])), self.camera)
-        self.builder._pending.add(k, factor)
+        self.builder.add_factor(k, factor)
         self.sample_keyframe[j] = k
 
 
@@ -138,11 +140,8 @@ def from_session(session: Session) -> GazeSession:
     together, the tracker's ``gaze`` pixels (kind ``pixel``, camera in its metadata), ``wall_m`` in
     ``[session]``; the truth (gaze point, world x, y, z at the tracker times) is optional."""
     where = f"{session.path / 'session.toml'}" if session.path else "gaze session"
-    imu = {name: session.stream(name) for name in ("gyro", "accel", "mag")}
+    imu = dict(zip(("gyro", "accel", "mag"), session.synchronous("gyro", "accel", "mag"), strict=True))
     t = imu["gyro"].t
-    for name, stream in imu.items():
-        if len(stream) != len(t) or not np.allclose(stream.t, t):
-            raise SessionError(f"{where}: stream '{name}' must be sampled with the gyro (same times)")
     gaze_stream = session.stream("gaze")
     if gaze_stream.kind != "pixel":
         raise SessionError(f"{where}: stream 'gaze' must be of kind 'pixel', not '{gaze_stream.kind}'")
@@ -173,15 +172,13 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> tuple[Fl
     out = np.full((len(session.tracker_t), 2), np.nan)
     block = _block(session, model)
     for i in range(0, len(session.t), block):
-        before = graph._next_gaze
-        graph.push(i, i + block)
+        added = graph.push(i, i + block)
         if not solver.update():
             continue
         k = graph.builder.latest_keyframe
         point = solver.isam.calculateEstimatePoint3(G(k))
-        graph._gyro_bias = graph.builder.posterior_gyro_bias[k] if graph.builder.posterior_gyro_bias else graph._gyro_bias
-        done = np.arange(before, graph._next_gaze)
-        for j in done:
+        graph.gyro_bias = graph.builder.posterior_gyro_bias[k] if graph.builder.posterior_gyro_bias else graph.gyro_bias
+        for j in added:
             kj = graph.sample_keyframe[j]
             out[j] = (point if kj == k else solver.isam.calculateEstimatePoint3(G(kj)))[1:]
     return out, time.perf_counter() - start

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +23,7 @@ from scipy.stats import chi2
 
 from ..datasets import steps_oxford
 from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose, odometry_sigmas
-from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model
+from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model, gravity_filter
 from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, poses_of
 from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingSession, simulate_calibration_walk, simulate_walking
@@ -234,8 +234,10 @@ def confusion(session: WalkingSession, cycles: list[Cycle], rides: list[Ride]) -
 
 
 def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIST) -> tuple[list[Cycle], list[Ride], list[Event]]:
-    cycles = detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config)
-    rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, cycles, config)
+    # the gravity filter is a per-sample loop: run once for both detectors
+    gravity = gravity_filter(session.t, session.accel_m_s2, session.gyro_rad_s, config)
+    cycles = detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config, gravity)
+    rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, cycles, config, gravity)
     return cycles, rides, events_from(cycles, rides, speed, session.building)
 
 
@@ -244,9 +246,7 @@ def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
     ``fixes`` (kind ``pose``), ``[building]`` (the map), ``start_pose`` in ``[session]``, the person's
     ``[speed_model]``; the truth (waist position) is optional."""
     where = f"{session.path / 'session.toml'}" if session.path else "walking session"
-    gyro, accel = session.stream("gyro"), session.stream("accel")
-    if len(gyro) != len(accel) or not np.allclose(gyro.t, accel.t):
-        raise SessionError(f"{where}: gyro and accel must be sampled together (same times)")
+    gyro, accel = session.synchronous("gyro", "accel")
     header, table = session.meta.get("session", {}), session.meta.get("building", {})
     if "start_pose" not in header:
         raise SessionError(f"{where}: [session] needs start_pose = [x, y, z, yaw] (the known start)")
@@ -338,11 +338,6 @@ def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def with_all_fixes_correct(session: WalkingSession) -> WalkingSession:
-    """The same walk with every fix a correct match."""
-    return replace(session, fixes=replace(session.fixes, pose=session.fixes.correct_pose, wrong=np.zeros_like(session.fixes.wrong)))
 
 
 def format_walking_table(result: dict[str, object]) -> str:
