@@ -20,6 +20,7 @@ per person, as a user would.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -125,8 +126,7 @@ class WalkingSession:
 class _Tour:
     """Accumulates a smooth kinematic timeline, step by step."""
 
-    def __init__(self, rng: np.random.Generator, rate_hz: float, start: tuple[float, float, float, float]) -> None:
-        self.rng = rng
+    def __init__(self, rate_hz: float, start: tuple[float, float, float, float]) -> None:
         self.dt = 1.0 / rate_hz
         self.t = 0.0
         self.x, self.y, self.z, self.yaw = start
@@ -137,11 +137,11 @@ class _Tour:
         self.rides: list[tuple[float, float, float]] = []
         self.walking: list[tuple[float, float]] = []
 
-    def _emit(self, duration: float, fn: object) -> None:
+    def _emit(self, duration: float, fn: Callable[[float], tuple[float, ...]]) -> None:
         n = max(1, round(duration / self.dt))
         for j in range(n):
             phase = j / n
-            self.rows.append((self.t, *fn(phase)))  # type: ignore[operator]
+            self.rows.append((self.t, *fn(phase)))
             self.t += self.dt
 
     def stand(self, duration: float) -> None:
@@ -312,7 +312,7 @@ def simulate_walking(seed: int = 0, config: WalkingScenarioConfig | None = None)
     b = config.building
     rng = np.random.default_rng(seed)
     start = (0.0, 0.0, 0.0, 0.0)
-    tour = _Tour(rng, config.rate_hz, start)
+    tour = _Tour(config.rate_hz, start)
     tour.stand(3.0)
     ex, ey = b.elevator_xy_m
     fx, fy = b.stairs_foot_xy_m
@@ -380,7 +380,7 @@ def simulate_calibration_walk(seed: int = 0, speeds_m_s: tuple[float, ...] = (0.
     """Straight legs of ``leg_m`` at known speeds, turning back between them: data to fit the speed model."""
     config = config or WalkingScenarioConfig()
     rng = np.random.default_rng(seed + 10_000)
-    tour = _Tour(rng, config.rate_hz, (0.0, 0.0, 0.0, 0.0))
+    tour = _Tour(config.rate_hz, (0.0, 0.0, 0.0, 0.0))
     tour.stand(2.0)
     bouts = []
     for i, v in enumerate(speeds_m_s):

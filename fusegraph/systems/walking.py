@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -97,7 +98,8 @@ def _fix_schedule(session: WalkingSession, times: FloatArray) -> list[list[int]]
     return per_state
 
 
-def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_state: object = None, keep: np.ndarray | None = None) -> PlanarGraph:
+def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_state: Callable[[PlanarGraph, int], None] | None = None,
+           keep: np.ndarray | None = None) -> PlanarGraph:
     start = level_pose(*session.start_pose)
     graph = PlanarGraph(start, START_SIGMAS, start_t=0.0)
     times = np.array([0.0] + [e.t for e in events])
@@ -113,7 +115,7 @@ def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_s
             if keep is not None and not keep[k]:
                 continue
             graph.add_fix(i - 1 if k in schedule[i - 1] else i, level_pose(*fixes[k]), FIX_NOISE)
-        if callable(on_state):
+        if on_state is not None:
             on_state(graph, i)
     return graph
 
