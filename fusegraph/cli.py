@@ -144,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "Oxford phone recordings; the Plaza range + odometry runs (odometry only, online, batch).",
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png\n"
-                         "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json\n"
+                         "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json\n  fusegraph bench ultrasonic --plot tags.png\n"
                          "  fusegraph bench walking --plot walk.png\n  fusegraph bench walking --oxford ../shared/data/steps_oxford --json",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking"])
@@ -154,7 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="head: sensor error profile")
     ben.add_argument("--methods", default=None, help="broad: comma list of vqf,vqf_offline,ekf,online,batch (default all)")
     ben.add_argument("--trials", default=None, help="broad: comma list of file-name prefixes, e.g. 01,32 (default all)")
-    ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method; walking: the trajectories")
+    ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method; walking: the trajectories; "
+                     "ultrasonic: the tracks, errors and rest probability of the largest N, first seed")
     ben.add_argument("--seeds", type=_seeds_arg, default=None, help="ultrasonic: seeds per N (default 0-2); walking: the first is the walk's seed (default 0)")
     ben.add_argument("--transmitters", default="3,6,12", help="ultrasonic: comma list of N (default 3,6,12)")
     ben.add_argument("--uwb", default="default", metavar="DIR", help="ultrasonic: the recorded UWB run (default ../shared/data/uwb_lias; 'none' skips it)")
@@ -398,7 +399,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         counts = tuple(int(x) for x in args.transmitters.split(","))
         found = ultrasonic.bench_ultrasonic(
             counts, tuple(args.seeds or (0, 1, 2)), duration_s=20.0 if args.duration == 600.0 else args.duration,
-            uwb_dir=None if args.uwb == "none" else args.uwb,
+            uwb_dir=None if args.uwb == "none" else args.uwb, plot=args.plot,
         )
         print(json.dumps(found, indent=2) if args.json else ultrasonic.format_ultrasonic_table(found))
         return 0

@@ -141,3 +141,57 @@ def test_uwb_recording_reads_the_documented_quaternion_and_tracks_labelled_tags(
     truth = rec.tags_truth(rec.t[:1500] + 0.03)[:, :, :2]
     centroid = np.linalg.norm(xy.mean(axis=1) - truth.mean(axis=1), axis=1)
     assert np.sqrt(np.mean(centroid[500:] ** 2)) < 0.15  # m; ranges ~0.1 m noisy, biases learnt on the way
+
+
+def test_batched_update_equals_gtsam_eliminating_the_same_graph() -> None:
+    """One model, no mixing: the bank's update is the marginal of [prior, motion law, range rows], which
+    gtsam eliminates (``MarginalStep``) from the same linearisation; both re-linearise once."""
+    from fusegraph.solvers.multiple_model import MotionModes, PointBank
+    from fusegraph.solvers.sequential import MarginalStep, constant_velocity, covariance, whitening
+
+    rng = np.random.default_rng(3)
+    truth = np.array([0.7, 0.9, 1.1])
+    ranges = np.linalg.norm(truth - RECEIVERS, axis=1) + rng.normal(0.0, 0.005, len(RECEIVERS))
+    ranges[[2, 9]] = np.nan  # two receptions missed
+    x_old, cov_old = np.r_[truth + [0.01, -0.02, 0.005], [0.3, 0.0, -0.1]], np.diag([4e-4] * 3 + [0.04] * 3)
+    dt, psd, sigma = 0.025, 2.0, 0.005
+    bank = PointBank(1, MotionModes(accel_psd=(psd,), mean_stay_s=1e9))  # REST and one constant velocity, never switching
+    bank.x[0, :], bank.P[0, :], bank.mu[0] = x_old, cov_old, [0.0, 1.0]
+    prediction = bank.predict(dt)
+    bank.update(prediction, RECEIVERS, ranges[None, :], sigma, cauchy_k=1e9)  # no reweighting: plain least squares
+
+    F, Q = constant_velocity(dt, [psd] * 3)
+    sqrt_info = np.linalg.cholesky(np.linalg.inv(cov_old)).T
+    step = MarginalStep(sqrt_info, x_old, F, whitening(Q))
+    seen = np.isfinite(ranges)
+    x_lin = F @ x_old
+    for _ in range(2):
+        diff = x_lin[:3] - RECEIVERS[seen]
+        rho = np.linalg.norm(diff, axis=1)
+        A = np.zeros((seen.sum(), 6))
+        A[:, :3] = diff / rho[:, None] / sigma
+        R, x_lin = step.solve(A, (ranges[seen] - rho + A[:, :3] @ x_lin[:3] * sigma) / sigma)
+    np.testing.assert_allclose(bank.x[0, 1], x_lin, atol=1e-9)  # metres, m/s: both are exact Gaussian elimination
+    np.testing.assert_allclose(bank.P[0, 1], covariance(R), rtol=1e-6, atol=1e-12)
+    assert np.linalg.norm(bank.x[0, 1, :3] - truth) < 0.01
+
+
+def test_multiple_models_choose_rest_for_a_resting_target_and_move_for_a_moving_one() -> None:
+    """Noise-free ranges: a resting target ends with REST most likely and its position exact; a target at
+    0.5 m/s with a constant-velocity model most likely and tracked to a millimetre."""
+    from fusegraph.solvers.multiple_model import REST, PointBank
+
+    bank = PointBank(2)
+    start = np.array([[0.5, 0.5, 1.0], [1.5, 0.5, 0.8]])
+    velocity = np.array([[0.0, 0.0, 0.0], [0.0, 0.5, 0.0]])
+    for i in range(2):
+        bank.reset(i, start[i])
+    dt = 0.025
+    for k in range(1, 80):
+        here = start + velocity * k * dt
+        ranges = np.linalg.norm(here[:, None, :] - RECEIVERS[None], axis=2)
+        bank.update(bank.predict(dt), RECEIVERS, ranges, 0.005, cauchy_k=3.0)
+    mean, _ = bank.combined()
+    assert bank.mu[0].argmax() == REST and bank.mu[1].argmax() != REST
+    np.testing.assert_allclose(mean[:, :3], here, atol=1e-3)  # metres: exact data; the moving target's start was unknown in speed
+    np.testing.assert_allclose(mean[1, 3:], velocity[1], atol=0.02)  # m/s

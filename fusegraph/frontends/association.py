@@ -19,26 +19,38 @@ from scipy.optimize import linear_sum_assignment
 
 from ..geometry import FloatArray
 
-#: Cost of an infeasible pairing (outside the gate).
-_INFEASIBLE = 1e9
+
+def _assign(chi2: FloatArray, gate_chi2: float) -> np.ndarray:
+    """Optimal assignment of rows (distances) to columns (tracks) with a "leave it out" option of cost
+    ``gate_chi2`` per row. Clipping every cost at the gate is the same problem as one dummy column
+    per row: a row parked on an out-of-gate track pays what the dummy would, and with more rows than
+    tracks the rows left over would all pay the gate anyway (a constant). The matrix stays m x n."""
+    m, n = chi2.shape
+    out = np.full(m, -1)
+    if m == 0 or n == 0:
+        return out
+    rows, cols = linear_sum_assignment(np.minimum(chi2, gate_chi2))
+    inside = chi2[rows, cols] <= gate_chi2
+    out[rows[inside]] = cols[inside]
+    return out
 
 
 def assign_ranges(measured_m: FloatArray, predicted_m: FloatArray, sigma_m: FloatArray, gate_chi2: float = 16.0) -> np.ndarray:
     """Index of the track each measured distance belongs to, or -1 (unassigned)."""
-    m, n = len(measured_m), len(predicted_m)
-    if m == 0:
-        return np.zeros(0, dtype=int)
-    if n == 0:
-        return np.full(m, -1)
     chi2 = ((np.asarray(measured_m)[:, None] - np.asarray(predicted_m)[None, :]) / np.asarray(sigma_m)[None, :]) ** 2
-    cost = np.full((m, n + m), _INFEASIBLE)
-    cost[:, :n] = np.where(chi2 <= gate_chi2, chi2, _INFEASIBLE)
-    cost[np.arange(m), n + np.arange(m)] = gate_chi2  # leaving a distance out costs as much as the gate
-    rows, cols = linear_sum_assignment(cost)
-    out = np.full(m, -1)
-    keep = cols < n
-    out[rows[keep]] = cols[keep]
-    return out
+    return _assign(chi2.reshape(len(measured_m), len(predicted_m)), gate_chi2)
+
+
+def assign_receivers(ranges: list[FloatArray], predicted_m: FloatArray, sigma_m: FloatArray, gate_chi2: float = 16.0) -> np.ndarray:
+    """``assign_ranges`` for every receiver at once: ``predicted_m`` and ``sigma_m`` are (receivers x
+    tracks); returns the track of every distance, flat in receiver order (-1: unassigned)."""
+    counts = [len(m) for m in ranges]
+    if not sum(counts):
+        return np.zeros(0, dtype=int)
+    receiver_of = np.repeat(np.arange(len(ranges)), counts)
+    chi2 = ((np.concatenate(ranges)[:, None] - predicted_m[receiver_of]) / sigma_m[receiver_of]) ** 2  # one pass for all
+    ends = np.cumsum(counts)
+    return np.concatenate([_assign(chi2[end - m:end], gate_chi2) for m, end in zip(counts, ends, strict=True)])
 
 
 def trilaterate(centres: FloatArray, radii: FloatArray, below: bool = True) -> tuple[FloatArray, np.ndarray]:
