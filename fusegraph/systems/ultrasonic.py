@@ -65,6 +65,7 @@ Predicted = tuple[FloatArray, FloatArray]
 @dataclass
 class StepResult:
     positions: FloatArray
+    """(N, 3) every track's position, metres; NaN while a track is lost."""
     labels: list[np.ndarray]
     """Per receiver: the track of each sorted distance, or -1 (echo / unexplained)."""
 
@@ -116,7 +117,9 @@ class UltrasonicTracker:
         if self.lost.any() or self._epoch % cfg.recover_every == 0:
             self._recover(ranges, labels)
         self._epoch += 1
-        return StepResult(self.bank.combined()[0][:, :3].copy(), labels)
+        positions = self.bank.combined()[0][:, :3].copy()
+        positions[self.lost] = np.nan  # a lost track has no estimate (its last one is kept inside, for recovery)
+        return StepResult(positions, labels)
 
     def _associate(self, ranges: list[FloatArray], mean: FloatArray, cov: FloatArray, active: np.ndarray) -> tuple[np.ndarray, Predicted]:
         """Hard labels of every distance (flat, receiver-major) and the predicted ranges and sigmas they came from."""
