@@ -423,12 +423,15 @@ def bench_ultrasonic(
                 swaps += int(np.any(start != end))
                 runs_done += 1
     uwb: dict[str, float] | None = None
+    uwb_status = "skipped"
     if uwb_dir is not None:
         from ..datasets.uwb_lias import DEFAULT_DIR, load_uwb_lias
         from .uwb import run_uwb
 
         directory = DEFAULT_DIR if uwb_dir == "default" else Path(uwb_dir)
+        uwb_status = f"recording not found at {directory}"
         if directory.is_dir():
+            uwb_status = "ran"
             found = run_uwb(load_uwb_lias(directory))
             uwb = {
                 "labelled_rmse_m": found.labelled_rmse_m,
@@ -437,7 +440,7 @@ def bench_ultrasonic(
                 "clock_offset_s": found.clock_offset_s,
                 "ms_per_epoch": found.ms_per_epoch,
             }
-    return {"sim": sim, "crossing": {"runs": runs_done, "swaps": swaps}, "uwb": uwb}
+    return {"sim": sim, "crossing": {"runs": runs_done, "swaps": swaps}, "uwb": uwb, "uwb_status": uwb_status}
 
 
 def _head(epochs: RangeEpochs, seconds: float) -> RangeEpochs:
@@ -521,5 +524,5 @@ def format_ultrasonic_table(result: dict[str, object]) -> str:
             f"clock offset {uwb['clock_offset_s'] * 1e3:.0f} ms, {uwb['ms_per_epoch']:.2f} ms/epoch"
         )
     else:
-        lines.append("uwb: recording not found (--uwb DIR)")
+        lines.append(f"uwb: {result.get('uwb_status', 'not run')} (--uwb DIR)")
     return "\n".join(lines)
