@@ -111,6 +111,15 @@ class PointBank:
         self.P[i] = np.diag(np.r_[[position_sigma_m**2] * 3, [speed_sigma_m_s**2] * 3])
         self.mu[i] = 1.0 / self.modes.count
 
+    def forbid(self, targets: np.ndarray, model: int) -> None:
+        """Give ``model`` no probability for the selected targets (the others share it)."""
+        mu = self.mu[targets]
+        mu[:, model] = 0.0
+        empty = mu.sum(axis=1) <= 0.0  # it had it all: the others start equal
+        mu[empty] = 1.0
+        mu[:, model] = 0.0
+        self.mu[targets] = mu / mu.sum(axis=1, keepdims=True)
+
     def combined(self) -> tuple[FloatArray, FloatArray]:
         """Each target's moment-matched mean (T, 6) and covariance (T, 6, 6)."""
         return combine(self.x, self.P, self.mu)
