@@ -211,3 +211,15 @@ def test_a_start_on_borrowed_distances_settles_before_rest_averages_it(settle_s:
     error = np.linalg.norm(run.positions[late][:, :, None] - epochs.positions[late][:, None], axis=3)
     worst = float(np.nanmin(error, axis=1).max())  # every transmitter's nearest track, worst epoch
     assert (worst > 0.03) == held_off, worst  # metres: settled tracks are within 2 cm, held ones 4-5 cm off
+
+
+def test_an_epoch_whose_complete_receivers_are_collinear_gives_no_estimate_not_an_error() -> None:
+    truth = np.array([[0.3, 0.3, 0.8], [1.2, 1.1, 1.0], [1.7, 0.4, 0.6]])
+    ranges = _heard(truth)
+    for r in range(len(RECEIVERS)):
+        if RECEIVERS[r, 0] != RECEIVERS[0, 0]:  # only the first column (one line of receivers) heard all three
+            ranges[r] = ranges[r][:2]
+    positions, labels, _ = combinatorial_epoch(RECEIVERS, ranges, 3, 0.005)
+    assert np.isnan(positions).all() and all((lab == -1).all() for lab in labels)
+    # a NaN prediction is outside every gate
+    assert assign_ranges(np.array([1.0, 2.0]), np.array([np.nan, 2.001]), np.full(2, 0.01)).tolist() == [-1, 1]

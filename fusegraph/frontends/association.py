@@ -29,7 +29,7 @@ def _assign(chi2: FloatArray, gate_chi2: float) -> np.ndarray:
     out = np.full(m, -1)
     if m == 0 or n == 0:
         return out
-    rows, cols = linear_sum_assignment(np.minimum(chi2, gate_chi2))
+    rows, cols = linear_sum_assignment(np.minimum(np.nan_to_num(chi2, nan=np.inf), gate_chi2))  # a NaN prediction: outside
     inside = chi2[rows, cols] <= gate_chi2
     out[rows[inside]] = cols[inside]
     return out

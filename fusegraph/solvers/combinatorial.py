@@ -89,10 +89,13 @@ def combinatorial_epoch(
     if len(complete) < 3:
         return positions, labels, True
     # well-spread triples among the receivers that heard everything
-    triples = sorted(
-        itertools.combinations(complete, 3),
-        key=lambda t: -float(np.linalg.norm(np.cross(receivers[t[1]] - receivers[t[0]], receivers[t[2]] - receivers[t[0]]))),
-    )[: cfg.triples]
+    def area(t: tuple[int, ...]) -> float:
+        return float(np.linalg.norm(np.cross(receivers[t[1]] - receivers[t[0]], receivers[t[2]] - receivers[t[0]])))
+
+    # collinear triples (a grid has many) cannot trilaterate: left out; none left, no estimate this epoch
+    triples = sorted((t for t in itertools.combinations(complete, 3) if area(t) > 1e-6), key=area, reverse=True)[: cfg.triples]
+    if not triples:
+        return positions, labels, True
     rng = np.random.default_rng(seed)
     best_cost, exhaustive = np.inf, True
     for triple in triples:
