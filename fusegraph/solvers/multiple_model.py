@@ -142,15 +142,17 @@ class PointBank:
         row_weight: FloatArray | None = None, linearise_at: FloatArray | None = None, iterations: int = 2,
         probabilities: bool = True,
     ) -> None:
-        """Fold in ranges: ``ranges_m`` (T, K) is target t's distance to anchor k (``anchors_m`` (K, 3); an
-        anchor may appear in several columns), NaN where it has none; ``row_weight`` (T, K) scales each
-        row's information (an association's probability), 1 by default.
+        """Fold in ranges: ``ranges_m`` (T, K) is target t's distance to its anchor k (``anchors_m`` (K, 3)
+        shared by every target, or (T, K, 3) each target its own; an anchor may appear in several
+        columns), NaN where it has none; ``row_weight`` (T, K) scales each row's information (an
+        association's probability), 1 by default.
 
         Gauss-Newton from the prediction (or from ``linearise_at``, (T, M, 6), e.g. an earlier solution
         of the same epoch), ``iterations`` times; every pass not linearised at the prediction weighs the
         rows by the Cauchy kernel. ``probabilities`` False keeps the models' predicted probabilities
         (a pass that another will follow)."""
         xp, Pp, c = prediction.x, prediction.P, prediction.c
+        anchors_m = anchors_m if anchors_m.ndim == 3 else np.broadcast_to(anchors_m, (len(xp), *anchors_m.shape))
         have = np.isfinite(ranges_m)
         if row_weight is not None:
             have = have * row_weight
@@ -164,9 +166,9 @@ class PointBank:
                 # Cauchy weights from the models' combined solution, shared by every model so that their
                 # likelihoods below are comparable
                 mean = np.einsum("tj,tji->ti", c, x_lin[..., :3])
-                residual = z[:, 0, :] - np.linalg.norm(mean[:, None, :] - anchors_m[None], axis=2)
+                residual = z[:, 0, :] - np.linalg.norm(mean[:, None, :] - anchors_m, axis=2)
                 weight = have / sigma_m**2 / (1.0 + (residual / (cauchy_k * sigma_m))[:, None, :] ** 2)
-            diff = x_lin[:, :, None, :3] - anchors_m[None, None]
+            diff = x_lin[:, :, None, :3] - anchors_m[:, None]
             rho = np.linalg.norm(diff, axis=3)
             u = diff / rho[..., None]  # (T, M, K, 3): d range / d position
             info = info_prior.copy()
@@ -183,7 +185,7 @@ class PointBank:
     def _probabilities(xp: FloatArray, Pp: FloatArray, c: FloatArray, anchors_m: FloatArray, z: FloatArray, weight: FloatArray) -> FloatArray:
         """Posterior model probabilities: c_j N(z; h(x_j), H P_j H^T + W^-1), in 3 x 3 form (determinant
         lemma and Woodbury; the det(W^-1) both models share cancels)."""
-        diff = xp[:, :, None, :3] - anchors_m[None, None]
+        diff = xp[:, :, None, :3] - anchors_m[:, None]
         rho = np.linalg.norm(diff, axis=3)
         u = diff / rho[..., None]
         r = z - rho

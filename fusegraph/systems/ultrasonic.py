@@ -154,13 +154,13 @@ class UltrasonicTracker:
         they are. Each track then weighs its own distance by 1 - q and the neighbour's by q (the EM
         weights of the two-way mixture). Hard labels alone pull two close resting transmitters to a
         self-consistent wrong pair of positions (measured: 13 mm off at 2.7 cm apart)."""
-        n_r = len(self.receivers)
         receiver_of = np.repeat(np.arange(len(ranges)), [len(m) for m in ranges])
         z_all = np.concatenate(ranges) if ranges else np.zeros(0)
-        tables = np.full((3, self.n, n_r), np.nan)  # own distance, the previous one's, the next one's
-        weights = np.zeros((3, self.n, n_r))
         mine = np.nonzero(label_of >= 0)[0]
         own_weight = np.ones(len(mine))
+        # every (track, receiver, distance, weight) row: its own distances, then the shared neighbours
+        rows = [(label_of[mine], receiver_of[mine], z_all[mine])]
+        shared = []
         if self.config.soft_pairs and len(mine) > 1:
             rho, sigma = predicted
             a, b = mine[:-1], mine[1:]
@@ -172,13 +172,25 @@ class UltrasonicTracker:
             q = 1.0 / (1.0 + np.exp(np.clip(0.5 * (swap - keep), -50.0, 50.0)))
             own_weight[first] -= q
             own_weight[first + 1] -= q
-            tables[2, i, r], weights[2, i, r] = z_all[b], q  # i's next distance
-            tables[1, j, r], weights[1, j, r] = z_all[a], q  # j's previous distance
-        tables[0, label_of[mine], receiver_of[mine]] = z_all[mine]
-        weights[0, label_of[mine], receiver_of[mine]] = np.clip(own_weight, 0.0, 1.0)
+            real = q > 1e-4  # the rest carry no information: left out of the tables
+            rows += [(i[real], r[real], z_all[b][real]), (j[real], r[real], z_all[a][real])]
+            shared = [q[real], q[real]]
+        track = np.concatenate([x[0] for x in rows])
+        anchor = np.concatenate([x[1] for x in rows])
+        z = np.concatenate([x[2] for x in rows])
+        w = np.concatenate([np.clip(own_weight, 0.0, 1.0), *shared])
+        # packed per track: column c of track t is its c-th row (a track has at most a few per receiver)
+        order = np.argsort(track, kind="stable")
+        track, anchor, z, w = track[order], anchor[order], z[order], w[order]
+        counts = np.bincount(track, minlength=self.n)
+        column = np.arange(len(track)) - np.repeat(np.cumsum(counts) - counts, counts)
+        width = max(int(counts.max(initial=0)), 1)
+        table = np.full((self.n, width), np.nan)
+        weights = np.zeros((self.n, width))
+        anchors = np.tile(self.receivers[0], (self.n, width, 1))  # unused cells: any receiver (no weight)
+        table[track, column], weights[track, column], anchors[track, column] = z, w, self.receivers[anchor]
         self.bank.update(
-            prediction, np.tile(self.receivers, (3, 1)), tables.transpose(1, 0, 2).reshape(self.n, 3 * n_r), self.sigma,
-            self.config.cauchy_k, weights.transpose(1, 0, 2).reshape(self.n, 3 * n_r),
+            prediction, anchors, table, self.sigma, self.config.cauchy_k, weights,
             linearise_at=linearise_at, iterations=1 if linearise_at is not None else 2, probabilities=final,
         )
         solved = self.bank.combined()[0][:, :3]
