@@ -24,12 +24,13 @@ def _assign(chi2: FloatArray, gate_chi2: float) -> np.ndarray:
     """Optimal assignment of rows (distances) to columns (tracks) with a "leave it out" option of cost
     ``gate_chi2`` per row. Clipping every cost at the gate is the same problem as one dummy column
     per row: a row parked on an out-of-gate track pays what the dummy would, and with more rows than
-    tracks the rows left over would all pay the gate anyway (a constant). The matrix stays m x n."""
+    tracks the rows left over would all pay the gate anyway (a constant). The matrix stays m x n.
+    A NaN cost (no prediction) is outside the gate (``fmin`` takes the gate, the comparison fails)."""
     m, n = chi2.shape
     out = np.full(m, -1)
     if m == 0 or n == 0:
         return out
-    rows, cols = linear_sum_assignment(np.minimum(np.nan_to_num(chi2, nan=np.inf), gate_chi2))  # a NaN prediction: outside
+    rows, cols = linear_sum_assignment(np.fmin(chi2, gate_chi2))
     inside = chi2[rows, cols] <= gate_chi2
     out[rows[inside]] = cols[inside]
     return out
