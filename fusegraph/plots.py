@@ -10,6 +10,7 @@ import matplotlib
 matplotlib.use("Agg")  # headless: figures go to files
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from .estimate import Estimate  # noqa: E402
 from .geometry import FloatArray, euler_zyx_from_quat, wrap_angle  # noqa: E402
@@ -56,9 +57,14 @@ def plot_attitude_axes(
     axes[0, 0].legend(loc="best", fontsize=8)
     if title:
         fig.suptitle(title)
+    return save_figure(fig, path)
+
+
+def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
+    """Lay the figure out, write it (creating the folder) and free it."""
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.signal import butter, filtfilt, find_peaks
 
 from ..factors.imu import GRAVITY_M_S2
-from ..geometry import FloatArray, skew
+from ..geometry import FloatArray, skew, wrap_angle
 
 
 @dataclass(frozen=True)
@@ -263,7 +263,7 @@ def detect_cycles(t: FloatArray, accel: FloatArray, gyro: FloatArray | None = No
 def _circular_median(angles: list[float]) -> float:
     """Median of angles taken as offsets from the newest one (safe across +-pi)."""
     ref = angles[-1]
-    return float(ref + np.median(np.remainder(np.array(angles) - ref + np.pi, 2 * np.pi) - np.pi))
+    return float(ref + np.median(wrap_angle(np.array(angles) - ref)))
 
 
 def fit_speed_model(cycles: list[Cycle], bouts: FloatArray) -> SpeedModel:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
@@ -20,6 +21,9 @@ from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, fix_factor
 from ..factors.ranging import RangeNoise, bias_prior, bias_walk, range_factor
 from ..geometry import FloatArray
 from .increment import GraphIncrement
+
+if TYPE_CHECKING:
+    from ..solvers.online import OnlineConfig
 
 
 def X(i: int) -> int:
@@ -172,3 +176,20 @@ def poses_of(values: gtsam.Values, count: int) -> FloatArray:
         out[i, :3] = pose.translation()
         out[i, 3] = pose.rotation().yaw()
     return out
+
+
+def causal_online(config: OnlineConfig) -> Callable[[PlanarGraph], gtsam.Pose3]:
+    """An ``on_state`` helper for the builders: the re-anchoring iSAM2 starts on the first call and is
+    updated on every call; each call returns the newest pose as solved then (the causal estimate)."""
+    from ..solvers.online import OnlineSmoother  # here: solvers.online imports graphs
+
+    solver: OnlineSmoother | None = None
+
+    def update(graph: PlanarGraph) -> gtsam.Pose3:
+        nonlocal solver
+        if solver is None:
+            solver = OnlineSmoother(graph, config)
+        solver.update()
+        return graph.latest
+
+    return update

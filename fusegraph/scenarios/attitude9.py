@@ -91,6 +91,17 @@ def _readings(q_wxyz: FloatArray, position_m: FloatArray, t: FloatArray, m_world
     return gyro, specific, field
 
 
+def _noisy_readings(
+    q_wxyz: FloatArray, position_m: FloatArray, t: FloatArray, m_world: FloatArray, rng: np.random.Generator,
+    gyro_bias_sigma_rad_s: float, gyro_sigma_rad_s: float, accel_sigma_m_s2: float, mag_sigma: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``_readings`` with a constant gyro bias (drawn per axis) and white noise on every sensor."""
+    gyro, accel, mag = _readings(q_wxyz, position_m, t, m_world)
+    bias = rng.normal(0.0, gyro_bias_sigma_rad_s, 3)
+    gyro = gyro + bias + rng.normal(0.0, gyro_sigma_rad_s, gyro.shape)
+    return gyro, accel + rng.normal(0.0, accel_sigma_m_s2, accel.shape), mag + rng.normal(0.0, mag_sigma, mag.shape)
+
+
 def simulate_attitude9(seed: int = 0, config: Attitude9ScenarioConfig | None = None, **overrides: object) -> Session:
     """A seeded 9-axis session with truth and a magnetometer calibration recording."""
     cfg = replace(config or Attitude9ScenarioConfig(), **{k: v for k, v in overrides.items() if k not in ("profile",)})  # type: ignore[arg-type]

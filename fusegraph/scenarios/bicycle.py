@@ -18,7 +18,7 @@ import numpy as np
 
 from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx, quat_multiply
 from ..session import KIND_COLUMNS, Session, Stream
-from .attitude9 import _readings
+from .attitude9 import _noisy_readings
 
 
 @dataclass(frozen=True)
@@ -116,13 +116,9 @@ def simulate_bicycle(seed: int = 0, config: BicycleScenarioConfig | None = None)
     R_t = matrix_from_quat(thigh_q)
     thigh_pos = frame_pos + np.einsum("nij,j->ni", R_f, hip) + np.einsum("nij,j->ni", R_t, np.array([config.thigh_lever_m, 0.0, 0.0]))
     m_world = np.tile([0.0, math.cos(math.radians(60)), -math.sin(math.radians(60))], (n, 1))
-    out = {}
-    for name, q, pos in (("thigh", thigh_q, thigh_pos), ("frame", frame_q, frame_pos)):
-        gyro, accel, mag = _readings(q, pos, t, m_world)
-        bias = rng.normal(0.0, math.radians(config.gyro_bias_deg_s), 3)
-        out[name] = (gyro + bias + rng.normal(0, config.gyro_sigma_rad_s, gyro.shape),
-                     accel + rng.normal(0, config.accel_sigma_m_s2, accel.shape),
-                     mag + rng.normal(0, config.mag_sigma, mag.shape))
+    noise = (math.radians(config.gyro_bias_deg_s), config.gyro_sigma_rad_s, config.accel_sigma_m_s2, config.mag_sigma)
+    out = {name: _noisy_readings(q, pos, t, m_world, rng, *noise)
+           for name, q, pos in (("thigh", thigh_q, thigh_pos), ("frame", frame_q, frame_pos))}
     return BicycleSession(t=t, thigh_gyro=out["thigh"][0], thigh_accel=out["thigh"][1], thigh_mag=out["thigh"][2],
                           frame_gyro=out["frame"][0], frame_accel=out["frame"][1], frame_mag=out["frame"][2],
                           thigh_quat_wxyz=thigh_q, frame_quat_wxyz=frame_q, config=config)

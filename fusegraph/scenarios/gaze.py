@@ -19,7 +19,7 @@ import numpy as np
 from ..factors.gaze import SceneCamera
 from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx
 from ..session import KIND_COLUMNS, Session, Stream
-from .attitude9 import _readings
+from .attitude9 import _noisy_readings
 
 
 @dataclass(frozen=True)
@@ -97,11 +97,8 @@ def simulate_gaze(seed: int = 0, config: GazeScenarioConfig | None = None) -> Ga
     angles = head_motion(t, config, rng)
     quat = quat_from_euler_zyx(angles)
     m_world = np.array([0.0, math.cos(math.radians(60)), -math.sin(math.radians(60))])  # northern field, 60 deg dip
-    gyro, accel, mag = _readings(quat, np.zeros((len(t), 3)), t, np.tile(m_world, (len(t), 1)))
-    bias = rng.normal(0.0, math.radians(config.gyro_bias_deg_s), 3)
-    gyro = gyro + bias + rng.normal(0.0, config.gyro_sigma_rad_s, gyro.shape)
-    accel = accel + rng.normal(0.0, config.accel_sigma_m_s2, accel.shape)
-    mag = mag + rng.normal(0.0, config.mag_sigma, mag.shape)
+    gyro, accel, mag = _noisy_readings(quat, np.zeros((len(t), 3)), t, np.tile(m_world, (len(t), 1)), rng,
+                                       math.radians(config.gyro_bias_deg_s), config.gyro_sigma_rad_s, config.accel_sigma_m_s2, config.mag_sigma)
     tt = np.arange(0.0, config.duration_s - 1.0 / config.imu_rate_hz, 1.0 / config.tracker_rate_hz)
     marks = np.where((tt < config.switch_s)[:, None], np.array(config.first_mark_xz_m), np.array(config.second_mark_xz_m))
     # a fixation wanders slowly (a random walk of a few mm), the saccade is instantaneous

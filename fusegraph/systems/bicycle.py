@@ -22,6 +22,7 @@ from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, euler_zyx_from_quat, matrix_from_quat, quat_wxyz_from_rot3
 from ..graphs.attitude9 import fill_samples
 from ..graphs.bicycle import BicycleModel, CoupledBuilder
+from ..metrics import euler_errors
 from ..scenarios.bicycle import BicycleScenarioConfig, BicycleSession, simulate_bicycle
 from ..session import Session
 from ..solvers.batch import solve_python_loop
@@ -108,8 +109,7 @@ def run_batch(s: BicycleSession, model: BicycleModel | None = None) -> FloatArra
 
 def braking_rms_deg(quat: FloatArray, s: BicycleSession) -> dict[str, float]:
     """Thigh pitch and roll error RMS over the braking phase, degrees."""
-    err = euler_zyx_from_quat(quat)[s.braking] - euler_zyx_from_quat(s.thigh_quat_wxyz)[s.braking]
-    err = np.degrees(np.remainder(err + np.pi, 2 * np.pi) - np.pi)
+    err = np.degrees(euler_errors(quat[s.braking], s.thigh_quat_wxyz[s.braking]))
     return {"pitch_deg": float(np.sqrt(np.mean(err[:, 1] ** 2))), "roll_deg": float(np.sqrt(np.mean(err[:, 2] ** 2)))}
 
 
@@ -151,10 +151,7 @@ def bicycle_report(seeds: tuple[int, ...] = (0, 1, 2), plot: str | None = None) 
 
 def plot_bicycle(s: BicycleSession, estimates: dict[str, FloatArray], path: str) -> None:
     """Like the paper's figure: thigh pitch and roll, truth and each method, braking shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ..plots import plt, save_figure  # headless pyplot
 
     truth = np.degrees(euler_zyx_from_quat(s.thigh_quat_wxyz))
     fig, axes = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
@@ -167,9 +164,7 @@ def plot_bicycle(s: BicycleSession, estimates: dict[str, FloatArray], path: str)
         ax.set_xlim(s.config.brake_s - 8, s.config.brake_s + 8)
     axes[0].legend(fontsize=8)
     axes[1].set_xlabel("time (s); braking phase shaded")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def format_bicycle_table(report: dict[str, object]) -> str:

@@ -260,10 +260,7 @@ def gaze_report(seeds: tuple[int, ...] = (0,), plot: str | None = None) -> dict[
 
 def plot_gaze(session: GazeSession, estimates: dict[str, FloatArray], path: str) -> None:
     """Like the paper's figure: gaze point X and Z on the wall over time, truth and each method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ..plots import plt, save_figure  # headless pyplot
 
     fig, axes = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
     for c, (ax, name) in enumerate(zip(axes, ("X (horizontal)", "Z (vertical)"), strict=True)):
@@ -275,9 +272,7 @@ def plot_gaze(session: GazeSession, estimates: dict[str, FloatArray], path: str)
     axes[0].legend(fontsize=8)
     axes[1].set_xlabel("time (s)")
     fig.suptitle(f"gaze point on the wall while nodding and shaking the head; the mark changes at {session.config.switch_s:.0f} s")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def format_gaze_table(report: dict[str, object]) -> str:

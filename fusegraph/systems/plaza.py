@@ -19,9 +19,9 @@ from ..datasets.plaza import PlazaRecording, load_plaza
 from ..factors.odometry import OdometryNoise, PlanarMotion, dead_reckon, level_pose
 from ..factors.ranging import RangeNoise
 from ..geometry import FloatArray
-from ..graphs.planar import PlanarGraph, poses_of
+from ..graphs.planar import PlanarGraph, causal_online, poses_of
 from ..solvers.batch import solve_python_loop
-from ..solvers.online import OnlineConfig, OnlineSmoother
+from ..solvers.online import OnlineConfig
 
 ODOMETRY = OdometryNoise(distance_frac=0.02, lateral_frac=0.02, floor_m=0.005, yaw_rad=math.radians(0.1), yaw_frac=0.02)
 """Wheel odometry trust per interval (0.1-0.2 s): 2 % of distance, 0.1 deg heading."""
@@ -108,14 +108,10 @@ def run_online(rec: PlazaRecording, config: OnlineConfig = ONLINE) -> PlazaRun:
     t0 = time.perf_counter()
     xy = np.empty((len(rec.truth_t), 2))
     xy[0] = rec.truth_xy[0]
-    solver: OnlineSmoother | None = None
+    solve = causal_online(config)
 
     def on_state(graph: PlanarGraph, i: int) -> None:
-        nonlocal solver
-        if solver is None:
-            solver = OnlineSmoother(graph, config)
-        solver.update()
-        xy[i] = graph.latest.translation()[:2]
+        xy[i] = solve(graph).translation()[:2]
 
     _build(rec, on_state)
     return PlazaRun("online", xy, time.perf_counter() - t0)

@@ -87,25 +87,24 @@ class UltrasonicTracker:
         self.missed = np.zeros(transmitters, dtype=int)
         self.inliers = np.zeros(transmitters, dtype=int)
         self.started_s = np.zeros(transmitters)
-        self._now = 0.0
         self._t: float | None = None
         self._epoch = 0
         self.reinitialisations = 0
 
-    def _start(self, i: int, position_m: FloatArray) -> None:
+    def _start(self, i: int, position_m: FloatArray, t: float) -> None:
         self.bank.reset(i, position_m)
         self.lost[i], self.missed[i] = False, 0
-        self.started_s[i] = self._now
+        self.started_s[i] = t
 
     def step(self, t: float, ranges: list[FloatArray]) -> StepResult:
         cfg = self.config
-        self._now = t
         if self._t is None:
             for i, f in enumerate(locate(self.receivers, ranges, self.n)):
-                self._start(i, f.position_m)
+                self._start(i, f.position_m, t)
         dt = max(t - self._t, 1e-3) if self._t is not None else 0.025  # the first epoch: a nominal step from a static start
         self._t = t
-        frozen = (self.bank.x.copy(), self.bank.P.copy(), self.bank.mu.copy())
+        lost = self.lost.copy()
+        frozen = (self.bank.x[lost], self.bank.P[lost], self.bank.mu[lost])  # a lost track keeps its last state
         young = ~self.lost & (t - self.started_s < cfg.settle_s)
         if young.any():
             self.bank.forbid(young, REST)
@@ -120,13 +119,13 @@ class UltrasonicTracker:
             # one Gauss-Newton pass from that solution
             label_of, predicted = self._associate(ranges, *self.bank.combined(), active)
             self._update(prediction, ranges, label_of, predicted, final=True, linearise_at=self.bank.x)
-        # a lost track keeps its last state (its prediction would only grow)
+        # (its prediction would only grow)
         for store, old in zip((self.bank.x, self.bank.P, self.bank.mu), frozen, strict=True):
-            store[self.lost] = old[self.lost]
+            store[lost] = old
         labels = np.split(label_of, np.cumsum(counts)[:-1])
         self._maintain()
         if self.lost.any() or self._epoch % cfg.recover_every == 0:
-            self._recover(ranges, labels)
+            self._recover(ranges, labels, t)
         self._epoch += 1
         positions = self.bank.combined()[0][:, :3].copy()
         positions[self.lost] = np.nan  # a lost track has no estimate (its last one is kept inside, for recovery)
@@ -215,7 +214,7 @@ class UltrasonicTracker:
             if not self.lost[ia] and not self.lost[ib]:
                 self.lost[ia if self.inliers[ia] < self.inliers[ib] else ib] = True
 
-    def _recover(self, ranges: list[FloatArray], labels: list[np.ndarray]) -> None:
+    def _recover(self, ranges: list[FloatArray], labels: list[np.ndarray], t: float) -> None:
         free = [rng[lab < 0] for rng, lab in zip(ranges, labels, strict=True)]
         if sum(len(f) >= 1 for f in free) < self.config.recover_support:
             return
@@ -230,7 +229,7 @@ class UltrasonicTracker:
             else:
                 # an untracked transmitter while every track is live: one track wandered; move the weakest
                 i = int(np.argmin(self.inliers))
-            self._start(i, f.position_m)
+            self._start(i, f.position_m, t)
             self.reinitialisations += 1
             # its distances now belong to it
             for r, j in f.used:
@@ -477,10 +476,7 @@ def _head(epochs: RangeEpochs, seconds: float) -> RangeEpochs:
 def plot_ultrasonic(epochs: RangeEpochs, run: TrackingRun, path: str | Path) -> None:
     """Top view of every transmitter (truth and estimate), each one's error over time, and the REST
     model's probability beside the truth's rests."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ..plots import plt, save_figure  # headless pyplot
 
     assert epochs.positions is not None
     truth = epochs.positions
@@ -515,9 +511,7 @@ def plot_ultrasonic(epochs: RangeEpochs, run: TrackingRun, path: str | Path) -> 
                  extent=(epochs.t[0], epochs.t[-1], n - 0.5, -0.5))
     modes.set(xlabel="time (s)", ylabel="transmitter",
               title="REST: truth at rest and model probability (yellow both, teal one of them, purple neither)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def format_ultrasonic_table(result: dict[str, object]) -> str:

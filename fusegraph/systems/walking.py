@@ -26,10 +26,10 @@ from ..datasets import steps_oxford
 from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose, odometry_sigmas
 from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model, gravity_filter
 from ..geometry import FloatArray
-from ..graphs.planar import PlanarGraph, poses_of
+from ..graphs.planar import PlanarGraph, causal_online, poses_of
 from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingSession, simulate_calibration_walk, simulate_walking
 from ..session import Session, SessionError
-from ..solvers.online import OnlineConfig, OnlineSmoother
+from ..solvers.online import OnlineConfig
 
 STEP_NOISE = OdometryNoise(distance_frac=0.08, lateral_frac=0.05, floor_m=0.02, yaw_rad=math.radians(0.5), yaw_frac=0.03, vertical_m=0.03)
 """A detected step: 8 % of its length along, 5 % across, 0.5 deg heading, 3 cm height."""
@@ -153,14 +153,10 @@ def run_online(session: WalkingSession, events: list[Event], fixes: FloatArray) 
     t0 = time.perf_counter()
     xyz = np.zeros((len(events) + 1, 3))
     xyz[0] = session.start_pose[:3]
-    solver: OnlineSmoother | None = None
+    solve = causal_online(ONLINE)
 
     def on_state(graph: PlanarGraph, i: int) -> None:
-        nonlocal solver
-        if solver is None:
-            solver = OnlineSmoother(graph, ONLINE)
-        solver.update()
-        xyz[i] = graph.latest.translation()
+        xyz[i] = solve(graph).translation()
 
     graph = _build(session, events, fixes, on_state)
     return WalkRun("online", np.array(graph.keyframe_t), xyz, time.perf_counter() - t0)
@@ -320,10 +316,7 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
 
 def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> None:
     """Top view and height over time of the truth and every method, fixes marked (wrong ones as x)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ..plots import plt, save_figure  # headless pyplot
 
     fig, (top, height) = plt.subplots(1, 2, figsize=(15, 6), gridspec_kw={"width_ratios": [1.3, 1]})
     top.plot(session.truth_xyz_m[:, 0], session.truth_xyz_m[:, 1], "k-", lw=2, alpha=0.4, label="truth")
@@ -337,9 +330,7 @@ def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> 
     top.set(xlabel="east (m)", ylabel="north (m)", title="walk, top view", aspect="equal")
     height.set(xlabel="time (s)", ylabel="height (m)", title="floors (3.5 m apart)")
     top.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def format_walking_table(result: dict[str, object]) -> str:
