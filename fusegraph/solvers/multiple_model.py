@@ -19,6 +19,7 @@ batched numpy calls: with gtsam eliminating one small graph per target the Pytho
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -47,22 +48,28 @@ class MotionModes:
         return 1 + len(self.accel_psd)
 
 
+@lru_cache(maxsize=16)  # emissions come at a fixed rate: the same dt every epoch
 def _transitions(dt: float, modes: MotionModes) -> FloatArray:
     """Pi[i, j] = P(model j now | model i an epoch ago)."""
     m = modes.count
     leave = 1.0 - np.exp(-dt / modes.mean_stay_s)
     pi = np.full((m, m), leave / (m - 1))
     np.fill_diagonal(pi, 1.0 - leave)
+    pi.setflags(write=False)  # cached: shared by every later call
     return pi
 
 
+@lru_cache(maxsize=16)
 def _models(dt: float, modes: MotionModes) -> tuple[FloatArray, FloatArray]:
     """Transition matrices (M, 6, 6) and process covariances (M, 6, 6): REST first, then each constant velocity."""
     f_rest = np.zeros((6, 6))
     f_rest[:3, :3] = np.eye(3)
     q_rest = np.diag(np.r_[[modes.rest_walk_m**2 * dt] * 3, [modes.rest_speed_m_s**2] * 3])
     moving = [constant_velocity(dt, [psd] * 3) for psd in modes.accel_psd]
-    return np.stack([f_rest] + [f for f, _ in moving]), np.stack([q_rest] + [q for _, q in moving])
+    F, Q = np.stack([f_rest] + [f for f, _ in moving]), np.stack([q_rest] + [q for _, q in moving])
+    F.setflags(write=False)  # cached: shared by every later call
+    Q.setflags(write=False)
+    return F, Q
 
 
 @dataclass
