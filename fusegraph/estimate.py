@@ -67,3 +67,41 @@ class Estimate:
         if len(t) == 0:
             raise SessionError(f"{path}: no rows")
         return cls(method or path.stem, t, quat, cov)
+
+
+@dataclass
+class PointEstimate:
+    """A time series of K points from one method: a gaze point on a wall (K = 1, X and Z), a walker's
+    position (K = 1, x y z), every ultrasonic transmitter (K = N, x y z each). NaN where none.
+
+    The position counterpart of ``Estimate`` (evo's PosePath3D beside its PoseTrajectory3D)."""
+
+    method: str
+    """Name of the method that produced it (``online``, ``batch``, ``ekf``...)."""
+    t: FloatArray
+    """Times, seconds, shape (N,)."""
+    points: FloatArray
+    """Points, shape (N, K, D) in metres."""
+    axes: tuple[str, ...] = ("x", "y", "z")
+    """Names of the D coordinates (``X_m``, ``Z_m`` for a wall point; ``x``, ``y``, ``z`` for positions)."""
+    runtime_s: float = float("nan")
+    """Wall time the method spent, seconds."""
+    extras: dict[str, Any] = field(default_factory=dict)
+    """Method-specific results (labels, per-epoch times, diagnostics)."""
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """CSV columns after ``t``: the axes, suffixed with the point index when there are several."""
+        k = self.points.shape[1]
+        return self.axes if k == 1 else tuple(f"{a}{i}" for i in range(k) for a in self.axes)
+
+    def save_csv(self, path: str | Path) -> Path:
+        """CSV with ``t`` and every point's coordinates."""
+        path = Path(path)
+        data = np.column_stack([self.t, self.points.reshape(len(self.t), -1)])
+        np.savetxt(path, data, delimiter=",", header=",".join(("t", *self.columns)), comments="", fmt="%.10g")
+        return path
+
+
+Result = Estimate | PointEstimate
+"""What any method of any system returns."""

@@ -25,19 +25,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .catalogue import TRUTH_KEYS, CatalogueError, SensorKind, check_keys, sensor_catalogue, suggest
+
 FloatArray = NDArray[np.float64]
 
-#: Columns after ``t`` that each stream kind must have, in order.
-KIND_COLUMNS: dict[str, tuple[str, ...]] = {
-    "gyro": ("wx", "wy", "wz"),
-    "accel": ("ax", "ay", "az"),
-    "mag": ("mx", "my", "mz"),
-    "attitude": ("qw", "qx", "qy", "qz"),
-    "position": ("x", "y", "z"),
-    "flag": ("value",),
-    "pixel": ("u", "v"),
-    "pose": ("x", "y", "z", "yaw"),
-}
+#: Columns after ``t`` that each stream kind must have, in order (from the sensor catalogue).
+KIND_COLUMNS: dict[str, tuple[str, ...]] = {kind: entry.columns for kind, entry in sensor_catalogue().items()}
+
+#: Quaternions whose norm departs from 1 by more than this are an error (less: normalised).
+UNIT_NORM_TOLERANCE = 0.01
 
 #: Gap between samples, in multiples of the median period, above which a dropout is reported.
 GAP_FACTOR = 1.5
@@ -45,6 +41,10 @@ GAP_FACTOR = 1.5
 
 class SessionError(ValueError):
     """A session directory or stream that cannot be used as it is; the message says where and why."""
+
+
+class SessionWarning(UserWarning):
+    """Something in a session that was repaired on loading (e.g. quaternions normalised); the message says what."""
 
 
 @dataclass(frozen=True)
@@ -201,11 +201,17 @@ def load_session(directory: str | Path) -> Session:
         raise SessionError(f"{toml_path}: no [streams.<name>] tables")
     streams = {}
     for name, table in stream_specs.items():
+        if not isinstance(table, Mapping):
+            raise SessionError(f"{toml_path}: [streams.{name}] must be a table (kind = ..., file = ...)")
         streams[name] = _load_stream(root, toml_path, name, table)
     truth = None
     if "truth" in spec:
         table = dict(spec["truth"])
         table.setdefault("kind", "attitude")
+        try:
+            check_keys(table, (k.name for k in TRUTH_KEYS), f"{toml_path}: [truth]")
+        except CatalogueError as err:
+            raise SessionError(str(err)) from None
         # ground truth may have gaps (occluded markers), written as NaN rows; sensors may not
         truth = _load_stream(root, toml_path, "truth", table, allow_nan=True)
     meta = {k: v for k, v in spec.items() if k not in ("streams", "truth")}
@@ -215,27 +221,102 @@ def load_session(directory: str | Path) -> Session:
 def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any], allow_nan: bool = False) -> Stream:
     where = f"{toml_path}: stream '{name}'"
     kind = table.get("kind")
-    if kind not in KIND_COLUMNS:
-        raise SessionError(f"{where}: kind = {kind!r} is not one of {', '.join(KIND_COLUMNS)}")
+    catalogue = sensor_catalogue()
+    if kind not in catalogue:
+        hint = suggest(str(kind), catalogue) if isinstance(kind, str) else ""
+        raise SessionError(f"{where}: kind = {kind!r} is not one of {', '.join(catalogue)}{hint} (see `fusegraph sensors`)")
+    entry = catalogue[kind]
+    if name != "truth":
+        try:
+            check_keys(table, entry.key_names, where)
+        except CatalogueError as err:
+            raise SessionError(f"{err} (see `fusegraph sensors {kind}`)") from None
     file = table.get("file", f"{name}.csv")
     latency = table.get("latency_s", 0.0)
     if not isinstance(latency, int | float) or not math.isfinite(latency) or latency < 0:
         raise SessionError(f"{where}: latency_s must be a finite number >= 0 (got {latency!r})")
-    t, values = read_stream_csv(root / file, KIND_COLUMNS[kind], name, allow_nan=allow_nan)
+    t, values = read_stream_csv(root / file, entry.columns, name, allow_nan=allow_nan, repeated_times=entry.repeated_times)
+    label = f"{root / file} (stream '{name}')"
+    if name != "truth":
+        values = check_plausible(entry, t, values, table, label)
     meta = {k: v for k, v in table.items() if k not in ("kind", "file", "latency_s")}
-    return Stream(name, kind, t, values, KIND_COLUMNS[kind], float(latency), meta)
+    return Stream(name, kind, t, values, entry.columns, float(latency), meta)
 
 
-def read_stream_csv(path: Path, columns: tuple[str, ...], name: str = "", allow_nan: bool = False) -> tuple[FloatArray, FloatArray]:
+def check_plausible(entry: SensorKind, t: FloatArray, values: FloatArray, keys: Mapping[str, Any], label: str) -> FloatArray:
+    """The catalogue's checks on one stream: units converted, then magnitudes, quaternion norms, the
+    declared rate and positive noise sigmas; returns the values in SI (normalised quaternions).
+
+    A violation raises ``SessionError`` naming the stream and its likely cause."""
+    import warnings
+
+    units = keys.get("units")
+    if units is not None:
+        if units not in entry.unit_conversions:
+            accepted = ", ".join(entry.unit_conversions) or "none (the kind has one unit)"
+            raise SessionError(f"{label}: units = {units!r} is not one this kind converts (accepted: {accepted})")
+        values = values * entry.unit_conversions[units]
+    for spec in entry.keys:
+        value = keys.get(spec.name)
+        positive = spec.name.endswith(("sigma_rad_s", "sigma_deg", "sigma_m", "_sigma")) and spec.name != "markov_sigma_deg"
+        if positive and value is not None and (not isinstance(value, int | float) or not math.isfinite(value) or value <= 0):
+            raise SessionError(f"{label}: {spec.name} = {value!r} must be a number > 0 (a sensor with no noise makes the graph singular)")
+    finite = np.all(np.isfinite(values), axis=1)
+    norms = np.linalg.norm(values[finite], axis=1) if finite.any() else np.zeros(1)
+    for check in entry.magnitude:
+        stat = float(np.max(norms)) if check.statistic == "max" else float(np.median(norms))
+        if not check.low <= stat <= check.high:
+            row = int(np.argmax(norms)) + 2 if check.statistic == "max" else None
+            at = f" (line {row})" if row is not None else ""
+            raise SessionError(f"{label}: {check.statistic} |value| {stat:.4g}{at} outside [{check.low:g}, {check.high:g}]: {check.likely_cause}")
+    if entry.unit_norm and finite.any():
+        departure = np.abs(norms - 1.0)
+        worst = int(np.argmax(departure))
+        if departure[worst] > UNIT_NORM_TOLERANCE:
+            line = int(np.nonzero(finite)[0][worst]) + 2
+            raise SessionError(f"{label}: line {line}: quaternion norm {norms[worst]:.4g}, not 1 (more than 1 % off: not a rotation, or scaled?)")
+        if departure[worst] > 1e-6:
+            warnings.warn(f"{label}: quaternion norms up to {departure[worst]:.2e} off 1: normalised", SessionWarning, stacklevel=3)
+        if departure[worst] > 1e-12:  # beyond float rounding: a written unit quaternion reads back bit-identical
+            values = values.copy()
+            values[finite] /= norms[:, None]
+    if entry.check is not None:
+        problem = entry.check(values, keys)
+        if problem:
+            raise SessionError(f"{label}: {problem}")
+    rate = keys.get("rate_hz")
+    if rate is not None and len(t) > 2:
+        if not isinstance(rate, int | float) or not math.isfinite(rate) or rate <= 0:
+            raise SessionError(f"{label}: rate_hz = {rate!r} must be a number > 0")
+        unique = np.unique(t)
+        if len(unique) > 2:
+            median_dt = float(np.median(np.diff(unique)))
+            if not 0.5 / rate <= median_dt <= 2.0 / rate:
+                cause = "time stamps in milliseconds? convert to seconds" if median_dt > 100.0 / rate else "is rate_hz right?"
+                raise SessionError(f"{label}: rate_hz = {rate:g} but the median sample interval is {median_dt:.6g} s ({1 / median_dt:.4g} Hz): {cause}")
+    return values
+
+
+def read_stream_csv(
+    path: Path, columns: tuple[str, ...], name: str = "", allow_nan: bool = False, repeated_times: bool = False
+) -> tuple[FloatArray, FloatArray]:
     """Read ``t`` plus ``columns`` from a CSV with a header row; validate every row.
 
     Extra columns are allowed and ignored. Errors name the file, the line and the problem.
     ``allow_nan`` admits NaN values (never in ``t``): estimates use NaN for "no estimate yet".
+    ``repeated_times`` lets consecutive rows share a time (one row per value of an epoch).
+    UTF-8 with or without a byte-order mark (as spreadsheets write it) and UTF-16 with one are read.
     """
     label = f"{path}" + (f" (stream '{name}')" if name else "")
     if not path.is_file():
         raise SessionError(f"{label}: file not found")
-    with path.open(newline="") as handle:
+    head = path.open("rb").read(4)
+    encoding = "utf-16" if head[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
+    try:
+        path.read_text(encoding=encoding)
+    except UnicodeDecodeError as err:
+        raise SessionError(f"{label}: not UTF-8 text ({err.reason} at byte {err.start}); save the CSV as UTF-8") from None
+    with path.open(newline="", encoding=encoding) as handle:
         reader = csv.reader(handle)
         try:
             header = [h.strip() for h in next(reader)]
@@ -264,7 +345,7 @@ def read_stream_csv(path: Path, columns: tuple[str, ...], name: str = "", allow_
                     raise SessionError(f"{label}: line {line_no}: column '{col}' is {v} (NaN/inf not allowed; leave the row out for a dropout)")
             if rows:
                 previous = rows[-1][0]
-                if values[0] == previous:
+                if values[0] == previous and not repeated_times:
                     raise SessionError(f"{label}: line {line_no}: duplicate time t = {values[0]!r} (same as line {line_no - 1})")
                 if values[0] < previous:
                     raise SessionError(f"{label}: line {line_no}: time goes backwards (t = {values[0]!r} after {previous!r})")

@@ -43,7 +43,7 @@ def test_missing_trial_is_a_clear_error(tmp_path) -> None:  # type: ignore[no-un
 @requires_shared_data("broad")
 def test_real_trials_load_and_truth_scores_zero() -> None:
     paths = trial_paths(DEFAULT_DIR)
-    assert len(paths) == 10
+    assert len(paths) >= 10  # ../shared grows (trial 08 joined as a regression case)
     session = load_broad(paths[0])
     gyro = session.stream("gyro")
     assert gyro.meta["rate_hz"] == pytest.approx(285.714, abs=1e-3)

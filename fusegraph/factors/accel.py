@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..catalogue import KeySpec, Magnitude, SensorKind
 from ..geometry import FloatArray
 from .imu import GRAVITY_M_S2
 
@@ -36,9 +37,35 @@ def gravity_sigma_rad(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_
     return float(np.deg2rad(noise.sigma_deg + noise.inflation_deg_per_m_s2 * departure))
 
 
+def gravity_factor_rot3(rot_key: int, accel_body_m_s2: FloatArray, noise: GravityNoise, gravity_m_s2: float = GRAVITY_M_S2) -> gtsam.AttitudeFactorRot3:
+    """As ``gravity_factor``, on a Rot3 attitude state (world_R_body): the specific force points up."""
+    model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, gravity_sigma_rad(noise, accel_body_m_s2, gravity_m_s2))
+    if noise.cauchy_k > 0:
+        model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(noise.cauchy_k), model)
+    return gtsam.AttitudeFactorRot3(rot_key, _UP, model, gtsam.Unit3(np.asarray(accel_body_m_s2, dtype=float)))
+
+
 def gravity_factor(pose_key: int, accel_body_m_s2: FloatArray, noise: GravityNoise, gravity_m_s2: float = GRAVITY_M_S2) -> gtsam.AttitudeFactorPose3:
     """The specific force at rest points up in the world (ENU)."""
     model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, gravity_sigma_rad(noise, accel_body_m_s2, gravity_m_s2))
     if noise.cauchy_k > 0:
         model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(noise.cauchy_k), model)
     return gtsam.AttitudeFactorPose3(pose_key, _UP, model, gtsam.Unit3(np.asarray(accel_body_m_s2, dtype=float)))
+
+CATALOGUE = (
+    SensorKind(
+        kind="accel",
+        summary="accelerometer: specific force (gravity up plus the body's acceleration)",
+        columns=("ax", "ay", "az"),
+        units=("m/s^2", "m/s^2", "m/s^2"),
+        frame="body (sensor) axes; at rest it reads +g along the body's up axis",
+        factors="gravity direction (Rot3/Pose3 AttitudeFactor) per keyframe, sigma widened as |a| departs from g, Cauchy kernel; "
+        "attitude9/gaze/bicycle: also the IMU factor's specific force",
+        keys=(
+            KeySpec("sigma_deg", 3.0, "head: gravity direction sigma at rest, degrees"),
+            KeySpec("inflation_deg_per_m_s2", 15.0, "head: extra sigma per m/s^2 that |a| departs from g, degrees"),
+        ),
+        magnitude=(Magnitude("median", 4.0, 20.0, "the median |a| should be near g = 9.81 m/s^2: in g? set units = 'g' or convert"),),
+        unit_conversions={"m/s^2": 1.0, "g": 9.80665},
+    ),
+)

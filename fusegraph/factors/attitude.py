@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray, rot3_from_quat_wxyz
 from .linear import ar1_coefficients, linear_factor
 
@@ -91,3 +92,24 @@ def gauss_markov_factor(prev_key: int, next_key: int, dt_s: float, sigma: float,
 def markov_prior_factor(key: int, sigma: float) -> gtsam.PriorFactorVector:
     """Stationary prior N(0, sigma^2) on the first state of a Markov process."""
     return gtsam.PriorFactorVector(key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+
+CATALOGUE = (
+    SensorKind(
+        kind="attitude",
+        summary="attitude tracker (magnetic/optical): world_R_body as a quaternion, possibly late (latency_s)",
+        columns=("qw", "qx", "qy", "qz"),
+        units=("-", "-", "-", "-"),
+        frame="world_R_body (scalar first)",
+        factors="PriorFactorRot3 on the state at the SAMPLE time (white noise) or a Gauss-Markov error chain; with latency_sigma_s "
+        "the latency is a variable",
+        keys=(
+            KeySpec("noise_sigma_deg", 0.4, "white noise per sample, degrees (> 0)"),
+            KeySpec("markov_sigma_deg", 0.0, "stationary sigma of the slowly varying error, degrees (0: white only)"),
+            KeySpec("markov_tau_s", 2.0, "correlation time of that error, s"),
+            KeySpec("latency_sigma_s", None, "when set, latency_s is only assumed and the latency is estimated with this prior sigma, s"),
+            KeySpec("latency_rw_s_per_sqrt_s", 0.0, "random walk of a drifting latency, s/sqrt(s)"),
+            KeySpec("latency_true_s", None, "simulations only: the true latency, for scoring (estimators never read it)"),
+        ),
+        unit_norm=True,
+    ),
+)

@@ -12,11 +12,14 @@ per sample.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import gtsam
 import numpy as np
 
+from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
 
 # gtsam's camera frame: z forward, x right, y down; ours (head): x forward, y left, z up
@@ -85,3 +88,31 @@ def wall_plane_prior(point_key: int, wall_x_m: float, noise: FixationNoise) -> g
     """The point lies on the wall x = wall_x_m (its other coordinates are free)."""
     sigmas = np.array([noise.plane_sigma_m, 100.0, 100.0])
     return gtsam.PriorFactorPoint3(point_key, np.array([wall_x_m, 0.0, 0.0]), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+def _pixels_in_view(values: FloatArray, keys: Mapping[str, Any]) -> str | None:
+    """Pixels (centred on the principal point) within two image sizes of the image."""
+    width, height = float(keys.get("width_px", 640)), float(keys.get("height_px", 480))
+    worst_u, worst_v = float(np.max(np.abs(values[:, 0]))), float(np.max(np.abs(values[:, 1])))
+    if worst_u > 2 * width or worst_v > 2 * height:
+        return (f"|u| up to {worst_u:.0f}, |v| up to {worst_v:.0f} px for a {width:.0f} x {height:.0f} image: pixels measured from the "
+                f"image centre (u right, v down) are expected; normalised or top-left coordinates, or another camera size?")
+    return None
+
+
+CATALOGUE = (
+    SensorKind(
+        kind="pixel",
+        summary="eye tracker: gaze point in the head-fixed scene camera image",
+        columns=("u", "v"),
+        units=("px", "px"),
+        frame="scene image, measured from the principal point (u right, v down)",
+        factors="GenericProjectionFactorCal3_S2 of the fixated world point into the scene camera at the sample's head pose",
+        keys=(
+            KeySpec("focal_px", 500.0, "focal length, px"),
+            KeySpec("width_px", 640, "image width, px"),
+            KeySpec("height_px", 480, "image height, px"),
+            KeySpec("pixel_sigma", 5.0, "gaze noise, px"),
+        ),
+        check=_pixels_in_view,
+    ),
+)

@@ -12,11 +12,13 @@ b_{k+1} - b_k ~ N(0, q dt) is then linear in (beta_k, beta_{k+1}, c): an exact
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
+from ..catalogue import KeySpec, Magnitude, SensorKind
 from ..geometry import FloatArray
 from .linear import linear_factor
 
@@ -171,3 +173,22 @@ def integrate_gyro(t: FloatArray, omega: FloatArray, start_quat_wxyz: FloatArray
         )
         out.append((w, x, y, z))
     return quat_normalize(np.array(out))
+
+CATALOGUE = (
+    SensorKind(
+        kind="gyro",
+        summary="rate gyroscope: angular velocity of the body; sample i covers (t[i-1], t[i]]",
+        columns=("wx", "wy", "wz"),
+        units=("rad/s", "rad/s", "rad/s"),
+        frame="body (sensor) axes",
+        factors="AHRSFactor per keyframe interval (PreintegratedAhrsMeasurements) with a bias random walk; "
+        "head: gyro scale/misalignment as a calibration variable unless calibrated = true",
+        keys=(
+            KeySpec("noise_sigma_rad_s", 0.015, "white noise per sample, rad/s (head, > 0)"),
+            KeySpec("bias_rw_sigma", 0.001, "bias random walk, rad/s/sqrt(s) (head, > 0)"),
+            KeySpec("calibrated", False, "true when scale factors and axes are already calibrated (head: else estimated)"),
+        ),
+        magnitude=(Magnitude("max", 0.0, 35.0, "above a 2000 deg/s full scale: degrees per second? set units = 'deg/s' or convert"),),
+        unit_conversions={"rad/s": 1.0, "deg/s": math.pi / 180.0},
+    ),
+)

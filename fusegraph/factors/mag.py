@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
 
 #: Magnetic north in the ENU world frame.
@@ -115,3 +116,19 @@ def heading_factor(pose_key: int, world_R_body: gtsam.Rot3, mag_body: FloatArray
     if cauchy_k > 0:
         model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(cauchy_k), model)
     return gtsam.AttitudeFactorPose3(pose_key, _NORTH, model, gtsam.Unit3(body_direction))
+
+CATALOGUE = (
+    SensorKind(
+        kind="mag",
+        summary="magnetometer: the local magnetic field (raw: gain and offset errors allowed)",
+        columns=("mx", "my", "mz"),
+        units=("any (uT, gauss or normalised; say which in unit)",) * 3,
+        frame="body (sensor) axes",
+        factors="heading from the tilt-compensated, calibrated field (AttitudeFactorPose3 to north with the vertical component free); "
+        "sigma grows with the field's norm and dip departures; Cauchy kernel against disturbances",
+        keys=(
+            KeySpec("calibration_gain", None, "per-axis gain [gx, gy, gz] (calibrated = gain * (raw - offset)); else fitted to a mag_cal stream"),
+            KeySpec("calibration_offset", None, "per-axis offset [ox, oy, oz], in the stream's unit"),
+        ),
+    ),
+)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..catalogue import SensorKind
 from ..geometry import FloatArray
 
 
@@ -126,3 +127,22 @@ def dead_reckon(start: gtsam.Pose3, motions: list[PlanarMotion]) -> list[gtsam.P
     for m in motions:
         poses.append(poses[-1].compose(gtsam.Pose3(gtsam.Rot3.Yaw(m.dyaw_rad), np.array([m.forward_m, m.left_m, m.up_m]))))
     return poses
+
+CATALOGUE = (
+    SensorKind(
+        kind="pose",
+        summary="absolute fix (image match): position and heading; some may be wrong",
+        columns=("x", "y", "z", "yaw"),
+        units=("m", "m", "m", "rad"),
+        frame="world (ENU); yaw from east, counter-clockwise",
+        factors="PriorFactorPose3 on the step state at the fix time with a robust (Cauchy) kernel",
+    ),
+    SensorKind(
+        kind="position",
+        summary="a position (truth of a walk or a gaze point, a motion-capture track)",
+        columns=("x", "y", "z"),
+        units=("m", "m", "m"),
+        frame="world (ENU unless the session says)",
+        factors="GPSFactor (position prior) where a system uses it as a measurement; otherwise truth for scoring",
+    ),
+)

@@ -18,6 +18,7 @@ from typing import Any
 import gtsam
 import numpy as np
 
+from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
 from .odometry import robust
 
@@ -71,3 +72,40 @@ def bias_walk(prev_key: int, next_key: int, windows: int, noise: RangeNoise) -> 
     """A beacon's bias in one window is its bias ``windows`` windows earlier, give or take a random walk."""
     sigma = noise.bias_walk_m * np.sqrt(max(windows, 1))
     return gtsam.BetweenFactorVector(prev_key, next_key, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, sigma))
+
+CATALOGUE = (
+    SensorKind(
+        kind="ranges",
+        summary="ultrasonic/UWB distances heard by known receivers, transmitter unknown: one row per distance, rows of one epoch share t",
+        columns=("receiver", "range_m"),
+        units=("index", "m"),
+        frame="receiver positions in the world frame (receivers_m)",
+        factors="ultrasonic: associated online (chi-square gate, assignment, multiple-model tracks); range rows of each track's point",
+        keys=(
+            KeySpec("receivers_m", None, "receiver positions [[x, y, z], ...], m (required)"),
+            KeySpec("transmitters", None, "how many transmitters emit each epoch (required)"),
+            KeySpec("sigma_m", 0.005, "range noise, m"),
+        ),
+        repeated_times=True,
+    ),
+    SensorKind(
+        kind="tag_position",
+        summary="positions of several tags per epoch (a motion-capture truth of ultrasonic/UWB tags): one row per tag",
+        columns=("tag", "x", "y", "z"),
+        units=("index", "m", "m", "m"),
+        frame="world (room) frame",
+        factors="none: truth for scoring",
+        repeated_times=True,
+    ),
+    SensorKind(
+        kind="beacon_ranges",
+        summary="ranges to known, identified beacons (Plaza)",
+        columns=("beacon", "range_m"),
+        units=("index", "m"),
+        frame="beacon positions in the world frame (beacons_m)",
+        factors="RangeFactor2D-style range from the state to the beacon with a robust kernel",
+        keys=(KeySpec("beacons_m", None, "beacon positions [[x, y], ...] or [[x, y, z], ...], m (required)"),
+              KeySpec("sigma_m", 1.0, "range noise, m")),
+        repeated_times=True,
+    ),
+)

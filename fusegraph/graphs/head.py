@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
+from ..factors.accel import GravityNoise, gravity_factor_rot3
 from ..factors.attitude import (
     AttitudeNoise,
     attitude_prior_factor,
@@ -103,6 +104,8 @@ class HeadModel:
     """Estimate the tracker latency as a variable around this prior (None: the stamps are exact)."""
     snap_tolerance_s: float = 5e-4
     """A tracker sample this close to a keyframe attaches to it without gyro correction, seconds."""
+    gravity: GravityNoise = field(default_factory=GravityNoise)
+    """Accelerometer gravity-direction noise, used when the session has an ``accel`` stream."""
 
 
 class HeadGraphBuilder:
@@ -114,6 +117,10 @@ class HeadGraphBuilder:
         self._pending = GraphIncrement()
         self._gyro_buffer: list[tuple[float, FloatArray]] = []
         self._tracker_waiting: list[tuple[float, FloatArray]] = []
+        self._accel_waiting: list[tuple[float, FloatArray]] = []
+        self._accel_keyframe = -1
+        self.accel_used = 0
+        """Accelerometer samples turned into gravity factors (one per keyframe, the one nearest it)."""
         self.keyframe_t: list[float] = []
         """Time of every keyframe so far, seconds."""
         self._keyframe_omega: dict[int, FloatArray] = {}  # pruned with the marginalised keyframes
@@ -168,6 +175,8 @@ class HeadGraphBuilder:
         else:
             self._partials.setdefault(self.latest_keyframe, []).append((t, self._interval.delta()))
         self._flush_waiting_tracker()
+        if self._accel_waiting:
+            self._flush_waiting_accel()
 
     def add_tracker(self, t: float, quat_wxyz: FloatArray) -> None:
         """A tracker attitude sample taken at time t (it may arrive much later)."""
@@ -176,6 +185,28 @@ class HeadGraphBuilder:
             self._try_start()
         else:
             self._flush_waiting_tracker()
+
+    def add_accel(self, t: float, accel_m_s2: FloatArray) -> None:
+        """An accelerometer sample (sample time t, m/s^2 in the head frame): gravity holds elevation and roll.
+
+        One gravity factor per keyframe, from the sample nearest the keyframe (within a quarter of a
+        keyframe period): consecutive samples share the head's sway, so more would not add much
+        information while every factor costs an update.
+        """
+        self._accel_waiting.append((t, np.asarray(accel_m_s2, dtype=float)))
+        if self.started:
+            self._flush_waiting_accel()
+
+    def _flush_waiting_accel(self) -> None:
+        window = 0.25 * self.model.keyframe_period_s
+        while self._accel_waiting and self._accel_waiting[0][0] <= self.keyframe_t[-1] + window:
+            t, accel = self._accel_waiting.pop(0)
+            i = bisect.bisect_left(self.keyframe_t, t - window)
+            if i >= len(self.keyframe_t) or abs(self.keyframe_t[i] - t) > window or i <= self._accel_keyframe or i < self.oldest_allowed_keyframe:
+                continue  # between keyframes (by design, see add_accel), or its keyframe is gone
+            self._pending.add(i, gravity_factor_rot3(X(i), accel, self.model.gravity))
+            self._accel_keyframe = i
+            self.accel_used += 1
 
     def set_latest(self, world_R_head: gtsam.Rot3, bias: FloatArray) -> None:
         """Feed back the solver's estimate of the newest keyframe (initial guesses, predictions)."""
@@ -439,6 +470,10 @@ def head_model_for(session: Session, model: HeadModel | None = None) -> HeadMode
             markov_tau_s=float(meta.get("markov_tau_s", tracker.markov_tau_s)),
         )
     calibration = None if gyro_meta.get("calibrated", False) else model.gyro_calibration
+    gravity = model.gravity
+    for accel in session.streams_of_kind("accel")[:1]:
+        gravity = replace(gravity, sigma_deg=float(accel.meta.get("sigma_deg", gravity.sigma_deg)),
+                          inflation_deg_per_m_s2=float(accel.meta.get("inflation_deg_per_m_s2", gravity.inflation_deg_per_m_s2)))
     latency = None
     if trackers and "latency_sigma_s" in trackers[0].meta:
         latency = LatencyPrior(
@@ -446,7 +481,7 @@ def head_model_for(session: Session, model: HeadModel | None = None) -> HeadMode
             sigma_s=float(trackers[0].meta["latency_sigma_s"]),
             random_walk_s_per_sqrt_s=float(trackers[0].meta.get("latency_rw_s_per_sqrt_s", 0.0)),
         )
-    return _with_gyro_rate(session, replace(model, gyro=gyro, tracker=tracker, gyro_calibration=calibration, latency=latency))
+    return _with_gyro_rate(session, replace(model, gyro=gyro, tracker=tracker, gyro_calibration=calibration, latency=latency, gravity=gravity))
 
 
 #: Floors for declared sensor noise (rad/s per sample; rad/s/sqrt(s)); see ``head_model_for``.

@@ -70,6 +70,16 @@ class HeadScenarioConfig:
     """Realistic profile: time constant of that error, seconds."""
     tracker_drop_fraction: float = 0.02
     """Fraction of tracker samples dropped at random (dropouts)."""
+    sensors: tuple[str, ...] = ("gyro", "tracker")
+    """Streams to write: ``gyro`` and ``tracker`` (the paper's pair), optionally ``accel`` (the head IMU's accelerometer)."""
+    tracker_gap_s: tuple[float, float] | None = None
+    """A tracker dropout: no tracker sample taken in [start, end) seconds (None: none)."""
+    accel_white_sigma_m_s2: float = 0.05
+    """Accelerometer white noise per sample, m/s^2."""
+    accel_bias_m_s2: float = 0.05
+    """Largest accelerometer bias per axis, m/s^2 (constant, uniform in +-)."""
+    head_accel_m_s2: float = 0.5
+    """Typical translational acceleration of the head (sum of sways), m/s^2: what the accelerometer sees besides gravity."""
 
 
 def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **overrides: object) -> Session:
@@ -112,6 +122,15 @@ def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **ove
     quat_tracker = quat_multiply(quat_true[tracker_idx], quat_from_rotvec(error))
     keep = rng.random(n_tracker) >= cfg.tracker_drop_fraction
     keep[0] = True  # the session starts with a tracker fix, as a real tracker reports at power-up
+    if cfg.tracker_gap_s is not None:
+        gap_start, gap_end = cfg.tracker_gap_s
+        if not 0.0 < gap_start < gap_end:
+            raise ValueError(f"tracker gap {gap_start}:{gap_end} s: need 0 < start < end")
+        stamps_all = t_gyro[tracker_idx]
+        keep &= ~((stamps_all >= gap_start) & (stamps_all < gap_end))
+    unknown = set(cfg.sensors) - {"gyro", "tracker", "accel"}
+    if unknown or not {"gyro", "tracker"} <= set(cfg.sensors):
+        raise ValueError(f"head sensors {','.join(cfg.sensors)}: gyro and tracker are required, accel optional (unknown: {', '.join(sorted(unknown)) or '-'})")
 
     gyro = Stream(
         "gyro", "gyro", t_gyro, omega_meas, KIND_COLUMNS["gyro"], 0.0,
@@ -145,7 +164,34 @@ def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **ove
             "profile": cfg.profile,
         }
     }
-    return Session("head", {"gyro": gyro, "tracker": tracker}, truth, meta)
+    streams = {"gyro": gyro, "tracker": tracker}
+    if "accel" in cfg.sensors:
+        streams = {"gyro": gyro, "accel": _accelerometer(seed, t_gyro, quat_true, cfg), "tracker": tracker}
+    return Session("head", streams, truth, meta)
+
+
+GRAVITY_M_S2 = 9.80665
+
+
+def _accelerometer(seed: int, t: FloatArray, quat_true: FloatArray, cfg: HeadScenarioConfig) -> Stream:
+    """The head IMU's accelerometer: specific force (gravity up plus the head's sway) in the head frame.
+
+    Its own random stream (seed, 1), so that adding it leaves every other draw of the session unchanged.
+    """
+    from ..geometry import matrix_from_quat
+
+    rng = np.random.default_rng([seed, 1])
+    sway = np.zeros((t.size, 3))
+    for axis in range(3):
+        for _ in range(3):
+            freq = rng.uniform(0.2, 2.0)
+            sway[:, axis] += cfg.head_accel_m_s2 / np.sqrt(3) * rng.uniform(0.3, 1.0) * np.sin(2 * np.pi * freq * t + rng.uniform(0, 2 * np.pi))
+    force_world = sway + np.array([0.0, 0.0, GRAVITY_M_S2])
+    world_R_head = matrix_from_quat(quat_true)
+    force_body = np.einsum("nji,nj->ni", world_R_head, force_world)
+    bias = rng.uniform(-cfg.accel_bias_m_s2, cfg.accel_bias_m_s2, 3)
+    measured = force_body + bias + rng.normal(0.0, cfg.accel_white_sigma_m_s2, force_body.shape)
+    return Stream("accel", "accel", t.copy(), measured, KIND_COLUMNS["accel"], 0.0, {"rate_hz": cfg.gyro_rate_hz, "frame": "head"})
 
 
 def _head_motion(rng: np.random.Generator, t: FloatArray, cfg: HeadScenarioConfig) -> tuple[FloatArray, FloatArray]:

@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import gtsam
 import numpy as np
 
 from ..frontends.association import assign_ranges, assign_receivers, locate
@@ -543,3 +544,47 @@ def format_ultrasonic_table(result: dict[str, object]) -> str:
     else:
         lines.append(f"uwb: {result.get('uwb_status', 'not run')} (--uwb DIR)")
     return "\n".join(lines)
+
+
+def smooth_tracks(epochs: RangeEpochs, run: TrackingRun, speed_sigma_m_s: float = 0.5, cauchy_k: float = 3.0) -> TrackingRun:
+    """The batch: every transmitter's track smoothed over the whole session with the association the
+    online pass made (its labels), in one gtsam graph solved by Levenberg-Marquardt.
+
+    Per transmitter and epoch where the online pass tracked it, a Point3; consecutive ones are tied
+    by a position random walk (``speed_sigma_m_s`` x sqrt(dt): objects handled by people, see the
+    scenario); each assigned distance is a ``RangeFactor3`` to its receiver (a Point3 pinned by a
+    ``NonlinearEqualityPoint3``) with a Cauchy kernel. Epochs where a track was lost stay NaN.
+    """
+    start = time.perf_counter()
+    k_count, n = run.positions.shape[:2]
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    receiver_keys = [int(gtsam.symbol("r", r)) for r in range(len(epochs.receivers))]
+    for key, position in zip(receiver_keys, epochs.receivers, strict=True):
+        values.insert(key, position)
+        graph.add(gtsam.NonlinearEqualityPoint3(key, position))
+    noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(cauchy_k), gtsam.noiseModel.Isotropic.Sigma(1, epochs.range_sigma_m))
+    have = np.all(np.isfinite(run.positions), axis=2)
+    keys = np.array([[int(gtsam.symbol(chr(ord("A") + j), k)) for j in range(n)] for k in range(k_count)]) if n <= 26 else None
+    if keys is None:
+        raise ValueError(f"smooth_tracks: at most 26 transmitters (got {n})")
+    for k in range(k_count):
+        for j in np.nonzero(have[k])[0]:
+            values.insert(int(keys[k, j]), run.positions[k, j])
+            if k > 0 and have[k - 1, j]:
+                dt = float(epochs.t[k] - epochs.t[k - 1])
+                walk = gtsam.noiseModel.Isotropic.Sigma(3, speed_sigma_m_s * np.sqrt(dt))
+                graph.add(gtsam.BetweenFactorPoint3(int(keys[k - 1, j]), int(keys[k, j]), np.zeros(3), walk))
+        for r, labels in enumerate(run.labels[k]):
+            for distance, j in zip(epochs.ranges[k][r], labels, strict=True):
+                if j >= 0 and have[k, j]:
+                    graph.add(gtsam.RangeFactor3(int(keys[k, j]), receiver_keys[r], float(distance), noise))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(20)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    positions = np.full_like(run.positions, np.nan)
+    for k, j in zip(*np.nonzero(have), strict=True):
+        positions[k, j] = result.atPoint3(int(keys[k, j]))
+    seconds = time.perf_counter() - start
+    times = np.full(k_count, 1e3 * seconds / max(k_count, 1))
+    return TrackingRun(positions, run.labels, times, {**run.extras, "batch_s": seconds})

@@ -1,0 +1,552 @@
+"""Systems as presets of one backend: what each system reads, which solvers it has, how it is scored.
+
+A ``Preset`` says, for one system: the streams and session keys it reads (documented, checked:
+a misspelled key is an error naming the nearest), its solvers (every one ``Session -> Estimate``
+or ``PointEstimate``: ``online``, ``batch`` and its paper's baseline, plus others), how an
+estimate is scored when the session has truth (one flat dict of metrics), how a session is
+simulated, and how a result is pictured. The CLI is generic over ``PRESETS``: no per-system branch.
+
+The graph builders behind the solvers stay where a measured special case needs one (head's
+ordering, attitude9's two-pass magnetometer, the cyclist's QR); what is common (catalogue, loading,
+replay, scoring, files, plots, studies) is one piece.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..catalogue import CatalogueError, KeySpec, check_keys
+from ..estimate import Estimate, PointEstimate, Result
+from ..session import Session, SessionError
+
+SolverFn = Callable[[Session], Result]
+"""A method: a session in, an estimate out."""
+
+
+@dataclass(frozen=True)
+class Preset:
+    """One system: its streams, keys, solvers, scoring, simulation and picture."""
+
+    name: str
+    """System name, as written in ``[session] system``."""
+    summary: str
+    """One line: what it estimates from which sensors."""
+    streams: str
+    """The streams it reads (names and kinds), as documentation."""
+    session_keys: tuple[KeySpec, ...]
+    """Keys of ``[session]`` (and, written ``table.key``, of other top-level tables) it reads."""
+    solvers: Mapping[str, str]
+    """Solver name -> one line saying what it is; ``online`` and ``batch`` always, the paper's baseline by its name."""
+    run: Callable[[Session, str], Result]
+    """Run a solver by name."""
+    score: Callable[[Session, Result], dict[str, Any] | None]
+    """Metrics of an estimate against the session's truth (None without truth)."""
+    simulate: Callable[..., Session]
+    """``simulate(seed, duration_s=None, **options) -> Session`` with truth."""
+    default_duration_s: float
+    """Seconds ``simulate`` writes when no duration is given."""
+    min_duration_s: float = 1.0
+    """Shortest simulation the system's scoring can use, seconds."""
+    estimate_name: str = "estimate"
+    """Stem of the default output file (``<stem>_<solver>.csv``)."""
+    picture: Callable[[Session, list[Result], Path], list[Path]] | None = None
+    """Figures of estimates of one session (``view`` and ``run --plot``)."""
+    metric_keys: tuple[str, ...] = ()
+    """Scalar metrics a study summarises (keys of ``score``'s result, flattened with dots)."""
+    simulate_options: tuple[str, ...] = ()
+    """Options of ``simulate`` beyond seed and duration that the CLI may pass (others are an error)."""
+    notes: tuple[str, ...] = field(default_factory=tuple)
+    """Further lines of documentation (``fusegraph sensors``)."""
+
+    def check_session(self, session: Session) -> None:
+        """Top-level keys of session.toml against this preset's (a misspelled key names the nearest)."""
+        where = f"{session.path / 'session.toml'}" if session.path else f"{self.name} session"
+        tables: dict[str, list[str]] = {"session": ["system", "description", "world_frame", "scenario", "seed", "profile", "dataset", "trial"]}
+        for spec in self.session_keys:
+            table, _, key = spec.name.rpartition(".")
+            tables.setdefault(table or "session", []).append(key)
+        for name, table in session.meta.items():
+            if name not in tables:
+                raise SessionError(f"{where}: unknown table [{name}] for system '{self.name}' (known: {', '.join(f'[{t}]' for t in tables)})")
+            if isinstance(table, Mapping):
+                try:
+                    check_keys(table, tables[name], f"{where}: [{name}]")
+                except CatalogueError as err:
+                    raise SessionError(str(err)) from None
+
+    def solve(self, session: Session, solver: str) -> Result:
+        """Run ``solver`` on ``session``; an unknown solver is an error listing this system's."""
+        if solver not in self.solvers:
+            raise SessionError(f"--solver {solver}: {self.name} sessions have {', '.join(self.solvers)}")
+        return self.run(session, solver)
+
+
+def flatten(metrics: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
+    """Nested metrics as ``a.b`` -> number (lists and strings are left out)."""
+    out: dict[str, float] = {}
+    for key, value in metrics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten(value, name + "."))
+        elif isinstance(value, bool):
+            continue
+        elif isinstance(value, int | float) and value is not None:
+            out[name] = float(value)
+    return out
+
+
+# ------------------------------------------------------------------------------------- head
+
+
+def _head_run(session: Session, solver: str) -> Result:
+    from . import head
+
+    return head.run_method(session, {"online": "isam2", "ekf": "method2"}.get(solver, solver))
+
+
+def _head_score(session: Session, estimate: Result) -> dict[str, Any] | None:
+    from ..metrics import AXES, score_attitude
+
+    truth = session.truth
+    if truth is None or not isinstance(estimate, Estimate):
+        return None
+    if estimate.t.shape != truth.t.shape or not np.allclose(estimate.t, truth.t):
+        return None
+    score = score_attitude(estimate, truth.t, truth.values)
+    out: dict[str, Any] = {
+        "rms_deg": dict(zip(AXES, (float(v) for v in np.rad2deg(score.rms_rad)), strict=True)),
+        "rms_rad": dict(zip(AXES, (float(v) for v in score.rms_rad), strict=True)),
+        "nees": score.nees,
+    }
+    trackers = session.streams_of_kind("attitude")
+    gaps = trackers[0].gaps() if trackers else []
+    if gaps:
+        out["gap_rms_deg"] = gap_rms_deg(estimate, truth.t, truth.values, gaps)
+        out["gaps_s"] = [[a, b] for a, b in gaps]
+    return out
+
+
+def gap_rms_deg(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, gaps: list[tuple[float, float]]) -> dict[str, float]:
+    """RMS per axis (deg) over the truth samples strictly inside the tracker's gaps."""
+    from ..metrics import AXES, euler_errors
+
+    inside = np.zeros(len(truth_t), dtype=bool)
+    for a, b in gaps:
+        inside |= (truth_t > a) & (truth_t < b)
+    errors = np.rad2deg(euler_errors(estimate.quat_wxyz[inside], truth_quat[inside]))
+    # a method with no estimate inside the gap fails there (NaN), it does not escape it
+    rms = np.sqrt(np.mean(errors**2, axis=0)) if inside.any() else np.full(3, np.nan)
+    return dict(zip(AXES, (float(v) for v in rms), strict=True))
+
+
+def _head_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
+    from ..scenarios.head import simulate_head
+
+    return simulate_head(seed, duration_s=duration_s or 10.0, **options)
+
+
+def _attitude_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
+    """Attitude axes with 3-sigma bands against the truth (or the first estimate without truth)."""
+    from ..plots import plot_attitude_axes
+
+    attitude = [e for e in estimates if isinstance(e, Estimate)]
+    truth = session.truth
+    if truth is not None and truth.kind == "attitude":
+        t, q = truth.t, truth.values
+    else:
+        t, q = attitude[0].t, attitude[0].quat_wxyz
+    name = "_".join(e.method for e in attitude)
+    title = f"{session.system}: {', '.join(e.method for e in attitude)}" + ("" if truth is not None else " (no truth)")
+    return [plot_attitude_axes(t, q, attitude, out / f"attitude_{name}.png", title=title)]
+
+
+def _head_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
+    from ..view import head_scene, write_head_scene
+
+    written = _attitude_picture(session, estimates, out)
+    first = estimates[0]
+    assert isinstance(first, Estimate)
+    truth = session.truth
+    scene = head_scene(first, truth.t if truth else None, truth.values if truth else None, title=f"{session.system}: {first.method}: 3D view")
+    return written + write_head_scene(scene, out)
+
+
+# --------------------------------------------------------------------------------- attitude9
+
+
+def _attitude9_run(session: Session, solver: str) -> Result:
+    from . import attitude9
+
+    return attitude9.METHODS[solver](session)
+
+
+def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | None:
+    from ..datasets.broad import broad_errors
+
+    truth = session.truth
+    if truth is None or not isinstance(estimate, Estimate) or estimate.t.shape != truth.t.shape:
+        return None
+    movement = session.stream("movement").values[:, 0] if "movement" in session.streams else np.ones(len(estimate.t))
+    errors = broad_errors(estimate.quat_wxyz, truth.values, movement)
+    return {"total_deg": errors.total, "heading_deg": errors.heading, "inclination_deg": errors.inclination}
+
+
+def _attitude9_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
+    from ..scenarios.attitude9 import simulate_attitude9
+
+    return simulate_attitude9(seed, duration_s=duration_s or 10.0, **options)
+
+
+# -------------------------------------------------------------------------------------- gaze
+
+
+def _gaze_run(session: Session, solver: str) -> Result:
+    from . import gaze
+
+    data = gaze.from_session(session)
+    point, seconds = gaze.RUNNERS[solver](data)  # type: ignore[operator]
+    return PointEstimate(solver, data.tracker_t.copy(), np.asarray(point)[:, None, :], ("X_m", "Z_m"), float(seconds))
+
+
+def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
+    from . import gaze
+
+    data = gaze.from_session(session)
+    if not np.isfinite(data.truth_gaze_xz_m).any() or not isinstance(estimate, PointEstimate):
+        return None
+    return {"rms": gaze.rms_mm(estimate.points[:, 0, :], data)}
+
+
+def _gaze_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
+    from ..scenarios.gaze import gaze_session
+
+    return gaze_session(seed, duration_s=duration_s or 40.0, **options)
+
+
+def _gaze_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
+    """The gaze point on the wall (X right, Z up), each estimate against the truth."""
+    import matplotlib.pyplot as plt
+
+    from ..plots import save_figure
+
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
+    truth = session.truth
+    if truth is not None:
+        axes[0].plot(truth.values[:, 1], truth.values[:, 2], color="black", lw=2, label="truth")
+    for e in estimates:
+        if isinstance(e, PointEstimate):
+            axes[0].plot(e.points[:, 0, 0], e.points[:, 0, 1], lw=0.8, label=e.method)
+            if truth is not None and len(truth.t) == len(e.t):
+                axes[1].plot(e.t, 1000 * np.linalg.norm(e.points[:, 0, :] - truth.values[:, 1:3], axis=1), lw=0.8, label=e.method)
+    axes[0].set(xlabel="wall X = world y [m]", ylabel="wall Z = world z [m]", title="gaze point on the wall", aspect="equal")
+    axes[1].set(xlabel="time [s]", ylabel="error [mm]", title="distance to the true gaze point", yscale="log")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    return [save_figure(fig, out / f"gaze_{'_'.join(e.method for e in estimates)}.png")]
+
+
+# ----------------------------------------------------------------------------------- bicycle
+
+_BICYCLE_SOLVERS = {"online": "online", "batch": "batch", "ekf": "paper_pipeline", "paper_pipeline": "paper_pipeline", "no_removal": "no_removal"}
+
+
+def _bicycle_run(session: Session, solver: str) -> Result:
+    from . import bicycle
+
+    ride = bicycle.from_session(session)
+    start = time.perf_counter()
+    quat = bicycle.RUNNERS[_BICYCLE_SOLVERS[solver]](ride)  # type: ignore[operator]
+    return Estimate(solver, ride.t.copy(), quat, None, time.perf_counter() - start)
+
+
+def _bicycle_score(session: Session, estimate: Result) -> dict[str, Any] | None:
+    from . import bicycle
+
+    ride = bicycle.from_session(session)
+    if not isinstance(estimate, Estimate) or not np.isfinite(ride.thigh_quat_wxyz).all() or not np.isfinite(ride.config.brake_s):
+        return None
+    return {"rms": bicycle.braking_rms_deg(estimate.quat_wxyz, ride)}
+
+
+def _bicycle_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
+    from ..scenarios.bicycle import bicycle_session
+
+    return bicycle_session(seed, duration_s=duration_s or 40.0, **options)
+
+
+# ----------------------------------------------------------------------------------- walking
+
+
+def _walking_run(session: Session, solver: str) -> Result:
+    from . import walking
+
+    walk, speed = walking.from_session(session)
+    cycles, rides, events = walking.analyse(walk, speed)
+    if solver == "dead_reckoning":
+        run = walking.run_dead_reckoning(walk, events)
+    else:
+        run = {"online": walking.run_online, "batch": walking.run_batch, "ekf": walking.run_ekf}[solver](walk, events, walk.fixes.pose)
+    activity = {a: sum(c.activity == a for c in cycles) for a in ("flat", "stairs_up", "stairs_down")}
+    return PointEstimate(solver, run.t, run.xyz[:, None, :], ("x", "y", "z"), run.seconds, {"steps": len(cycles), "activity": activity, "rides": len(rides)})
+
+
+def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
+    from . import walking
+
+    walk, _ = walking.from_session(session)
+    if not np.isfinite(walk.truth_xyz_m).all() or not isinstance(estimate, PointEstimate):
+        return None
+    return walking.score(walking.WalkRun(estimate.method, estimate.t, estimate.points[:, 0, :], estimate.runtime_s), walk)
+
+
+def _walking_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
+    from ..scenarios.walking import walking_session
+
+    session = walking_session(seed, **options)
+    if duration_s is not None:
+        session = _clip(session, duration_s)
+    return session
+
+
+def _walking_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
+    """The walk per floor (top views), each estimate against the truth."""
+    import matplotlib.pyplot as plt
+
+    from ..plots import save_figure
+
+    height = float(session.meta.get("building", {}).get("floor_height_m", 3.5))
+    truth = session.truth
+    tracks = [(e.method, e.points[:, 0, :]) for e in estimates if isinstance(e, PointEstimate)]
+    all_z = np.concatenate([xyz[:, 2] for _, xyz in tracks] + ([truth.values[:, 2]] if truth is not None else []))
+    floors = sorted(set(np.round(all_z[np.isfinite(all_z)] / height).astype(int).tolist())) or [0]
+    fig, axes = plt.subplots(1, len(floors), figsize=(5 * len(floors), 5), squeeze=False)
+    for ax, floor in zip(axes[0], floors, strict=True):
+        if truth is not None:
+            on = np.round(truth.values[:, 2] / height) == floor
+            ax.plot(np.where(on, truth.values[:, 0], np.nan), np.where(on, truth.values[:, 1], np.nan), color="black", lw=2, label="truth")
+        for name, xyz in tracks:
+            on = np.round(xyz[:, 2] / height) == floor
+            ax.plot(np.where(on, xyz[:, 0], np.nan), np.where(on, xyz[:, 1], np.nan), lw=1, marker=".", ms=2, label=name)
+        ax.set(title=f"floor {floor}", xlabel="x east [m]", ylabel="y north [m]", aspect="equal")
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    return [save_figure(fig, out / f"walk_{'_'.join(n for n, _ in tracks)}.png")]
+
+
+# -------------------------------------------------------------------------------- ultrasonic
+
+
+def _ultrasonic_run(session: Session, solver: str) -> Result:
+    from ..datasets.ultrasonic_session import epochs_from_session
+    from . import ultrasonic
+
+    epochs = epochs_from_session(session)
+    n = int(session.streams_of_kind("ranges")[0].meta["transmitters"])
+    start = time.perf_counter()
+    if solver == "combinatorial":
+        run = ultrasonic.run_combinatorial(epochs, n)
+    else:
+        run = ultrasonic.run_fusegraph(epochs, n)
+        if solver == "batch":
+            run = ultrasonic.smooth_tracks(epochs, run)
+    seconds = time.perf_counter() - start
+    return PointEstimate(solver, epochs.t.copy(), run.positions, ("x", "y", "z"), seconds, {"labels": run.labels, "ms_per_epoch": run.ms_per_epoch})
+
+
+def _ultrasonic_score(session: Session, estimate: Result) -> dict[str, Any] | None:
+    from dataclasses import asdict
+
+    from ..datasets.ultrasonic_session import epochs_from_session
+    from . import ultrasonic
+
+    epochs = epochs_from_session(session)
+    if epochs.labels is None or epochs.positions is None or not isinstance(estimate, PointEstimate):
+        return None
+    score = ultrasonic.score_run(epochs, estimate.extras["labels"], estimate.points)
+    out: dict[str, Any] = asdict(score)
+    out["ms_per_epoch"] = float(np.mean(estimate.extras["ms_per_epoch"]))
+    return out
+
+
+def _ultrasonic_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
+    from ..datasets.ultrasonic_session import session_from_epochs
+    from ..scenarios.ultrasonic import simulate_ultrasonic
+
+    epochs = simulate_ultrasonic(seed, duration_s=duration_s or 10.0, **options)
+    return session_from_epochs(epochs, {"scenario": "ultrasonic", "seed": seed})
+
+
+def _ultrasonic_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
+    """The receivers and every tag's track in 3D, and each tag's error over time."""
+    import matplotlib.pyplot as plt
+
+    from ..datasets.ultrasonic_session import epochs_from_session
+    from ..plots import save_figure
+    from .ultrasonic import identity_map
+
+    epochs = epochs_from_session(session)
+    fig = plt.figure(figsize=(14, 6))
+    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
+    ax3.scatter(*epochs.receivers.T, marker="s", color="grey", label="receivers")
+    if epochs.positions is not None:
+        for j in range(epochs.positions.shape[1]):
+            ax3.plot(*epochs.positions[:, j].T, color="black", lw=1.5, label="truth" if j == 0 else None)
+    ax2 = fig.add_subplot(1, 2, 2)
+    for e in estimates:
+        if not isinstance(e, PointEstimate):
+            continue
+        for j in range(e.points.shape[1]):
+            (line,) = ax3.plot(*e.points[:, j].T, lw=0.8, label=f"{e.method}" if j == 0 else None)
+        if epochs.positions is not None:
+            errors = []
+            for k in range(len(e.t)):
+                mapping = identity_map(e.points[k], epochs.positions[k])
+                matched = np.full_like(epochs.positions[k], np.nan)
+                matched[mapping[mapping >= 0]] = e.points[k][mapping >= 0]
+                errors.append(np.linalg.norm(matched - epochs.positions[k], axis=1))
+            ax2.plot(e.t, 1000 * np.array(errors), lw=0.6, color=line.get_color())
+    ax3.set(xlabel="x [m]", ylabel="y [m]", zlabel="z [m]", title="tags and receivers")
+    ax3.legend(fontsize=8)
+    ax2.set(xlabel="time [s]", ylabel="error per tag [mm]", yscale="log", title="position error (each tag matched to the truth)")
+    ax2.grid(alpha=0.3)
+    return [save_figure(fig, out / f"tags_{'_'.join(e.method for e in estimates)}.png")]
+
+
+# ------------------------------------------------------------------------------------ shared
+
+
+def _clip(session: Session, duration_s: float) -> Session:
+    """The session's first ``duration_s`` seconds (every stream and the truth)."""
+    from dataclasses import replace
+
+    t0 = min(float(s.t[0]) for s in session.streams.values())
+    keep = {name: s.select(s.t <= t0 + duration_s) for name, s in session.streams.items()}
+    truth = session.truth.select(session.truth.t <= t0 + duration_s) if session.truth is not None else None
+    return replace(session, streams=keep, truth=truth)
+
+
+PRESETS: dict[str, Preset] = {
+    "head": Preset(
+        name="head",
+        summary="HMD head attitude at the gyro rate from a gyro and a ~100 ms late magnetic tracker (optionally the IMU's accelerometer)",
+        streams="gyro (kind gyro), tracker (kind attitude, latency_s), optional accel (kind accel)",
+        session_keys=(),
+        solvers={"online": "iSAM2, causal estimate at every gyro sample", "batch": "smoother over the whole session",
+                 "ekf": "the paper's Method II (joint update)", "method1": "the paper's Method I (sequential updates)",
+                 "kalman": "the paper's tracker-only Kalman filter", "tracker": "the latest arrived tracker sample", "gyro": "dead reckoning"},
+        run=_head_run,
+        score=_head_score,
+        simulate=_head_simulate,
+        default_duration_s=10.0,
+        picture=_head_picture,
+        metric_keys=("rms_deg.azimuth", "rms_deg.elevation", "rms_deg.roll", "nees"),
+        simulate_options=("profile", "tracker_latency_s", "tracker_latency_assumed_s", "sensors", "tracker_gap_s"),
+    ),
+    "attitude9": Preset(
+        name="attitude9",
+        summary="9-axis attitude from gyro, accelerometer (gravity) and magnetometer (heading, calibrated, disturbances rejected)",
+        streams="gyro, accel, mag sampled together (kinds gyro, accel, mag); optional mag_cal (a calibration recording), movement (kind flag)",
+        session_keys=(KeySpec("truth_extra.disturbance_s", None, "simulations: when the field is disturbed (documentation)"),
+                      KeySpec("truth_extra.gyro_bias_rad_s", None, "simulations: the true gyro bias (documentation)"),
+                      KeySpec("truth_extra.mag_gain", None, "simulations: the true magnetometer gain (documentation)"),
+                      KeySpec("truth_extra.mag_offset_uT", None, "simulations: the true magnetometer offset (documentation)")),
+        solvers={"online": "iSAM2 causal", "batch": "smoother (two passes: the field model from the first)", "ekf": "the papers' 9-axis EKF on roll-pitch-yaw",
+                 "vqf": "VQF online (the peer)", "vqf_offline": "VQF offline (the peer)"},
+        run=_attitude9_run,
+        score=_attitude9_score,
+        simulate=_attitude9_simulate,
+        default_duration_s=10.0,
+        picture=_attitude_picture,
+        metric_keys=("total_deg", "heading_deg", "inclination_deg"),
+        simulate_options=("profile",),
+    ),
+    "gaze": Preset(
+        name="gaze",
+        summary="the gaze point on a wall in world coordinates from a head 9-axis IMU and an eye tracker's scene-image gaze pixels",
+        streams="gyro, accel, mag sampled together; gaze (kind pixel, with the scene camera's focal_px, width_px, height_px, pixel_sigma)",
+        session_keys=(KeySpec("wall_m", None, "distance from the head to the wall along world +x, m (required)"),
+                      KeySpec("switch_s", None, "simulations: when the subject switches to the second mark, s (documentation)")),
+        solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)"},
+        run=_gaze_run,
+        score=_gaze_score,
+        simulate=_gaze_simulate,
+        default_duration_s=40.0,
+        min_duration_s=5.0,
+        estimate_name="gaze",
+        picture=_gaze_picture,
+        metric_keys=("rms.x_mm", "rms.z_mm"),
+    ),
+    "bicycle": Preset(
+        name="bicycle",
+        summary="a cyclist's thigh attitude from 9-axis IMUs on the thigh and the bicycle frame (the frame's acceleration removed)",
+        streams="thigh_gyro, thigh_accel, thigh_mag, frame_gyro, frame_accel, frame_mag, all sampled together",
+        session_keys=(KeySpec("ride", "downhill", "downhill or indoor (documentation)"),
+                      KeySpec("brake_s", None, "start of the braking phase that the report scores, s")),
+        solvers={"online": "iSAM2 causal, both bodies in one graph", "batch": "smoother", "ekf": "the paper's pipeline (frame EKF -> subtract -> thigh EKF)",
+                 "paper_pipeline": "same as ekf", "no_removal": "the thigh EKF alone"},
+        run=_bicycle_run,
+        score=_bicycle_score,
+        simulate=_bicycle_simulate,
+        default_duration_s=40.0,
+        min_duration_s=35.0,
+        picture=_attitude_picture,
+        metric_keys=("rms.pitch_deg", "rms.roll_deg"),
+        notes=("the report scores the braking phase brake_s .. brake_s + 5 s: a simulation shorter than 35 s has none",),
+    ),
+    "walking": Preset(
+        name="walking",
+        summary="a walker's 3D trajectory over floors from a waist IMU (PDR steps, stairs, elevator) and image-match fixes (some wrong)",
+        streams="gyro, accel sampled together (waist IMU); optional fixes (kind pose)",
+        session_keys=(KeySpec("start_pose", None, "[x, y, z, yaw] of the known start (required)"),
+                      KeySpec("building.floor_height_m", 3.5, "m"), KeySpec("building.floors", 3, "count"),
+                      KeySpec("building.elevator_xy_m", None, "[x, y] of the elevator, m"), KeySpec("building.stairs_foot_xy_m", None, "[x, y], m"),
+                      KeySpec("building.riser_m", 0.175, "stair riser, m"), KeySpec("building.tread_m", 0.28, "stair tread, m"),
+                      KeySpec("speed_model.intercept_m_s", None, "walking speed = intercept + slope x peak-to-peak acceleration (required: a person's own)"),
+                      KeySpec("speed_model.slope_s", None, "see intercept_m_s (required)")),
+        solvers={"online": "iSAM2 causal", "batch": "smoother (wrong fixes rejected at 5 sigma, solved again)", "ekf": "the paper's Kalman framework",
+                 "dead_reckoning": "steps and rides only"},
+        run=_walking_run,
+        score=_walking_score,
+        simulate=_walking_simulate,
+        default_duration_s=float("nan"),
+        min_duration_s=20.0,
+        estimate_name="trajectory",
+        picture=_walking_picture,
+        metric_keys=("rmse_m", "final_error_m"),
+    ),
+    "ultrasonic": Preset(
+        name="ultrasonic",
+        summary="every ultrasonic/UWB tag's 3D position at the full rate from unlabelled distances heard by known receivers",
+        streams="ranges (kind ranges: t, receiver, range_m per distance heard; receivers_m, transmitters, sigma_m)",
+        session_keys=(),
+        solvers={"online": "association + multiple-model tracks per epoch", "batch": "the tracks smoothed over the session with the online association",
+                 "combinatorial": "the paper's combinatorial search per epoch"},
+        run=_ultrasonic_run,
+        score=_ultrasonic_score,
+        simulate=_ultrasonic_simulate,
+        default_duration_s=10.0,
+        estimate_name="tags",
+        picture=_ultrasonic_picture,
+        metric_keys=("assoc_acc", "assoc_acc_unambiguous", "rmse_m", "lost_frac"),
+        simulate_options=("transmitters",),
+    ),
+}
+"""Every system by name."""
+
+
+def preset_for(session: Session) -> Preset:
+    """The preset of a session's system (an error lists the systems)."""
+    try:
+        preset = PRESETS[session.system]
+    except KeyError:
+        where = f"{session.path / 'session.toml'}: " if session.path else ""
+        raise SessionError(f"{where}[session] system = '{session.system}' is not one of {', '.join(PRESETS)}") from None
+    preset.check_session(session)
+    return preset
