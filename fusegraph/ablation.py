@@ -39,11 +39,20 @@ HEAD_PARAMETERS: dict[str, str] = {
     "gyro_bias_rw": "gyro_bias_rw_sigma",
     "tracker_markov_sigma_deg": "tracker_gm_sigma_deg",
 }
-SENSORS = {"head": ("tracker", "gyro")}
+SENSORS = {"head": ("tracker", "gyro", "accel")}
+"""Head streams with their own drop semantics (see the module docstring); other systems drop any stream by name."""
 SOLVERS = ("ekf", "online", "batch")
 METRIC_COLUMNS = ("rms_azimuth_rad", "rms_elevation_rad", "rms_roll_rad", "nees")
 COLUMNS = ("key", "system", "variant", "drop", "params", "seed", "solver", "profile", "duration_s", "status", "error",
-           *METRIC_COLUMNS, "solver_s", "run_s")
+           *METRIC_COLUMNS, "solver_s", "run_s", "metrics")
+
+
+def _baseline_solver(system: str) -> str:
+    """The paper's baseline of a system as a solver name."""
+    from .systems.presets import PRESETS
+
+    solvers = PRESETS[system].solvers
+    return "ekf" if "ekf" in solvers else next(s for s in solvers if s not in ("online", "batch"))
 
 
 @dataclass(frozen=True)
@@ -74,26 +83,35 @@ class Study:
     """Parameter grids, crossed with each other and with every sensor variant."""
     seeds: tuple[int, ...] = (0,)
     """Seeds of the simulated sessions."""
-    solvers: tuple[str, ...] = SOLVERS
-    """Solvers: ``ekf`` (the paper's Method II for head), ``online`` (iSAM2), ``batch``."""
-    duration_s: float = 10.0
-    """Seconds of data per session."""
+    solvers: tuple[str, ...] = ()
+    """Solvers (any of the system's; empty: its paper's baseline, ``online`` and ``batch``)."""
+    duration_s: float | None = None
+    """Seconds of data per session (None: head 10 s, others their ``simulate`` default)."""
     profile: str = "realistic"
     """Sensor error profile of the scenario."""
 
     def __post_init__(self) -> None:
-        if self.system not in SENSORS:
-            raise ValueError(f"no ablation for system {self.system!r} yet (available: {', '.join(SENSORS)})")
+        from .systems.presets import PRESETS
+
+        if self.system not in PRESETS:
+            raise ValueError(f"no system {self.system!r} (available: {', '.join(PRESETS)})")
+        if self.system == "head" and self.duration_s is None:
+            object.__setattr__(self, "duration_s", 10.0)
+        if not self.solvers:
+            object.__setattr__(self, "solvers", (_baseline_solver(self.system), "online", "batch"))
         for drop in self.drops:
-            unknown = [s for s in drop if s not in SENSORS[self.system]]
+            unknown = [s for s in drop if self.system in SENSORS and s not in SENSORS[self.system]]
             if unknown:
                 raise ValueError(f"cannot drop {', '.join(unknown)}: {self.system} has sensors {', '.join(SENSORS[self.system])}")
         for name, _ in self.vary:
-            if name not in HEAD_PARAMETERS:
-                raise ValueError(f"unknown parameter {name!r} to vary (known: {', '.join(HEAD_PARAMETERS)})")
+            stream, dot, key = name.partition(".")
+            if not dot and not (self.system == "head" and name in HEAD_PARAMETERS):
+                known = ", ".join(HEAD_PARAMETERS) if self.system == "head" else "none"
+                raise ValueError(f"unknown parameter {name!r} to vary: use STREAM.KEY (a catalogued key, e.g. tracker.noise_sigma_deg) "
+                                 f"or a scenario name (head: {known})")
         for solver in self.solvers:
-            if solver not in SOLVERS:
-                raise ValueError(f"unknown solver {solver!r} (known: {', '.join(SOLVERS)})")
+            if solver not in PRESETS[self.system].solvers:
+                raise ValueError(f"unknown solver {solver!r} for {self.system} (known: {', '.join(PRESETS[self.system].solvers)})")
 
     def variants(self) -> list[Variant]:
         names = [name for name, _ in self.vary]
@@ -118,6 +136,8 @@ class Study:
 def run_key(spec: Mapping[str, Any]) -> str:
     """A stable key of a run's full configuration (what it computes, not where or when)."""
     fields = {k: spec[k] for k in ("system", "drop", "params", "seed", "solver", "profile", "duration_s")}
+    if fields["system"] == "head" and fields["solver"] == "ekf":
+        fields["solver"] = "ekf"  # head keys as before, so old studies resume
     return hashlib.sha1(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -136,8 +156,8 @@ def load_study(path: str | Path) -> Study:
         drops=tuple(tuple(d.split("+")) for d in table.get("drop", [])),
         vary=tuple((k, tuple(float(x) for x in v)) for k, v in table.get("vary", {}).items()),
         seeds=tuple(parse_seeds(seeds) if isinstance(seeds, str) else seeds),
-        solvers=tuple(table.get("solvers", SOLVERS)),
-        duration_s=float(table.get("duration_s", 10.0)),
+        solvers=tuple(table.get("solvers", ())),
+        duration_s=float(table["duration_s"]) if "duration_s" in table else None,
         profile=table.get("profile", "realistic"),
     )
 
@@ -149,7 +169,15 @@ def execute(spec: Mapping[str, Any]) -> dict[str, Any]:
     """Simulate, drop, solve, score one run; never raises (a failure is a row)."""
     start = time.perf_counter()
     row = _blank_row(spec)
+    generic = spec["system"] != "head" or any("." in k for k in spec["params"]) or "accel" in spec["drop"]
     try:
+        if generic:
+            metrics, seconds = _solve_generic(spec)
+            row["metrics"] = json.dumps(metrics)
+            row["solver_s"] = seconds
+            row["status"] = "ok"
+            row["run_s"] = time.perf_counter() - start
+            return row
         estimate, truth_t, truth_q = _solve_head(spec)
         from .estimate import Estimate
         from .metrics import score_attitude
@@ -176,6 +204,43 @@ def _blank_row(spec: Mapping[str, Any]) -> dict[str, Any]:
     return row
 
 
+def _solve_generic(spec: Mapping[str, Any]) -> tuple[dict[str, float], float]:
+    """Any system: simulate through its preset, drop streams, set catalogued keys, solve, score (flattened metrics)."""
+    from dataclasses import replace
+
+    from .catalogue import sensor_catalogue
+    from .runner import solve_session
+    from .systems.presets import PRESETS, flatten
+
+    preset = PRESETS[spec["system"]]
+    options: dict[str, Any] = {}
+    scenario = {k: v for k, v in spec["params"].items() if "." not in k}
+    if spec["system"] == "head":
+        options = {HEAD_PARAMETERS[k]: v for k, v in scenario.items()}
+        options["profile"] = spec["profile"]
+        options["sensors"] = ("gyro", "accel", "tracker")
+    duration = spec["duration_s"]
+    session = preset.simulate(int(spec["seed"]), None if duration in ("", None) else float(duration), **options)
+    drop = [d for d in spec["drop"] if d in session.streams]
+    missing = [d for d in spec["drop"] if d not in session.streams]
+    if missing:
+        raise ValueError(f"no stream {', '.join(missing)} to drop (have: {', '.join(session.streams)})")
+    session = session.without(*drop)
+    streams = dict(session.streams)
+    for name, value in spec["params"].items():
+        stream_name, dot, key = name.partition(".")
+        if not dot:
+            continue
+        stream = session.stream(stream_name)
+        entry = sensor_catalogue()[stream.kind]
+        if entry.key(key) is None:
+            raise ValueError(f"{stream_name}.{key}: not a key of kind {stream.kind} (keys: {', '.join(entry.key_names)})")
+        streams[stream_name] = replace(streams[stream_name], meta={**streams[stream_name].meta, key: value})
+    session = replace(session, streams=streams)
+    outcome = solve_session(session, spec["solver"])
+    return flatten(outcome.metrics or {}), outcome.estimate.runtime_s
+
+
 def _solve_head(spec: Mapping[str, Any]) -> tuple[Any, Any, Any]:
     from .scenarios.head import simulate_head
     from .systems import head
@@ -184,7 +249,7 @@ def _solve_head(spec: Mapping[str, Any]) -> tuple[Any, Any, Any]:
     session = simulate_head(int(spec["seed"]), profile=spec["profile"], duration_s=float(spec["duration_s"]), **overrides)
     assert session.truth is not None
     drop = set(spec["drop"])
-    method = {"ekf": "method2", "online": "isam2", "batch": "batch"}[spec["solver"]]
+    method = {"ekf": "method2", "online": "isam2"}.get(spec["solver"], spec["solver"])
     if "tracker" in drop:
         tracker = session.stream("tracker")
         session = session.without("tracker")
@@ -317,14 +382,24 @@ class SummaryRow:
     solver: str
     runs: int
     failed: int
-    mean: tuple[float, float, float]
-    half_width_95: tuple[float, float, float]
+    mean: tuple[float, ...]
+    half_width_95: tuple[float, ...]
     solver_s: float
+    names: tuple[str, ...] = ("azimuth", "elevation", "roll")
+    """The metrics summarised (head: RMS per axis in rad; other systems: their preset's metric keys)."""
+
+
+def _metric_values(row: Mapping[str, Any]) -> dict[str, float]:
+    if row.get("metrics"):
+        return {k: float(v) for k, v in json.loads(row["metrics"]).items()}
+    return {name: float(row[c]) for name, c in zip(("azimuth", "elevation", "roll"), METRIC_COLUMNS[:3], strict=True) if row.get(c) not in ("", None)}
 
 
 def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SummaryRow]:
-    """Mean and 95 % confidence interval (Student t over seeds) of each RMS axis per variant and solver."""
+    """Mean and 95 % confidence interval (Student t over seeds) of each metric per variant and solver."""
     from scipy import stats
+
+    from .systems.presets import PRESETS
 
     groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
     for row in rows:
@@ -332,22 +407,30 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SummaryRow]:
     out = []
     for (variant, solver), members in groups.items():
         ok = [m for m in members if m["status"] == "ok"]
-        values = np.array([[float(m[c]) for c in METRIC_COLUMNS[:3]] for m in ok]) if ok else np.full((0, 3), np.nan)
-        mean = values.mean(axis=0) if len(ok) else np.full(3, np.nan)
-        half = stats.t.ppf(0.975, len(ok) - 1) * values.std(axis=0, ddof=1) / np.sqrt(len(ok)) if len(ok) > 1 else np.full(3, np.nan)
+        found = [_metric_values(m) for m in ok]
+        system = members[0]["system"]
+        head_axes = bool(found) and all("azimuth" in f for f in found)
+        names = ("azimuth", "elevation", "roll") if head_axes or system == "head" and not found else tuple(
+            k for k in PRESETS[system].metric_keys if found and all(k in f for f in found))
+        values = np.array([[f.get(n, np.nan) for n in names] for f in found]) if found else np.full((0, len(names)), np.nan)
+        mean = values.mean(axis=0) if len(ok) else np.full(len(names), np.nan)
+        half = stats.t.ppf(0.975, len(ok) - 1) * values.std(axis=0, ddof=1) / np.sqrt(len(ok)) if len(ok) > 1 else np.full(len(names), np.nan)
         solver_s = float(np.mean([float(m["solver_s"]) for m in ok])) if ok else float("nan")
-        out.append(SummaryRow(variant, solver, len(members), len(members) - len(ok), tuple(mean), tuple(half), solver_s))  # type: ignore[arg-type]
+        out.append(SummaryRow(variant, solver, len(members), len(members) - len(ok), tuple(mean), tuple(half), solver_s, names))
     return out
 
 
 def summary_table(summary: Sequence[SummaryRow]) -> str:
-    """Text table: RMS per axis in 1e-2 rad, mean +- 95 % half-width."""
+    """Text table: each metric's mean +- 95 % half-width (head: RMS in 1e-2 rad)."""
     width = max([len(s.variant) for s in summary] + [7])
-    lines = [f"{'variant':<{width}} {'solver':<7} {'runs':>5} {'failed':>6}  {'azimuth':>15} {'elevation':>15} {'roll':>15}  {'solver s':>8}",
-             f"{'':<{width}} {'':<7} {'':>5} {'':>6}  {'RMS [1e-2 rad], mean +- 95% CI':>47}"]
+    names = summary[0].names if summary else ()
+    head = names == ("azimuth", "elevation", "roll")
+    scale = 100.0 if head else 1.0
+    lines = [f"{'variant':<{width}} {'solver':<14} {'runs':>5} {'failed':>6}  " + " ".join(f"{n:>20}" for n in names) + f"  {'solver s':>8}",
+             f"{'':<{width}} {'':<14} {'':>5} {'':>6}  " + ("RMS [1e-2 rad], mean +- 95% CI" if head else "mean +- 95% CI")]
     for s in summary:
-        cells = [f"{100 * m:7.3f} +-{100 * h:6.3f}" if np.isfinite(m) else f"{'-':>15}" for m, h in zip(s.mean, s.half_width_95, strict=True)]
-        lines.append(f"{s.variant:<{width}} {s.solver:<7} {s.runs:>5} {s.failed:>6}  {cells[0]:>15} {cells[1]:>15} {cells[2]:>15}  {s.solver_s:8.3f}")
+        cells = [f"{scale * m:9.4g} +-{scale * h:8.3g}" if np.isfinite(m) else f"{'-':>20}" for m, h in zip(s.mean, s.half_width_95, strict=True)]
+        lines.append(f"{s.variant:<{width}} {s.solver:<14} {s.runs:>5} {s.failed:>6}  " + " ".join(f"{c:>20}" for c in cells) + f"  {s.solver_s:8.3f}")
     return "\n".join(lines)
 
 
@@ -362,25 +445,29 @@ def write_summary(summary: Sequence[SummaryRow], out_dir: str | Path) -> list[Pa
     csv_path = out / "summary.csv"
     with csv_path.open("w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["variant", "solver", "runs", "failed", "azimuth_mean_rad", "azimuth_ci95_rad", "elevation_mean_rad", "elevation_ci95_rad",
-                         "roll_mean_rad", "roll_ci95_rad", "solver_s"])
+        names = summary[0].names if summary else ()
+        unit = "_rad" if names == ("azimuth", "elevation", "roll") else ""
+        writer.writerow(["variant", "solver", "runs", "failed", *[f"{n}_{part}{unit}" for n in names for part in ("mean", "ci95")], "solver_s"])
         for s in summary:
-            writer.writerow([s.variant, s.solver, s.runs, s.failed, s.mean[0], s.half_width_95[0], s.mean[1], s.half_width_95[1], s.mean[2],
-                             s.half_width_95[2], s.solver_s])
+            writer.writerow([s.variant, s.solver, s.runs, s.failed, *[v for pair in zip(s.mean, s.half_width_95, strict=True) for v in pair], s.solver_s])
     variants = list(dict.fromkeys(s.variant for s in summary))
     solvers = list(dict.fromkeys(s.solver for s in summary))
-    fig, axes = plt.subplots(1, 3, figsize=(5 + 1.2 * len(variants) * 3, 4.5), sharey=False)
+    names = summary[0].names if summary else ("azimuth", "elevation", "roll")
+    head = names == ("azimuth", "elevation", "roll")
+    fig, axes = plt.subplots(1, max(1, len(names)), figsize=(5 + 1.2 * len(variants) * max(1, len(names)), 4.5), sharey=False, squeeze=False)
+    axes = axes[0]
     width = 0.8 / max(1, len(solvers))
-    for a, axis_name in enumerate(("azimuth", "elevation", "roll")):
+    scale = 100.0 if head else 1.0
+    for a, axis_name in enumerate(names):
         ax = axes[a]
         for j, solver in enumerate(solvers):
             cells = {s.variant: s for s in summary if s.solver == solver}
-            means = [100 * cells[v].mean[a] if v in cells else np.nan for v in variants]
-            errs = [100 * cells[v].half_width_95[a] if v in cells else np.nan for v in variants]
+            means = [scale * cells[v].mean[a] if v in cells and a < len(cells[v].mean) else np.nan for v in variants]
+            errs = [scale * cells[v].half_width_95[a] if v in cells and a < len(cells[v].mean) else np.nan for v in variants]
             ax.bar(np.arange(len(variants)) + j * width, means, width, yerr=errs, capsize=3, label=solver)
         ax.set_xticks(np.arange(len(variants)) + 0.4 - width / 2, variants, rotation=30, ha="right")
-        ax.set_title(f"{axis_name} RMS")
-        ax.set_ylabel("1e-2 rad (bars: 95% CI over seeds)")
+        ax.set_title(f"{axis_name} RMS" if head else axis_name)
+        ax.set_ylabel(("1e-2 rad" if head else "mean") + " (bars: 95% CI over seeds)")
         ax.set_yscale("log")
         ax.grid(alpha=0.3, axis="y")
     axes[0].legend()

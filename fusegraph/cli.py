@@ -56,12 +56,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="write a simulated session directory (session.toml + CSVs + truth)",
                          description="Simulate a scenario and write it as a session directory you can read and edit.")
-    sim.add_argument("scenario", choices=["head", "attitude9", "gaze", "bicycle", "walking"], help="which system to simulate")
+    sim.add_argument("scenario", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"], help="which system to simulate")
     sim.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     sim.add_argument("--out", type=Path, required=True, help="directory to write (created)")
-    sim.add_argument("--profile", choices=["ideal", "realistic", "noise_free"], default="realistic",
+    sim.add_argument("--profile", choices=["ideal", "realistic", "noise_free"], default=None,
                      help="sensor error profile (default realistic); head: ideal or realistic; attitude9: realistic or noise_free")
-    sim.add_argument("--duration", type=float, default=None, help="seconds of data (default: head, attitude9 10; gaze, bicycle 40; walking: its tour)")
+    sim.add_argument("--duration", type=float, default=None,
+                     help="seconds of data (default: head, attitude9, ultrasonic 10; gaze, bicycle 40; walking: its whole tour, or its first seconds)")
+    sim.add_argument("--sensors", metavar="LIST", help="head: streams to write, e.g. gyro,accel,tracker (default gyro,tracker)")
+    sim.add_argument("--tracker-gap", metavar="START:END", help="head: no tracker samples from START to END seconds, e.g. 30:90")
+    sim.add_argument("--transmitters", type=int, metavar="N", help="ultrasonic: transmitters emitting at once (default 3)")
     sim.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency, seconds (default 0.1)")
     sim.add_argument("--latency-assumed", type=float, metavar="S",
                      help="write stamps made with this assumed latency and declare it unknown (latency_sigma_s), so solvers estimate it")
@@ -73,15 +77,19 @@ def build_parser() -> argparse.ArgumentParser:
                          epilog="examples:\n  fusegraph simulate gaze --out sessions/gaze0 && fusegraph run sessions/gaze0 --solver batch\n"
                          "  fusegraph simulate bicycle --seed 1 --out sessions/bike1 && fusegraph run sessions/bike1 --solver ekf --plot bike.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    run.add_argument("session", type=Path, help="session directory (with session.toml)")
-    run.add_argument("--solver", choices=["online", "batch", "ekf", "vqf", "vqf_offline", "no_removal", "dead_reckoning"], default="online",
+    run.add_argument("session", type=Path, nargs="+", help="session directory (with session.toml); several, or a folder of sessions, for a study")
+    run.add_argument("--solver", choices=["online", "batch", "ekf", "method1", "kalman", "tracker", "gyro", "vqf", "vqf_offline", "no_removal",
+                                          "paper_pipeline", "dead_reckoning", "combinatorial"], default="online",
                      help="online = iSAM2 causal estimate at every gyro sample; batch = smoother over the whole session; ekf = the paper's "
                      "EKF (head: Method II; attitude9: the 9-axis EKF; gaze: (yaw, pitch, roll, GX, GZ); bicycle: frame EKF -> subtract -> "
                      "thigh EKF; walking: the paper's Kalman framework); vqf, vqf_offline = the peer (attitude9 only); no_removal = the "
-                     "thigh EKF alone (bicycle only); dead_reckoning = steps and rides only (walking only)")
-    run.add_argument("--out", type=Path, help="CSV to write (default: <session>/estimate_<solver>.csv)")
+                     "thigh EKF alone (bicycle only); dead_reckoning = steps and rides only (walking only); combinatorial = the paper's search "
+                     "(ultrasonic only); method1, kalman, tracker, gyro = the head paper's other rows. `fusegraph sensors SYSTEM` lists a system's solvers")
+    run.add_argument("--out", type=Path, help="CSV to write (default: <session>/<estimate>_<solver>.csv); with several sessions, a folder")
     run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
-    run.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    run.add_argument("--json", action="store_true", help='print one JSON object and nothing else: {"system", "solver", "metrics"}')
+    run.add_argument("--workers", type=int, default=None, help="several sessions: parallel processes (default: all cores)")
+    run.add_argument("--scheduler", default=None, help="several sessions: 'local' starts a Dask LocalCluster; tcp://host:port uses an existing one")
 
     rep = sub.add_parser("report", help="the paper's comparison table over seeds (accuracy, time, NEES)",
                          description="head: simulate each seed, run every method, print RMS per axis (1e-2 rad), ratio to Method II, "
@@ -95,10 +103,10 @@ def build_parser() -> argparse.ArgumentParser:
                          epilog="examples:\n  fusegraph report head --seeds 0-9 --plot head.png\n  fusegraph report gaze --seeds 0-4 --json\n"
                          "  fusegraph report gaze --plot gaze.png\n  fusegraph report bicycle --seeds 0-2 --json --plot bicycle.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    rep.add_argument("system", choices=["head", "gaze", "bicycle"])
+    rep.add_argument("system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"])
     rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default; gaze, bicycle: 0-2) or 0,3,7")
     rep.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
-    rep.add_argument("--duration", type=float, default=10.0, help="seconds per session (default 10, like the paper)")
+    rep.add_argument("--duration", type=float, default=None, help="seconds per session (default: head 10, like the paper; others their simulate default)")
     rep.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency in seconds (default: the scenario's 0.1)")
     rep.add_argument("--latency-assumed", type=float, metavar="S",
                      help="latency the user believes; adds rows method2_wrong_d (Method II with it) and isam2_td/batch_td "
@@ -112,7 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "trajectories as CSV and TUM files (readable by evo).")
     vw.add_argument("source", type=Path, help="session directory or estimate CSV (from fusegraph run)")
     vw.add_argument("--out", type=Path, required=True, help="directory for the files (created)")
-    vw.add_argument("--solver", choices=["online", "batch", "ekf"], default="batch", help="solver for a bare session (default batch)")
+    vw.add_argument("--solver", default="batch", help="solver for a bare session (default batch; any of the system's solvers)")
     vw.add_argument("--truth", type=Path, help="truth for an estimate CSV: a TUM file or a session directory")
 
     abl = sub.add_parser("ablate", help="ablation study: sensors dropped x parameter grid x seeds x solvers, local or on Dask",
@@ -120,17 +128,36 @@ def build_parser() -> argparse.ArgumentParser:
                          "for every seed and solver. Results go to OUT/runs.csv (one row per run; re-running skips finished runs), "
                          "OUT/summary.csv and OUT/summary.png (mean and 95% interval per variant).",
                          epilog="example: fusegraph ablate head --drop tracker --drop gyro --vary latency=0,0.05,0.1,0.2 --seeds 0-19 --out studies/head")
-    abl.add_argument("system", choices=["head"])
+    abl.add_argument("system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"])
     abl.add_argument("--study", type=Path, help="a TOML file with a [study] table (see examples/); flags below add to it")
     abl.add_argument("--drop", action="append", default=[], metavar="SENSOR[+SENSOR]", help="a variant without these sensors (repeatable)")
-    abl.add_argument("--vary", action="append", default=[], metavar="NAME=V1,V2,...", help="a parameter grid (repeatable; crossed)")
+    abl.add_argument("--vary", action="append", default=[], metavar="NAME=V1,V2,...",
+                     help="a parameter grid (repeatable; crossed): head scenario names (latency, gyro_noise, ...) or any catalogued key STREAM.KEY, "
+                     "e.g. tracker.noise_sigma_deg=0.2,0.4,0.8")
     abl.add_argument("--seeds", type=_seeds_arg, help="seeds, e.g. 0-19 (default 0-4)")
-    abl.add_argument("--solver", default=None, help="comma list of ekf,online,batch (default all)")
+    abl.add_argument("--solver", default=None, help="comma list of solvers (default: online, batch and the system's baseline)")
     abl.add_argument("--duration", type=float, default=None, help="seconds per session (default 10)")
     abl.add_argument("--profile", choices=["ideal", "realistic"], default=None)
     abl.add_argument("--workers", type=int, default=None, help="parallel workers (default: all cores)")
     abl.add_argument("--scheduler", default=None, help="'local' starts a Dask LocalCluster; tcp://host:port uses an existing one")
     abl.add_argument("--out", type=Path, required=True, help="study directory (created; reused to resume)")
+
+    sen = sub.add_parser("sensors", help="the sensor catalogue: every stream kind's columns, units, keys, factors and checks",
+                         description="Print the sensor catalogue (docs/sensors.md is this output), one kind's entry, "
+                         "or one system's streams, keys and solvers.",
+                         epilog="examples:\n  fusegraph sensors\n  fusegraph sensors gyro\n  fusegraph sensors walking",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    sen.add_argument("kind", nargs="?", help="a stream kind (gyro, accel, ...) or a system (head, walking, ...)")
+
+    imp = sub.add_parser("import", help="turn a real recording into a session directory (then run/view/ablate it)",
+                         description="broad: a BROAD trial (.mat) or a folder of them -> attitude9 sessions (one per trial). "
+                         "uwb: the UWB recording folder (UWB_*.csv + motion_capture_*.csv) -> an ultrasonic session (anchors as receivers, "
+                         "tags unlabelled, motion capture as truth).",
+                         epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
+                         "  fusegraph import uwb ../shared/data/uwb_lias --out sessions/uwb", formatter_class=argparse.RawDescriptionHelpFormatter)
+    imp.add_argument("format", choices=["broad", "uwb"])
+    imp.add_argument("source", type=Path, help="the recording (file or folder)")
+    imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
 
     ben = sub.add_parser("bench", help="head: speed on a long session; broad: every BROAD trial, every method, side by side",
                          description="head: real-time factor of the whole causal loop in the first and last minute, batch time, peak memory.\n"
@@ -179,173 +206,125 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .scenarios import SCENARIOS
     from .session import save_session
+    from .systems.presets import PRESETS
 
-    extra: dict[str, Any] = {}
-    if args.latency_true is not None:
-        extra["tracker_latency_s"] = args.latency_true
-    if args.latency_assumed is not None:
-        extra["tracker_latency_assumed_s"] = args.latency_assumed
-    if (args.scenario, args.profile) in (("head", "noise_free"), ("attitude9", "ideal")):
-        raise ValueError(f"--profile {args.profile} does not apply to {args.scenario} (head: ideal, realistic; attitude9: realistic, noise_free)")
-    if args.scenario != "head" and extra:
-        raise ValueError("--latency-true/--latency-assumed apply to the head scenario only")
-    duration = args.duration if args.duration is not None else (10.0 if args.scenario in ("head", "attitude9") else None)
-    session = SCENARIOS[args.scenario](args.seed, profile=args.profile, duration_s=duration, **extra)
+    preset = PRESETS[args.scenario]
+    options: dict[str, Any] = {}
+    given = {
+        "tracker_latency_s": args.latency_true, "tracker_latency_assumed_s": args.latency_assumed,
+        "sensors": tuple(x.strip() for x in args.sensors.split(",")) if args.sensors else None,
+        "tracker_gap_s": _gap_arg(args.tracker_gap) if args.tracker_gap else None, "transmitters": args.transmitters,
+    }
+    flags = {"tracker_latency_s": "--latency-true", "tracker_latency_assumed_s": "--latency-assumed", "sensors": "--sensors",
+             "tracker_gap_s": "--tracker-gap", "transmitters": "--transmitters"}
+    for name, value in given.items():
+        if value is None:
+            continue
+        if name not in preset.simulate_options:
+            raise ValueError(f"{flags[name]} does not apply to {args.scenario} (it applies to: "
+                             f"{', '.join(p.name for p in PRESETS.values() if name in p.simulate_options)})")
+        options[name] = value
+    if args.profile is not None:
+        profiles = {"head": ("ideal", "realistic"), "attitude9": ("realistic", "noise_free")}.get(args.scenario, ("realistic",))
+        if args.profile not in profiles:
+            raise ValueError(f"--profile {args.profile} does not apply to {args.scenario} (it has: {', '.join(profiles)})")
+        if "profile" in preset.simulate_options:
+            options["profile"] = args.profile
+    if args.duration is not None and not args.duration >= preset.min_duration_s:
+        raise ValueError(f"--duration {args.duration:g}: {args.scenario} needs at least {preset.min_duration_s:g} s"
+                         + (f" ({preset.notes[0]})" if preset.notes else ""))
+    session = preset.simulate(args.seed, args.duration, **options)
+    if args.out.exists() and any(args.out.iterdir()) and not (args.out / "session.toml").is_file():
+        raise ValueError(f"--out {args.out}: a folder with other files in it; give a new or empty folder (or an old session to replace)")
+    if (args.out / "session.toml").is_file():
+        for old in args.out.glob("*.csv"):
+            old.unlink()  # a session written before: no stale stream files stay beside the new ones
+        (args.out / "session.toml").unlink()
     path = save_session(session, args.out)
     files = ", ".join(sorted(p.name for p in path.iterdir()))
     print(f"wrote {path}/ ({files})")
     return 0
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
-    from .metrics import score_attitude
-    from .session import load_session
-    from .systems import head
-
-    session = load_session(args.session)
-    if session.system == "attitude9":
-        return _run_attitude9(args, session)
-    if session.system in ("gaze", "bicycle"):
-        return _run_coupled(args, session)
-    if session.system == "walking":
-        return _run_walking(args, session)
-    if session.system != "head":
-        raise ValueError(f"{args.session}/session.toml: system '{session.system}' has no solver yet (available: head, attitude9, gaze, bicycle)")
-    if args.solver not in ("online", "batch", "ekf"):
-        raise ValueError(f"--solver {args.solver} is for attitude9 sessions; head has online, batch, ekf")
-    method = {"online": "isam2", "batch": "batch", "ekf": "method2"}[args.solver]
-    estimate = head.run_method(session, method)
-    out = args.out or args.session / f"estimate_{args.solver}.csv"
-    estimate.save_csv(out)
-    print(f"wrote {out} ({len(estimate.t)} rows, {session.duration_s:.1f} s of data in {estimate.runtime_s:.2f} s)")
-    if estimate.extras.get("latency_s") is not None:
-        sigma = estimate.extras.get("latency_sigma_s")
-        print(f"tracker latency estimated: {1000 * estimate.extras['latency_s']:.1f} ms" + (f" (sigma {1000 * sigma:.1f} ms)" if sigma else ""))
-    if session.truth is not None:
-        score = score_attitude(estimate, session.truth.t, session.truth.values) if _same_times(estimate, session) else None
-        if score is not None:
-            if args.json:
-                print(json.dumps({"method": method, **score.as_dict()}, indent=2))
-            else:
-                rms = score.rms_rad * 100
-                nees = f", NEES {score.nees:.2f}" if score.nees is not None else ""
-                print(f"RMS after 1 s [1e-2 rad]: azimuth {rms[0]:.3f}, elevation {rms[1]:.3f}, roll {rms[2]:.3f}{nees}")
-    if args.plot:
-        print(f"wrote {_plot_estimate(args, session, estimate)}")
-    return 0
+def _gap_arg(text: str) -> tuple[float, float]:
+    start, _, end = text.partition(":")
+    try:
+        return float(start), float(end)
+    except ValueError:
+        raise ValueError(f"--tracker-gap {text!r}: use START:END in seconds, e.g. 30:90") from None
 
 
-def _run_attitude9(args: argparse.Namespace, session: Any) -> int:
-    import numpy as np
+def _cmd_sensors(args: argparse.Namespace) -> int:
+    from .catalogue import catalogue_markdown, kind_markdown, sensor_catalogue, suggest
+    from .systems.presets import PRESETS
 
-    from .datasets.broad import broad_errors
-    from .systems import attitude9
-
-    estimate = attitude9.METHODS[args.solver](session)
-    out = args.out or args.session / f"estimate_{args.solver}.csv"
-    estimate.save_csv(out)
-    print(f"wrote {out} ({len(estimate.t)} rows, {session.duration_s:.1f} s of data in {estimate.runtime_s:.2f} s)")
-    if session.truth is not None and _same_times(estimate, session):
-        movement = session.stream("movement").values[:, 0] if "movement" in session.streams else np.ones(len(estimate.t))
-        errors = broad_errors(estimate.quat_wxyz, session.truth.values, movement)
-        if args.json:
-            print(json.dumps({"method": args.solver, "total": errors.total, "heading": errors.heading, "inclination": errors.inclination}, indent=2))
-        else:
-            print(f"RMSE [deg]: total {errors.total:.3f}, heading {errors.heading:.3f}, inclination {errors.inclination:.3f}")
-    if args.plot:
-        print(f"wrote {_plot_estimate(args, session, estimate)}")
-    return 0
-
-
-def _run_coupled(args: argparse.Namespace, session: Any) -> int:
-    """Gaze (wall point per tracker sample) and bicycle (thigh attitude per sample) sessions."""
-    import time as _time
-
-    import numpy as np
-
-    from .estimate import Estimate
-    from .systems import bicycle, gaze
-
-    if session.system == "gaze":
-        solvers = {"online": "online", "batch": "batch", "ekf": "ekf"}
-        if args.solver not in solvers:
-            raise ValueError(f"--solver {args.solver}: gaze sessions have online, batch, ekf")
-        data = gaze.from_session(session)
-        point, seconds = gaze.RUNNERS[args.solver](data)  # type: ignore[operator]
-        out = args.out or args.session / f"gaze_{args.solver}.csv"
-        np.savetxt(out, np.column_stack([data.tracker_t, point]), delimiter=",", header="t,X_m,Z_m", comments="", fmt="%.10g")
-        print(f"wrote {out} ({len(point)} rows: the gaze point on the wall, X = world y, Z = world z; {session.duration_s:.1f} s of data in {seconds:.2f} s)")
-        if np.isfinite(data.truth_gaze_xz_m).any():
-            rms = gaze.rms_mm(point, data)
-            print(json.dumps({"method": args.solver, "rms": rms}, indent=2) if args.json else f"RMS after 1 s [mm]: X {rms['x_mm']:.1f}, Z {rms['z_mm']:.1f}")
+    catalogue = sensor_catalogue()
+    if args.kind:
+        if args.kind in PRESETS:
+            p = PRESETS[args.kind]
+            print(f"system {p.name}: {p.summary}\nstreams: {p.streams}\nsolvers:")
+            for name, text in p.solvers.items():
+                print(f"  {name:<16} {text}")
+            for key in p.session_keys:
+                print(f"  key {key.name} (default {key.default}): {key.meaning}")
+            return 0
+        if args.kind not in catalogue:
+            raise ValueError(f"no sensor kind or system {args.kind!r}{suggest(args.kind, [*catalogue, *PRESETS])}; kinds: {', '.join(catalogue)}")
+        print(kind_markdown(catalogue[args.kind]))
         return 0
-    solvers = {"online": "online", "batch": "batch", "ekf": "paper_pipeline", "no_removal": "no_removal"}
-    if args.solver not in solvers:
-        raise ValueError(f"--solver {args.solver}: bicycle sessions have online, batch, ekf (the paper's pipeline), no_removal")
-    ride = bicycle.from_session(session)
-    start = _time.perf_counter()
-    quat = bicycle.RUNNERS[solvers[args.solver]](ride)  # type: ignore[operator]
-    estimate = Estimate(solvers[args.solver], ride.t.copy(), quat, None, _time.perf_counter() - start)
-    out = args.out or args.session / f"estimate_{args.solver}.csv"
-    estimate.save_csv(out)
-    print(f"wrote {out} ({len(estimate.t)} rows: the thigh attitude, {session.duration_s:.1f} s of data in {estimate.runtime_s:.2f} s)")
-    if np.isfinite(ride.thigh_quat_wxyz).all() and np.isfinite(ride.config.brake_s):
-        rms = bicycle.braking_rms_deg(quat, ride)
-        print(json.dumps({"method": args.solver, "rms": rms}, indent=2) if args.json else
-              f"braking phase ({ride.config.brake_s:.1f}-{ride.config.brake_s + 5:.1f} s) RMS [deg]: pitch {rms['pitch_deg']:.2f}, roll {rms['roll_deg']:.2f}")
+    print(catalogue_markdown(system_docs()))
+    return 0
+
+
+def system_docs() -> list[tuple[str, str, tuple[Any, ...], tuple[str, ...]]]:
+    """Each preset's documentation rows for the catalogue page."""
+    from .systems.presets import PRESETS
+
+    return [(p.name, p.streams, p.session_keys, tuple(p.solvers)) for p in PRESETS.values()]
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .runner import describe, format_many, run_many, run_session, session_dirs
+
+    paths = session_dirs(args.session)
+    if len(paths) == 1 and (Path(args.session[0]) / "session.toml").is_file():
+        outcome = run_session(paths[0], args.solver, args.out, args.plot)
+        if args.json:
+            print(json.dumps(outcome.as_json(), indent=2))
+        else:
+            print(describe(outcome))
+            for extra in outcome.files[1:]:
+                print(f"wrote {extra}")
+        return 0
+    if args.out is None:
+        raise ValueError("several sessions: --out names the folder for their estimates and results.jsonl")
     if args.plot:
-        print(f"wrote {_plot_estimate(args, session, estimate)}")
+        raise ValueError("--plot is for one session; run `fusegraph view` on the one you want to see")
+    import os
+
+    rows = run_many(paths, args.solver, args.out, workers=args.workers or os.cpu_count() or 1, scheduler=args.scheduler)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        print(format_many(rows))
+    return 1 if any(r.get("status") != "ok" for r in rows) else 0
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    from .datasets.importers import import_recording
+
+    for path in import_recording(args.format, args.source, args.out):
+        print(f"wrote {path}/")
     return 0
-
-
-def _run_walking(args: argparse.Namespace, session: Any) -> int:
-    """A walking session: the PDR front end, then dead reckoning, the EKF, iSAM2 online or batch."""
-    import numpy as np
-
-    from .systems import walking
-
-    solvers = {"online": "online", "batch": "batch", "ekf": "ekf", "dead_reckoning": "dead_reckoning"}
-    if args.solver not in solvers:
-        raise ValueError(f"--solver {args.solver}: walking sessions have online, batch, ekf, dead_reckoning")
-    walk, speed = walking.from_session(session)
-    cycles, rides, events = walking.analyse(walk, speed)
-    runs = {"online": walking.run_online, "batch": walking.run_batch, "ekf": walking.run_ekf}
-    run = walking.run_dead_reckoning(walk, events) if args.solver == "dead_reckoning" else runs[args.solver](walk, events, walk.fixes.pose)
-    out = args.out or args.session / f"trajectory_{args.solver}.csv"
-    np.savetxt(out, np.column_stack([run.t, run.xyz]), delimiter=",", header="t,x,y,z", comments="", fmt="%.10g")
-    activity = {a: sum(c.activity == a for c in cycles) for a in ("flat", "stairs_up", "stairs_down")}
-    print(f"wrote {out} ({len(run.t)} states: {len(cycles)} steps {activity}, {len(rides)} elevator rides; "
-          f"{session.duration_s:.0f} s of data in {run.seconds:.2f} s)")
-    if np.isfinite(walk.truth_xyz_m).all():
-        score = walking.score(run, walk)
-        print(json.dumps({"method": args.solver, **score}, indent=2) if args.json else
-              f"position RMSE {score['rmse_m']:.2f} m, final error {score['final_error_m']:.2f} m")
-    return 0
-
-
-def _plot_estimate(args: argparse.Namespace, session: Any, estimate: Any) -> Path:
-    """The estimate's axes against the truth (or alone), as ``fusegraph run --plot`` writes them."""
-    from .plots import plot_attitude_axes
-
-    truth_t = session.truth.t if session.truth is not None else estimate.t
-    truth_q = session.truth.values if session.truth is not None else estimate.quat_wxyz
-    return Path(plot_attitude_axes(truth_t, truth_q, [estimate], args.plot, title=str(args.session)))
-
-
-def _same_times(estimate: object, session: object) -> bool:
-    import numpy as np
-
-    truth = session.truth  # type: ignore[attr-defined]
-    t = estimate.t  # type: ignore[attr-defined]
-    return bool(truth is not None and t.shape == truth.t.shape and np.allclose(t, truth.t))
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     if args.system in ("bicycle", "gaze"):
         from .systems import bicycle, gaze
 
+        if args.duration is not None or args.profile != "realistic":
+            raise ValueError(f"report {args.system}: its scenario is fixed (40 s, the realistic profile); --duration and --profile do not apply")
         make, table = {"bicycle": (bicycle.bicycle_report, bicycle.format_bicycle_table), "gaze": (gaze.gaze_report, gaze.format_gaze_table)}[args.system]
         seeds = tuple(args.seeds) if args.seeds != list(range(10)) else (0, 1, 2)
         found = make(seeds, plot=str(args.plot) if args.plot else None)
@@ -353,15 +332,37 @@ def _cmd_report(args: argparse.Namespace) -> int:
         if args.plot:
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
         return 0
+    if args.system != "head":
+        from .runner import format_generic_report, generic_report
+
+        if args.latency_true is not None or args.latency_assumed is not None or args.profile != "realistic":
+            raise ValueError(f"report {args.system}: --latency-true/--latency-assumed/--profile apply to head only")
+        chosen = args.seeds if args.seeds != list(range(10)) else [0, 1, 2]
+        found = generic_report(args.system, chosen, args.duration)
+        found.pop("per_seed")
+        print(json.dumps(found, indent=2) if args.json else format_generic_report(found))
+        if args.plot:
+            from .runner import solve_session
+            from .systems.presets import PRESETS
+
+            preset = PRESETS[args.system]
+            session = preset.simulate(chosen[0], args.duration)
+            estimates = [solve_session(session, m).estimate for m in ("online", "batch")]
+            assert preset.picture is not None
+            written = preset.picture(session, estimates, args.plot.parent)
+            written[0].replace(args.plot)
+            print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
+        return 0
     from .systems import head
 
-    report = head.head_report(args.seeds, args.profile, args.duration, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed)
+    duration = 10.0 if args.duration is None else args.duration
+    report = head.head_report(args.seeds, args.profile, duration, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed)
     if args.json:
         print(json.dumps(report.as_json(), indent=2))
     else:
         print(report.table())
     if args.plot:
-        path = head_figure(args.seeds[0], args.profile, args.duration, args.plot)
+        path = head_figure(args.seeds[0], args.profile, duration, args.plot)
         print(f"wrote {path}", file=sys.stderr if args.json else sys.stdout)
     return 0
 
@@ -477,7 +478,8 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"ablate": _cmd_ablate, "simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view}
+COMMANDS = {"ablate": _cmd_ablate, "simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view,
+            "sensors": _cmd_sensors, "import": _cmd_import}
 
 
 if __name__ == "__main__":

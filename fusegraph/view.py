@@ -19,6 +19,7 @@ import numpy as np
 from .estimate import Estimate
 from .geometry import FloatArray, matrix_from_quat
 from .metrics import body_errors
+from .session import Session
 
 METRES_PER_SECOND = 0.5
 FRAME_EVERY_S = 0.5
@@ -197,6 +198,20 @@ SOLVER_METHODS = {"online": "isam2", "batch": "batch", "ekf": "method2"}
 """CLI solver names -> head methods."""
 
 
+def view_session(session: Session, out: Path, solver: str) -> list[Path]:
+    """Any system's session: run the solver, write its estimate (CSV; TUM for attitudes) and the preset's picture."""
+    from .runner import solve_session
+    from .tum import write_tum
+
+    outcome = solve_session(session, solver)
+    estimate = outcome.estimate
+    written = [estimate.save_csv(out / f"{outcome.preset.estimate_name}_{solver}.csv")]
+    if isinstance(estimate, Estimate):
+        written.append(write_tum(out / f"estimate_{solver}.tum", estimate.t, estimate.quat_wxyz, comment=f"fusegraph {session.system} {solver}"))
+    assert outcome.preset.picture is not None
+    return written + outcome.preset.picture(session, [estimate], out)
+
+
 def view(path: str | Path, out_dir: str | Path, solver: str = "batch", truth_path: str | Path | None = None) -> list[Path]:
     """Everything a person needs to look at one result; returns the files written.
 
@@ -215,8 +230,8 @@ def view(path: str | Path, out_dir: str | Path, solver: str = "batch", truth_pat
 
         session = load_session(source)
         if session.system != "head":
-            raise SessionError(f"{source}/session.toml: no view for system '{session.system}' yet (available: head)")
-        estimate = head.run_method(session, SOLVER_METHODS[solver])
+            return view_session(session, out, solver)
+        estimate = head.run_method(session, SOLVER_METHODS.get(solver, solver))
         if session.truth is not None:
             truth_t, truth_q = session.truth.t, session.truth.values
         name = solver

@@ -1,0 +1,72 @@
+"""``fusegraph import FORMAT SOURCE --out DIR``: real recordings written as session directories.
+
+A session written here runs through ``run``, ``view`` and ``ablate`` like a simulated one. Formats:
+
+* ``broad``: a BROAD trial (.mat) or a folder of them -> one attitude9 session per trial (gyro,
+  accel, mag at the IMU rate, the movement flag; the optical attitude as truth).
+* ``uwb``: the UWB recording folder (``UWB_*.csv`` and ``motion_capture_*.csv``) -> one ultrasonic
+  session: the anchors as receivers, every tag's range per epoch UNLABELLED (the tag labels become
+  the scoring-only ``truth_label`` column), the tags' motion-capture positions as truth. Times are
+  seconds from the first UWB epoch.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..session import KIND_COLUMNS, Session, SessionError, Stream, save_session
+
+
+def import_recording(fmt: str, source: str | Path, out: str | Path) -> list[Path]:
+    """Write the recording at ``source`` as session directories under ``out``; returns them."""
+    source, out = Path(source), Path(out)
+    if not source.exists():
+        raise SessionError(f"{source}: not found")
+    if fmt == "broad":
+        from .broad import load_broad, trial_paths
+
+        paths = [source] if source.is_file() else trial_paths(source)
+        if not paths:
+            raise SessionError(f"{source}: no BROAD trials (*.mat)")
+        if len(paths) == 1 and source.is_file():
+            return [save_session(_portable(load_broad(paths[0])), out)]
+        return [save_session(_portable(load_broad(p)), out / p.stem) for p in paths]
+    if fmt == "uwb":
+        return [save_session(uwb_session(source), out)]
+    raise SessionError(f"unknown format {fmt!r} (known: broad, uwb)")
+
+
+def _portable(session: Session) -> Session:
+    """Without the loader's path (the session is written elsewhere)."""
+    from dataclasses import replace
+
+    return replace(session, path=None)
+
+
+def uwb_session(directory: Path) -> Session:
+    """The UWB recording as an ultrasonic session (see the module docstring)."""
+    from .uwb_lias import load_uwb_lias
+
+    rec = load_uwb_lias(directory)
+    t0 = float(rec.t[0])
+    rows = []
+    for k, t in enumerate(rec.t):
+        for a in range(rec.anchors.shape[0]):
+            for tag in range(rec.ranges.shape[2]):
+                d = rec.ranges[k, a, tag]
+                if np.isfinite(d):
+                    rows.append((float(t) - t0, a, float(d), tag))
+    table = np.array(rows, dtype=float)
+    order = np.lexsort((table[:, 2], table[:, 1], table[:, 0]))
+    table = table[order]
+    meta = {"receivers_m": rec.anchors.tolist(), "transmitters": int(rec.ranges.shape[2]), "sigma_m": 0.1,
+            "description": "UWB anchors as receivers; tag labels kept only as truth_label"}
+    ranges = Stream("ranges", "ranges", table[:, 0], table[:, 1:4], (*KIND_COLUMNS["ranges"], "truth_label"), 0.0, meta)
+    positions = rec.tags_truth(rec.t)
+    n = positions.shape[1]
+    truth = Stream("truth", "tag_position", np.repeat(rec.t - t0, n), np.column_stack([np.tile(np.arange(n, dtype=float), len(rec.t)),
+                                                                                         positions.reshape(-1, 3)]), KIND_COLUMNS["tag_position"])
+    header = {"session": {"system": "ultrasonic", "dataset": "UWB", "world_frame": "motion-capture room frame"}}
+    return Session("ultrasonic", {"ranges": ranges}, truth, header)

@@ -1,0 +1,228 @@
+"""Running presets: one session, many sessions (local processes or Dask, resumable), a report over seeds.
+
+Library functions that ``fusegraph run`` and ``fusegraph report`` wrap; generic over ``PRESETS``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .estimate import Result
+from .session import Session, SessionError, load_session
+from .systems.presets import PRESETS, Preset, flatten, preset_for
+
+
+@dataclass
+class Outcome:
+    """One solver's run on one session: the estimate, its metrics (None without truth) and files written."""
+
+    session: Session
+    preset: Preset
+    solver: str
+    estimate: Result
+    metrics: dict[str, Any] | None
+    files: list[Path] = field(default_factory=list)
+
+    def as_json(self) -> dict[str, Any]:
+        """``{"system": s, "solver": s, "metrics": {...}}`` (metrics empty without truth)."""
+        return {"system": self.preset.name, "solver": self.solver, "metrics": self.metrics or {}}
+
+
+def solve_session(session: Session, solver: str) -> Outcome:
+    """Run one solver of the session's preset and score it when the session has truth."""
+    preset = preset_for(session)
+    estimate = preset.solve(session, solver)
+    return Outcome(session, preset, solver, estimate, preset.score(session, estimate))
+
+
+def run_session(path: str | Path, solver: str, out: str | Path | None = None, plot: str | Path | None = None) -> Outcome:
+    """Load, solve, score; write the estimate CSV (default ``<session>/<stem>_<solver>.csv``) and, if asked, the picture."""
+    session = load_session(path)
+    outcome = solve_session(session, solver)
+    target = Path(out) if out is not None else Path(path) / f"{outcome.preset.estimate_name}_{solver}.csv"
+    if target.is_dir():
+        raise SessionError(f"--out {target}: is a folder; give a file name (e.g. {target / (outcome.preset.estimate_name + '_' + solver + '.csv')})")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    outcome.files.append(outcome.estimate.save_csv(target))
+    if plot is not None:
+        picture = outcome.preset.picture
+        if picture is None:
+            raise SessionError(f"system '{outcome.preset.name}' has no picture")
+        plot_path = Path(plot)
+        written = picture(session, [outcome.estimate], plot_path.parent if plot_path.suffix else plot_path)
+        if plot_path.suffix and written:
+            written[0].replace(plot_path)
+            written[0] = plot_path
+        outcome.files += written
+    return outcome
+
+
+def describe(outcome: Outcome) -> str:
+    """One or two lines for a terminal: what was written, how long it took, the headline metrics."""
+    e = outcome.estimate
+    lines = [f"wrote {outcome.files[0]} ({len(e.t)} rows, {outcome.session.duration_s:.1f} s of data in {e.runtime_s:.2f} s)" if outcome.files else ""]
+    latency = e.extras.get("latency_s")
+    if latency is not None:
+        sigma = e.extras.get("latency_sigma_s")
+        lines.append(f"tracker latency estimated: {1000 * latency:.1f} ms" + (f" (sigma {1000 * sigma:.1f} ms)" if sigma else ""))
+    if outcome.metrics:
+        flat = flatten(outcome.metrics)
+        keys = [k for k in outcome.preset.metric_keys if k in flat] + [k for k in flat if k.startswith("gap_rms_deg.")]
+        lines.append("; ".join(f"{k} {flat[k]:.4g}" for k in keys))
+    return "\n".join(line for line in lines if line)
+
+
+# --------------------------------------------------------------------------------- many sessions
+
+
+def session_dirs(paths: Iterable[str | Path]) -> list[Path]:
+    """Session directories from arguments: each is a session, or a folder whose sub-folders are sessions."""
+    found: list[Path] = []
+    for item in paths:
+        path = Path(item)
+        if (path / "session.toml").is_file():
+            found.append(path)
+        elif path.is_dir():
+            inner = sorted(p.parent for p in path.glob("*/session.toml"))
+            if not inner:
+                raise SessionError(f"{path / 'session.toml'}: not found (a session is a directory with session.toml; a study, a folder of them)")
+            found += inner
+        else:
+            raise SessionError(f"{path}: not found")
+    return found
+
+
+def _run_one_to_folder(args: tuple[str, str, str]) -> dict[str, Any]:
+    """Worker: one session into the study folder; a failure is a row, not an exception."""
+    path, solver, out_dir = args
+    name = Path(path).name
+    try:
+        outcome = run_session(path, solver, Path(out_dir) / f"{name}_{solver}.csv")
+        row = {"session": name, "path": path, "status": "ok", **outcome.as_json(), "runtime_s": outcome.estimate.runtime_s}
+    except Exception as exc:  # noqa: BLE001 - recorded, the study goes on
+        row = {"session": name, "path": path, "status": "failed", "solver": solver, "error": f"{type(exc).__name__}: {exc}"}
+    return row
+
+
+def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: int = 1, scheduler: str | None = None) -> list[dict[str, Any]]:
+    """Run every session into ``out_dir`` (estimate CSVs and ``results.jsonl``); sessions already done are skipped.
+
+    ``scheduler``: None = local processes, ``local`` = a Dask LocalCluster, ``tcp://host:port`` = an existing cluster.
+    """
+    from .progress import progress
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    log = out / "results.jsonl"
+    done: dict[str, dict[str, Any]] = {}
+    if log.exists():
+        for line in log.read_text().splitlines():
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # a torn last line (killed while writing): that session is run again
+            if row.get("status") == "ok" and row.get("solver") == solver:
+                done[row["path"]] = row
+    todo = [(str(p), solver, str(out)) for p in paths if str(p) not in done]
+    with log.open("a") as handle:
+        for row in progress(_map(todo, workers, scheduler), len(todo), f"run {solver}"):
+            handle.write(json.dumps(row) + "\n")
+            handle.flush()
+            done[row["path"]] = row
+    return [done.get(str(p), {"session": p.name, "path": str(p), "status": "failed", "error": "not run"}) for p in paths]
+
+
+def _map(todo: list[tuple[str, str, str]], workers: int, scheduler: str | None) -> Iterable[dict[str, Any]]:
+    if not todo:
+        return
+    if scheduler is not None:
+        from dask.distributed import Client, LocalCluster, as_completed
+
+        cluster = LocalCluster(n_workers=max(1, workers), threads_per_worker=1, dashboard_address=None) if scheduler == "local" else None
+        client = Client(cluster if cluster is not None else scheduler, timeout="10s")
+        try:
+            futures: list[Any] = [client.submit(_run_one_to_folder, item, pure=False) for item in todo]
+            for future in as_completed(futures):
+                yield future.result()
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+        return
+    if workers <= 1:
+        for item in todo:
+            yield _run_one_to_folder(item)
+        return
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import as_completed as done_in_order
+
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        local = [pool.submit(_run_one_to_folder, item) for item in todo]
+        for future in done_in_order(local):
+            yield future.result()
+
+
+def format_many(rows: Sequence[dict[str, Any]]) -> str:
+    """One line per session: status and the metrics its preset summarises."""
+    lines = []
+    for row in rows:
+        if row.get("status") != "ok":
+            lines.append(f"{row['session']:<24} FAILED {row.get('error', '')}")
+            continue
+        preset = PRESETS[row["system"]]
+        flat = flatten(row.get("metrics", {}))
+        cells = "  ".join(f"{k} {flat[k]:.4g}" for k in preset.metric_keys if k in flat) or "(no truth)"
+        lines.append(f"{row['session']:<24} {row['system']:<10} {row['solver']:<8} {cells}")
+    failed = sum(r.get("status") != "ok" for r in rows)
+    lines.append(f"{len(rows)} sessions, {failed} failed")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------- report
+
+
+def generic_report(system: str, seeds: Sequence[int], duration_s: float | None = None, solvers: Sequence[str] | None = None,
+                   **options: Any) -> dict[str, Any]:
+    """Simulate each seed, run every solver, score: the mean of each metric over seeds per solver, and speed.
+
+    JSON: ``{"system", "seeds", "duration_s", "methods": {solver: {"metrics": {...}, "x_realtime": x}}, "per_seed": ...}``.
+    """
+    from .progress import progress
+
+    preset = PRESETS[system]
+    names = list(solvers or preset.solvers)
+    per_seed: dict[str, list[dict[str, float]]] = {m: [] for m in names}
+    seconds: dict[str, float] = dict.fromkeys(names, 0.0)
+    data_s = 0.0
+    for seed in progress(seeds, len(seeds), f"{system} report (seeds)"):
+        session = preset.simulate(seed, duration_s, **options)
+        data_s += session.duration_s
+        for name in names:
+            outcome = solve_session(session, name)
+            per_seed[name].append(flatten(outcome.metrics or {}))
+            seconds[name] += outcome.estimate.runtime_s
+    methods = {}
+    for name in names:
+        keys = sorted(set().union(*[set(r) for r in per_seed[name]]))
+        means = {k: float(np.mean([r.get(k, np.nan) for r in per_seed[name]])) for k in keys}
+        methods[name] = {"metrics": means, "x_realtime": data_s / seconds[name] if seconds[name] > 0 else float("inf")}
+    return {"system": system, "seeds": list(seeds), "duration_s": duration_s, "methods": methods, "per_seed": per_seed}
+
+
+def format_generic_report(report: dict[str, Any]) -> str:
+    """A text table: one row per solver, the preset's metrics (means over seeds) and speed."""
+    preset = PRESETS[report["system"]]
+    keys = [k for k in preset.metric_keys if any(k in m["metrics"] for m in report["methods"].values())]
+    width = max(len(n) for n in report["methods"]) + 2
+    lines = [f"{report['system']}: seeds {','.join(str(s) for s in report['seeds'])}, means over seeds",
+             f"{'method':<{width}}" + "".join(f"{k:>24}" for k in keys) + f"{'x real time':>14}"]
+    for name, row in report["methods"].items():
+        cells = "".join(f"{row['metrics'].get(k, float('nan')):24.4f}" for k in keys)
+        lines.append(f"{name:<{width}}{cells}{row['x_realtime']:14.1f}")
+    return "\n".join(lines)
