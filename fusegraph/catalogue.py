@@ -105,6 +105,7 @@ TRUTH_KEYS: tuple[KeySpec, ...] = (
     KeySpec("frame", None, "free text"),
     KeySpec("world_frame", None, "free text"),
     KeySpec("description", None, "free text"),
+    KeySpec("source", None, "free text: where the truth comes from (e.g. optical motion capture)"),
 )
 """Keys of the ``[truth]`` table."""
 
