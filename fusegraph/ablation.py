@@ -136,8 +136,6 @@ class Study:
 def run_key(spec: Mapping[str, Any]) -> str:
     """A stable key of a run's full configuration (what it computes, not where or when)."""
     fields = {k: spec[k] for k in ("system", "drop", "params", "seed", "solver", "profile", "duration_s")}
-    if fields["system"] == "head" and fields["solver"] == "ekf":
-        fields["solver"] = "ekf"  # head keys as before, so old studies resume
     return hashlib.sha1(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
 
 

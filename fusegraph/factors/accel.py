@@ -37,19 +37,22 @@ def gravity_sigma_rad(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_
     return float(np.deg2rad(noise.sigma_deg + noise.inflation_deg_per_m_s2 * departure))
 
 
-def gravity_factor_rot3(rot_key: int, accel_body_m_s2: FloatArray, noise: GravityNoise, gravity_m_s2: float = GRAVITY_M_S2) -> gtsam.AttitudeFactorRot3:
-    """As ``gravity_factor``, on a Rot3 attitude state (world_R_body): the specific force points up."""
+def _gravity_model(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_m_s2: float) -> gtsam.noiseModel.Base:
     model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, gravity_sigma_rad(noise, accel_body_m_s2, gravity_m_s2))
     if noise.cauchy_k > 0:
         model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(noise.cauchy_k), model)
+    return model
+
+
+def gravity_factor_rot3(rot_key: int, accel_body_m_s2: FloatArray, noise: GravityNoise, gravity_m_s2: float = GRAVITY_M_S2) -> gtsam.AttitudeFactorRot3:
+    """As ``gravity_factor``, on a Rot3 attitude state (world_R_body): the specific force points up."""
+    model = _gravity_model(noise, accel_body_m_s2, gravity_m_s2)
     return gtsam.AttitudeFactorRot3(rot_key, _UP, model, gtsam.Unit3(np.asarray(accel_body_m_s2, dtype=float)))
 
 
 def gravity_factor(pose_key: int, accel_body_m_s2: FloatArray, noise: GravityNoise, gravity_m_s2: float = GRAVITY_M_S2) -> gtsam.AttitudeFactorPose3:
     """The specific force at rest points up in the world (ENU)."""
-    model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, gravity_sigma_rad(noise, accel_body_m_s2, gravity_m_s2))
-    if noise.cauchy_k > 0:
-        model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(noise.cauchy_k), model)
+    model = _gravity_model(noise, accel_body_m_s2, gravity_m_s2)
     return gtsam.AttitudeFactorPose3(pose_key, _UP, model, gtsam.Unit3(np.asarray(accel_body_m_s2, dtype=float)))
 
 CATALOGUE = (

@@ -356,7 +356,8 @@ def _ultrasonic_run(session: Session, solver: str) -> Result:
         if solver == "batch":
             run = ultrasonic.smooth_tracks(epochs, run)
     seconds = time.perf_counter() - start
-    return PointEstimate(solver, epochs.t.copy(), run.positions, ("x", "y", "z"), seconds, {"labels": run.labels, "ms_per_epoch": run.ms_per_epoch})
+    extras = {"labels": run.labels, "ms_per_epoch": run.ms_per_epoch, "epochs": epochs}  # epochs: scoring reuses them, not re-reading the file
+    return PointEstimate(solver, epochs.t.copy(), run.positions, ("x", "y", "z"), seconds, extras)
 
 
 def _ultrasonic_score(session: Session, estimate: Result) -> dict[str, Any] | None:
@@ -365,8 +366,10 @@ def _ultrasonic_score(session: Session, estimate: Result) -> dict[str, Any] | No
     from ..datasets.ultrasonic_session import epochs_from_session
     from . import ultrasonic
 
-    epochs = epochs_from_session(session)
-    if epochs.labels is None or epochs.positions is None or not isinstance(estimate, PointEstimate):
+    if not isinstance(estimate, PointEstimate):
+        return None
+    epochs = estimate.extras.get("epochs") or epochs_from_session(session)
+    if epochs.labels is None or epochs.positions is None:
         return None
     score = ultrasonic.score_run(epochs, estimate.extras["labels"], estimate.points)
     out: dict[str, Any] = asdict(score)
