@@ -215,3 +215,13 @@ def catalogue_markdown(systems: Iterable[tuple[str, str, tuple[KeySpec, ...], tu
                 out += [f"| `{k.name}` | {_cell(k.default)} | {k.meaning} |" for k in keys]
                 out.append("")
     return "\n".join(out)
+
+
+def check_sensors(system: str, sensors: Iterable[str], required: Iterable[str], optional: Iterable[str]) -> tuple[str, ...]:
+    """A simulation's ``--sensors`` list checked against what the system needs and can add; returned as a tuple."""
+    given, needed, allowed = tuple(sensors), set(required), set(required) | set(optional)
+    unknown = sorted(set(given) - allowed)
+    if unknown or not needed <= set(given):
+        raise ValueError(f"{system} sensors {','.join(given)}: {', '.join(sorted(needed))} required, {', '.join(sorted(set(optional)))} optional "
+                         f"(unknown: {', '.join(unknown) or '-'})")
+    return given

@@ -44,6 +44,8 @@ def _seeds_arg(text: str) -> list[int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .systems.presets import PRESETS
+
     parser = argparse.ArgumentParser(
         prog="fusegraph",
         description="Factor-graph smoothing for human motion: every sensor a factor in one GTSAM graph; "
@@ -63,7 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="sensor error profile (default realistic); head: ideal or realistic; attitude9: realistic or noise_free")
     sim.add_argument("--duration", type=float, default=None,
                      help="seconds of data (default: head, attitude9, ultrasonic 10; gaze, bicycle 40; walking: its whole tour, or its first seconds)")
-    sim.add_argument("--sensors", metavar="LIST", help="head: streams to write, e.g. gyro,accel,tracker (default gyro,tracker)")
+    sim.add_argument("--sensors", metavar="LIST", help="streams to write: head gyro,tracker[,accel] (default gyro,tracker); "
+                     "attitude9 gyro,accel[,mag][,tracker] "
+                     "(default gyro,accel,mag); gaze gyro,accel,mag,gaze[,tracker] (tracker = a head attitude tracker); "
+                     "walking gyro,accel[,fixes][,beacons] (default gyro,accel,fixes; beacons = UWB ranges to known beacons)")
     sim.add_argument("--tracker-gap", metavar="START:END", help="head: no tracker samples from START to END seconds, e.g. 30:90")
     sim.add_argument("--transmitters", type=int, metavar="N", help="ultrasonic: transmitters emitting at once (default 3)")
     sim.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency, seconds (default 0.1)")
@@ -78,12 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "  fusegraph simulate bicycle --seed 1 --out sessions/bike1 && fusegraph run sessions/bike1 --solver ekf --plot bike.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     run.add_argument("session", type=Path, nargs="+", help="session directory (with session.toml); several, or a folder of sessions, for a study")
-    run.add_argument("--solver", choices=["online", "batch", "ekf", "method1", "kalman", "tracker", "gyro", "vqf", "vqf_offline", "no_removal",
-                                          "paper_pipeline", "dead_reckoning", "combinatorial"], default="online",
+    run.add_argument("--solver", choices=list(dict.fromkeys(name for preset in PRESETS.values() for name in preset.solvers)), default="online",
                      help="online = iSAM2 causal estimate at every gyro sample; batch = smoother over the whole session; ekf = the paper's "
                      "EKF (head: Method II; attitude9: the 9-axis EKF; gaze: (yaw, pitch, roll, GX, GZ); bicycle: frame EKF -> subtract -> "
                      "thigh EKF; walking: the paper's Kalman framework); vqf, vqf_offline = the peer (attitude9 only); no_removal = the "
-                     "thigh EKF alone (bicycle only); dead_reckoning = steps and rides only (walking only); combinatorial = the paper's search "
+                     "thigh EKF alone (bicycle only); dead_reckoning = steps and rides only, steps = the step count of an accelerometer-only "
+                     "recording (walking only); combinatorial = the paper's search "
                      "(ultrasonic only); method1, kalman, tracker, gyro = the head paper's other rows. `fusegraph sensors SYSTEM` lists a system's solvers")
     run.add_argument("--out", type=Path, help="CSV to write (default: <session>/<estimate>_<solver>.csv); with several sessions, a folder")
     run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
@@ -152,10 +157,13 @@ def build_parser() -> argparse.ArgumentParser:
     imp = sub.add_parser("import", help="turn a real recording into a session directory (then run/view/ablate it)",
                          description="broad: a BROAD trial (.mat) or a folder of them -> attitude9 sessions (one per trial). "
                          "uwb: the UWB recording folder (UWB_*.csv + motion_capture_*.csv) -> an ultrasonic session (anchors as receivers, "
-                         "tags unlabelled, motion capture as truth).",
+                         "tags unlabelled, motion capture as truth). oxford: an Oxford step recording folder or the dataset folder -> walking "
+                         "sessions with the phone accelerometer and the hand-counted steps (run --solver steps).",
                          epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
-                         "  fusegraph import uwb ../shared/data/uwb_lias --out sessions/uwb", formatter_class=argparse.RawDescriptionHelpFormatter)
-    imp.add_argument("format", choices=["broad", "uwb"])
+                         "  fusegraph import uwb ../shared/data/uwb_lias --out sessions/uwb\n"
+                         "  fusegraph import oxford ../shared/data/steps_oxford --out sessions/oxford\n"
+                         "  fusegraph run sessions/oxford --solver steps --out studies/oxford", formatter_class=argparse.RawDescriptionHelpFormatter)
+    imp.add_argument("format", choices=["broad", "oxford", "uwb"])
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
 

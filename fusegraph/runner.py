@@ -177,7 +177,8 @@ def format_many(rows: Sequence[dict[str, Any]]) -> str:
             continue
         preset = PRESETS[row["system"]]
         flat = flatten(row.get("metrics", {}))
-        cells = "  ".join(f"{k} {flat[k]:.4g}" for k in preset.metric_keys if k in flat) or "(no truth)"
+        keys = [k for k in preset.metric_keys if k in flat] or list(flat)  # a solver with metrics of its own (walking: steps)
+        cells = "  ".join(f"{k} {flat[k]:.4g}" for k in keys) or "(no truth)"
         lines.append(f"{row['session']:<24} {row['system']:<10} {row['solver']:<8} {cells}")
     failed = sum(r.get("status") != "ok" for r in rows)
     lines.append(f"{len(rows)} sessions, {failed} failed")

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import requires_shared_data
 
 from fusegraph.catalogue import catalogue_markdown
 from fusegraph.cli import main, system_docs
@@ -51,6 +52,43 @@ def test_head_accelerometer_holds_tilt_through_a_tracker_gap(tmp_path: Path, cap
     with_accel, without = gap["gyro,accel,tracker"], gap["gyro,tracker"]
     assert max(with_accel["elevation"], with_accel["roll"]) < 1.0
     assert max(without["elevation"], without["roll"]) > 2.0 * max(with_accel["elevation"], with_accel["roll"])
+
+
+@pytest.mark.parametrize(("system", "sensors", "duration", "stream"), [
+    ("attitude9", "gyro,accel,mag,tracker", "6", "tracker"),
+    ("gaze", "gyro,accel,mag,gaze,tracker", "6", "head_tracker"),
+    ("walking", "gyro,accel,fixes,beacons", "60", "beacons"),
+])
+def test_sensor_combinations_run_online_and_batch(system: str, sensors: str, duration: str, stream: str, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """Two systems' sensors in one graph, end to end: the extra stream is written, read and used by both solvers
+    (scored finite; the figures of the closing note come from the longer runs of the same commands)."""
+    session = tmp_path / system
+    assert main(["simulate", system, "--seed", "2", "--sensors", sensors, "--duration", duration, "--out", str(session)]) == 0
+    assert stream in load_session(session).streams
+    capsys.readouterr()
+    for solver in ("online", "batch"):
+        assert main(["run", str(session), "--solver", solver, "--json"]) == 0
+        metrics = json.loads(capsys.readouterr().out)["metrics"]
+        assert _leaves(metrics) and all(np.isfinite(_leaves(metrics))), metrics
+
+
+def test_walking_beacon_ranges_enter_the_graph() -> None:
+    """Ranges to known beacons only (no image fixes): the batch stays within 1.5 m RMS over a minute, which
+    dead reckoning with a 2 % speed error and a drifting heading does not guarantee; a beacon index outside
+    beacons_m is an error naming the row."""
+    from dataclasses import replace
+
+    from fusegraph.systems.presets import PRESETS
+
+    session = PRESETS["walking"].simulate(4, duration_s=60.0, sensors=("gyro", "accel", "beacons"))
+    batch = PRESETS["walking"].run(session, "batch")
+    metrics = PRESETS["walking"].score(session, batch)
+    assert metrics is not None and metrics["rmse_m"] < 1.5, metrics
+    beacons = session.stream("beacons")
+    broken = replace(beacons, values=np.column_stack([np.where(np.arange(len(beacons)) == 3, 99, beacons.values[:, 0]), beacons.values[:, 1]]))
+    with pytest.raises(SessionError, match="row 4: beacon 99"):
+        PRESETS["walking"].run(replace(session, streams={**session.streams, "beacons": broken}), "batch")
 
 
 def test_run_many_sessions_into_a_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -100,3 +138,17 @@ def test_options_that_do_not_apply_are_errors(tmp_path: Path, capsys: pytest.Cap
 def test_catalogue_page_is_current() -> None:
     page = Path(__file__).parent.parent / "docs" / "sensors.md"
     assert page.read_text() == catalogue_markdown(system_docs()) + "\n", "regenerate: fusegraph sensors > docs/sensors.md"
+
+
+@requires_shared_data("steps_oxford")
+def test_import_oxford_counts_steps_through_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from fusegraph.datasets.steps_oxford import DEFAULT_DIR
+
+    name = "Pixel_Jamie_Hard_NeckPouch_1"
+    assert main(["import", "oxford", str(DEFAULT_DIR / name), "--out", str(tmp_path / name)]) == 0
+    capsys.readouterr()
+    assert main(["run", str(tmp_path / name), "--solver", "steps", "--json"]) == 0
+    metrics = json.loads(capsys.readouterr().out)["metrics"]
+    assert metrics["steps_true"] == 248 and metrics["step_error_frac"] < 0.05, metrics  # the bench's 5 % bound for phone recordings
+    assert main(["run", str(tmp_path / name), "--solver", "batch"]) != 0  # trajectories need the gyro: a clear error, not a traceback
+    assert "no gyro stream" in capsys.readouterr().err

@@ -4,6 +4,9 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
 
 * ``broad``: a BROAD trial (.mat) or a folder of them -> one attitude9 session per trial (gyro,
   accel, mag at the IMU rate, the movement flag; the optical attitude as truth).
+* ``oxford``: an Oxford step recording folder (``accelerometer.csv``) or the dataset folder (with
+  ``stats.csv``) -> walking sessions with the phone's accelerometer only and the hand-counted steps in
+  ``[truth_extra] steps``: ``run --solver steps`` counts them (there is no gyro for a trajectory).
 * ``uwb``: the UWB recording folder (``UWB_*.csv`` and ``motion_capture_*.csv``) -> one ultrasonic
   session: the anchors as receivers, every tag's range per epoch UNLABELLED (the tag labels become
   the scoring-only ``truth_label`` column), the tags' motion-capture positions as truth. Times are
@@ -35,7 +38,29 @@ def import_recording(fmt: str, source: str | Path, out: str | Path) -> list[Path
         return [save_session(_portable(load_broad(p)), out / p.stem) for p in paths]
     if fmt == "uwb":
         return [save_session(uwb_session(source), out)]
-    raise SessionError(f"unknown format {fmt!r} (known: broad, uwb)")
+    if fmt == "oxford":
+        from .steps_oxford import recordings
+
+        if (source / "stats.csv").is_file():
+            return [save_session(oxford_session(source, name), out / name) for name in recordings(source)]
+        return [save_session(oxford_session(source.parent, source.name), out)]
+    raise SessionError(f"unknown format {fmt!r} (known: broad, oxford, uwb)")
+
+
+def oxford_session(directory: Path, name: str) -> Session:
+    """One Oxford step recording as an accelerometer-only walking session (see the module docstring)."""
+    from .steps_oxford import load_recording
+
+    try:
+        rec = load_recording(directory, name)
+    except (OSError, ValueError) as err:
+        raise SessionError(f"{directory / name}: {err}") from None
+    rate = float(1.0 / np.median(np.diff(rec.t)))
+    accel = Stream("accel", "accel", rec.t, rec.accel_m_s2, KIND_COLUMNS["accel"], 0.0, {"frame": "phone", "rate_hz": round(rate, 1)})
+    header = {"session": {"system": "walking", "dataset": "Oxford step counting", "trial": name,
+                          "description": f"phone carried in the {rec.position}; accelerometer only"},
+              "truth_extra": {"steps": rec.true_steps}}
+    return Session("walking", {"accel": accel}, None, header)
 
 
 def _portable(session: Session) -> Session:

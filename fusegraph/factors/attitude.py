@@ -60,6 +60,20 @@ class AttitudeMeasurement:
         return cls(float(t), rot3_from_quat_wxyz(quat_wxyz))
 
 
+@dataclass(frozen=True)
+class AttitudeTrack:
+    """An attitude tracker's samples as an estimator reads them."""
+
+    t: FloatArray
+    """Sample times, seconds (increasing)."""
+    latency_s: float
+    """How long after its sample time each sample reaches an online estimator, seconds."""
+    tracker_R_body_wxyz: FloatArray
+    """Readings in the tracker's own room frame, quaternions (N, 4)."""
+    sigma_rad: float
+    """White noise per axis, rad."""
+
+
 def attitude_prior_factor(key: int, measured: gtsam.Rot3, sigma_rad: float) -> gtsam.PriorFactorRot3:
     """White-noise attitude measurement on the state ``key``."""
     return gtsam.PriorFactorRot3(key, measured, gtsam.noiseModel.Isotropic.Sigma(3, sigma_rad))

@@ -43,6 +43,39 @@ class RangeNoise:
     """Online: sigma around the last estimate for a beacon heard again after its bias was marginalised."""
 
 
+@dataclass(frozen=True)
+class BeaconRanges:
+    """Ranges to known, identified beacons (a ``beacon_ranges`` stream) as an estimator reads them."""
+
+    t: FloatArray
+    """Time of each range, seconds (rows of one epoch may share it)."""
+    beacon: np.ndarray
+    """Index of the beacon each range is to (row of ``beacons_m``)."""
+    range_m: FloatArray
+    """Measured distance, metres."""
+    beacons_m: FloatArray
+    """Beacon positions in the world frame, (B, 3) metres."""
+    noise: RangeNoise
+    """Trust in a range and the prior on each beacon's bias."""
+
+
+def beacon_ranges_from(stream: Any, where: str) -> BeaconRanges:
+    """A ``beacon_ranges`` stream (a ``session.Stream``) as ``BeaconRanges``; beacon indices are checked."""
+    meta = stream.meta
+    if "beacons_m" not in meta:
+        raise ValueError(f"{where}: stream '{stream.name}' needs beacons_m = [[x, y, z], ...] (beacon positions, m)")
+    beacons = np.atleast_2d(np.asarray(meta["beacons_m"], dtype=float))
+    if beacons.shape[1] == 2:
+        beacons = np.column_stack([beacons, np.zeros(len(beacons))])
+    index = stream.values[:, 0]
+    bad = np.flatnonzero((index != np.round(index)) | (index < 0) | (index >= len(beacons)))
+    if len(bad):
+        raise ValueError(f"{where}: stream '{stream.name}' row {bad[0] + 1}: beacon {index[bad[0]]:g} is not an index of beacons_m (0..{len(beacons) - 1})")
+    noise = RangeNoise(sigma_m=float(meta.get("sigma_m", 1.0)), bias_sigma_m=float(meta.get("bias_sigma_m", 5.0)),
+                       kernel_width=float(meta.get("kernel_width", 1.5)))
+    return BeaconRanges(stream.t, index.astype(int), stream.values[:, 1], beacons, noise)
+
+
 def range_factor(pose_key: int, bias_key: int, world_t_beacon: FloatArray, range_m: float, noise: RangeNoise) -> gtsam.CustomFactor:
     """Unary-in-pose biased range: error = |t - beacon| + bias - range."""
     beacon = np.asarray(world_t_beacon, dtype=float).copy()
@@ -99,13 +132,16 @@ CATALOGUE = (
     ),
     SensorKind(
         kind="beacon_ranges",
-        summary="ranges to known, identified beacons (Plaza)",
+        summary="ranges to known, identified beacons (Plaza; a walker's UWB tag): one row per range, rows of one epoch share t",
         columns=("beacon", "range_m"),
         units=("index", "m"),
         frame="beacon positions in the world frame (beacons_m)",
-        factors="RangeFactor2D-style range from the state to the beacon with a robust kernel",
+        factors="range from the state nearest in time to the beacon plus the beacon's bias (CustomFactor, Huber); walking: the "
+        "motion between the range and its state widens sigma",
         keys=(KeySpec("beacons_m", None, "beacon positions [[x, y], ...] or [[x, y, z], ...], m (required)"),
-              KeySpec("sigma_m", 1.0, "range noise, m")),
+              KeySpec("sigma_m", 1.0, "range noise, m"),
+              KeySpec("bias_sigma_m", 5.0, "prior sigma of each beacon's range bias (a slowly walking variable), m"),
+              KeySpec("kernel_width", 1.5, "Huber kernel width in sigmas (multipath / non-line-of-sight ranges)")),
         repeated_times=True,
     ),
 )

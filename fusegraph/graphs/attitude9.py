@@ -21,6 +21,7 @@ import gtsam
 import numpy as np
 
 from ..factors.accel import GravityNoise, gravity_factor
+from ..factors.attitude import AttitudeTrack
 from ..factors.imu import (
     ImuNoise,
     MotionPriors,
@@ -32,7 +33,7 @@ from ..factors.imu import (
     velocity_prior_factor,
 )
 from ..factors.mag import FieldReference, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
-from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rotvec_from_quat
+from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
 from .increment import GraphIncrement
 
 
@@ -49,6 +50,14 @@ def V(k: int) -> int:
 def B(k: int) -> int:
     """Key of keyframe k's IMU bias (ConstantBias: accelerometer, gyro)."""
     return int(gtsam.symbol("b", k))
+
+
+#: Key of world_T_tracker (Pose3; only its rotation is observed): the attitude tracker's own world frame
+#: (an optical or magnetic tracker's room frame) relative to the graph's ENU world, one constant variable.
+TRACKER_WORLD = int(gtsam.symbol("a", 0))
+
+#: Sigma of the unobserved translation part of the tracker factors, m: large enough to carry no information.
+_FREE_TRANSLATION_SIGMA_M = 1e3
 
 
 @dataclass(frozen=True)
@@ -116,6 +125,15 @@ class Attitude9Builder:
         self._count = 0
         self._still_run = 0  # consecutive still samples
         self._solved = False
+        self._keyframe_guess: list[gtsam.Rot3] = []  # each keyframe's attitude as first predicted
+        self._recent: list[tuple[float, FloatArray]] = []  # (t, gyro) of the samples a late tracker sample may need
+        self.tracker_factors = 0
+        """How many attitude-tracker samples became factors."""
+        self.tracker_readings: dict[int, gtsam.Rot3] = {}
+        """Keyframe -> tracker_R_world * world_R_body(k) of its latest tracker sample (batch initial values)."""
+        self._tracker_fed = 0
+        self.tracker_dropped = 0
+        """Tracker samples older than the online window or before the first keyframe (not used)."""
 
     # ------------------------------------------------------------------ keys
     def X(self, k: int) -> int:
@@ -196,6 +214,7 @@ class Attitude9Builder:
             if dt <= 0:
                 raise ValueError(f"sample {self._count}: time {t[i]:.6f} s does not increase (previous {self._last_t:.6f} s)")
             self._interval.append((accel[i], gyro[i], dt))
+            self._recent.append((float(t[i]), gyro[i]))
             self._last_t = float(t[i])
             if self._last_t - self.keyframe_t[-1] >= period - 0.5 * dt:
                 self._close_keyframe(accel[i], None if mag is None else mag[i])
@@ -215,6 +234,7 @@ class Attitude9Builder:
         self._pending.values.insert(self.B(0), self._bias)
         self.keyframe_t.append(t)
         self.keyframe_index.append(self._count)
+        self._keyframe_guess.append(rot)
         self._after_keyframe(0, rot, mag)
         self._last_t = t
         self._count += 1
@@ -255,6 +275,7 @@ class Attitude9Builder:
         self._pending.values.insert(self.B(k), self._bias)
         self.keyframe_t.append(self._last_t)
         self.keyframe_index.append(self._count)
+        self._keyframe_guess.append(predicted.attitude())
         self._nav = predicted
         self._after_keyframe(k, predicted.attitude(), mag)
 
@@ -273,6 +294,77 @@ class Attitude9Builder:
         assert self.reference is not None
         sigma = heading_sigma_rad(self.model.mag, self.reference, norm, dip)
         return heading_factor(self.X(k), world_R_body, mag, sigma, self.model.mag.cauchy_k if robust else 0.0)
+
+    def add_attitude(self, t_s: float, tracker_R_body: gtsam.Rot3, sigma_rad: float) -> bool:
+        """An attitude tracker's sample (its SAMPLE time; it may arrive late) as a factor on the keyframe before it.
+
+        The tracker reads tracker_R_body = tracker_R_world * world_R_body(k) * Delta, Delta the gyro's rotation
+        from keyframe k to ``t_s`` (bias-corrected, at most one keyframe period). tracker_R_world is the constant
+        ``TRACKER_WORLD`` variable, so the tracker's room frame need not be aligned with ENU: gravity and the
+        magnetometer align it, and the tracker then holds heading through magnetic disturbances. The factor is
+        a ``BetweenFactorPose3`` (C++) whose translation part is left free. False when the sample is not used.
+        """
+        k = int(np.searchsorted(self.keyframe_t, t_s + 1e-9, side="right")) - 1
+        if k < 0 or k < self.oldest_allowed_keyframe or t_s > self._last_t + 1e-9:
+            self.tracker_dropped += 1
+            return False
+        delta = self._gyro_rotation(self.keyframe_t[k], t_s)
+        measured = tracker_R_body.compose(delta.inverse())  # tracker_R_world * world_R_body(k)
+        if self.tracker_factors == 0:
+            solved = k < len(self.posterior_quat) and np.isfinite(self.posterior_quat[k][0])
+            guess = rot3_from_quat_wxyz(self.posterior_quat[k]) if solved else self._keyframe_guess[k]
+            world_R_tracker = guess.compose(measured.inverse())
+            self._pending.values.insert(TRACKER_WORLD, gtsam.Pose3(world_R_tracker, np.zeros(3)))
+            # the rotation is free (10 rad); the translation, which no factor sees, is pinned at zero
+            loose = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[10.0] * 3, [1.0] * 3])
+            self._pending.add(k, gtsam.PriorFactorPose3(TRACKER_WORLD, gtsam.Pose3(world_R_tracker, np.zeros(3)), loose))
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rad] * 3, [_FREE_TRANSLATION_SIGMA_M] * 3])
+        self._pending.add(k, gtsam.BetweenFactorPose3(TRACKER_WORLD, self.X(k), gtsam.Pose3(measured, np.zeros(3)), noise))
+        self.tracker_readings[k] = measured
+        self.tracker_factors += 1
+        if len(self._recent) > 4000 and not self.deferred_mag:  # online: samples older than the window are never needed
+            self._recent = self._recent[-2000:]
+        return True
+
+    def feed_tracker(self, track: AttitudeTrack, now_s: float = np.inf) -> None:
+        """Every sample of ``track`` that has arrived by ``now_s`` (sample time + latency) and was not fed yet."""
+        stop = int(np.searchsorted(track.t + track.latency_s, now_s + 1e-9, side="right"))
+        for n in range(self._tracker_fed, stop):
+            self.add_attitude(float(track.t[n]), rot3_from_quat_wxyz(track.tracker_R_body_wxyz[n]), track.sigma_rad)
+        self._tracker_fed = max(self._tracker_fed, stop)
+
+    def heading_passes(self) -> tuple[bool, ...]:
+        """Robust flags of the batch's heading passes (each levels the field with the previous attitude).
+
+        Without a tracker: Gaussian then Cauchy (the first levels with dead reckoning). With a tracker, a
+        Gaussian pass would let a disturbed stretch pull the one alignment every keyframe shares, so both
+        are robust (the second levels with the first's tilt: a tilt error e becomes ~e*tan(dip) of heading).
+        """
+        if not self.mag_readings:
+            return (True,)
+        return (True, True) if self.tracker_readings else (False, True)
+
+    def tracker_seeded(self, values: gtsam.Values) -> gtsam.Values:
+        """Batch initial values with every keyframe the tracker saw set from its reading (through the first
+        alignment guess): dead reckoning from a zero bias drifts tens of degrees over minutes."""
+        if not self.tracker_readings:
+            return values
+        world_R_tracker = values.atPose3(TRACKER_WORLD).rotation()
+        for k, measured in self.tracker_readings.items():
+            values.update(self.X(k), gtsam.Pose3(world_R_tracker.compose(measured), values.atPose3(self.X(k)).translation()))
+        return values
+
+    def _gyro_rotation(self, t0: float, t1: float) -> gtsam.Rot3:
+        """body(t0)_R_body(t1) from the bias-corrected gyro samples in (t0, t1] (sample i covers (t_{i-1}, t_i])."""
+        times = [t for t, _ in self._recent]
+        i0 = int(np.searchsorted(times, t0 + 1e-9, side="left"))
+        i1 = int(np.searchsorted(times, t1 + 1e-9, side="right"))
+        bias = np.asarray(self._bias.gyroscope())
+        out = gtsam.Rot3()
+        for i in range(i0, i1):
+            prev = times[i - 1] if i > 0 else times[i]
+            out = out.compose(gtsam.Rot3.Expmap((self._recent[i][1] - bias) * (times[i] - prev)))
+        return out
 
     def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""

@@ -178,6 +178,14 @@ def poses_of(values: gtsam.Values, count: int) -> FloatArray:
     return out
 
 
+def range_schedule(state_t: FloatArray, range_t: FloatArray) -> tuple[np.ndarray, np.ndarray]:
+    """For each range: the state it attaches to (nearest in time) and the first state whose update may add
+    it (the first at or after the range: causal)."""
+    first = np.clip(np.searchsorted(state_t, range_t, side="left"), 1, len(state_t) - 1)
+    earlier = np.abs(range_t - state_t[first - 1]) < np.abs(state_t[first] - range_t)
+    return np.where(earlier, first - 1, first), first
+
+
 def causal_online(config: OnlineConfig) -> Callable[[PlanarGraph], gtsam.Pose3]:
     """An ``on_state`` helper for the builders: the re-anchoring iSAM2 starts on the first call and is
     updated on every call; each call returns the newest pose as solved then (the causal estimate)."""

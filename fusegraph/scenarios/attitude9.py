@@ -7,7 +7,8 @@ it). The magnetometer reads the Earth field (``field_uT``, ``dip_deg``; magnetic
 ENU) through an uncalibrated sensor, raw = (M - B) / G with per-axis gain G and offset B, plus an
 indoor disturbance (a world-fixed extra field from steel nearby) over a stretch of the session. A
 separate calibration recording ``mag_cal`` (the sensor turned through many orientations, same
-sensor, no disturbance) lets the pipeline fit G and B.
+sensor, no disturbance) lets the pipeline fit G and B. With ``tracker`` among the sensors, an
+optical/magnetic attitude tracker reads the attitude in its own room frame, 100 ms late.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..catalogue import check_sensors
 from ..factors.imu import GRAVITY_M_S2
-from ..geometry import FloatArray, matrix_from_quat, quat_conjugate, quat_from_euler_zyx, quat_multiply, rotvec_from_quat
+from ..geometry import FloatArray, matrix_from_quat, quat_conjugate, quat_from_euler_zyx, quat_from_rotvec, quat_multiply, rotvec_from_quat
 from ..session import KIND_COLUMNS, Session, Stream
 
 
@@ -55,6 +57,14 @@ class Attitude9ScenarioConfig:
     """Amplitude of the translational motion, metres."""
     calibration_s: float = 30.0
     """Length of the magnetometer calibration recording, seconds."""
+    sensors: tuple[str, ...] = ("gyro", "accel", "mag")
+    """Streams to write: gyro and accel always; mag and tracker (an optical/magnetic attitude tracker) optional."""
+    tracker_rate_hz: float = 50.0
+    """Attitude tracker sample rate, Hz (when ``tracker`` is among the sensors)."""
+    tracker_latency_s: float = 0.1
+    """How late each tracker sample arrives, seconds."""
+    tracker_sigma_deg: float = 0.4
+    """Tracker white noise per axis, degrees."""
 
 
 def _smooth_angles(rng: np.random.Generator, t: FloatArray, amplitudes_rad: FloatArray, freq_hz: tuple[float, float]) -> FloatArray:
@@ -102,9 +112,24 @@ def _noisy_readings(
     return gyro, accel + rng.normal(0.0, accel_sigma_m_s2, accel.shape), mag + rng.normal(0.0, mag_sigma, mag.shape)
 
 
+def attitude_tracker_stream(
+    t: FloatArray, q_wxyz: FloatArray, rng: np.random.Generator, rate_hz: float, latency_s: float, sigma_deg: float, noise: bool = True, name: str = "tracker",
+) -> Stream:
+    """An optical/magnetic attitude tracker sampling the truth ``q_wxyz`` (at times ``t``) at ``rate_hz``, in its
+    own room frame (a random fixed rotation from ENU: yaw anywhere, tilt within 6 deg), white noise, late."""
+    step = max(1, int(round(1.0 / (float(np.median(np.diff(t))) * rate_hz))))
+    rows = np.arange(0, len(t), step)
+    tracker_R_world = quat_from_euler_zyx(np.array([[rng.uniform(-np.pi, np.pi), rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1)]]))[0]
+    white = quat_from_rotvec(rng.normal(0.0, np.deg2rad(sigma_deg), (len(rows), 3)) * (1.0 if noise else 0.0))
+    reading = quat_multiply(quat_multiply(np.broadcast_to(tracker_R_world, (len(rows), 4)), q_wxyz[rows]), white)
+    meta = {"rate_hz": rate_hz, "frame": "tracker_R_body (the tracker's room frame, not ENU)", "noise_sigma_deg": sigma_deg}
+    return Stream(name, "attitude", t[rows], reading, KIND_COLUMNS["attitude"], latency_s, meta)
+
+
 def simulate_attitude9(seed: int = 0, config: Attitude9ScenarioConfig | None = None, **overrides: object) -> Session:
     """A seeded 9-axis session with truth and a magnetometer calibration recording."""
-    cfg = replace(config or Attitude9ScenarioConfig(), **{k: v for k, v in overrides.items() if k not in ("profile",)})  # type: ignore[arg-type]
+    cfg = replace(config or Attitude9ScenarioConfig(), **{k: v for k, v in overrides.items() if k not in ("profile",) and v is not None})  # type: ignore[arg-type]
+    check_sensors("attitude9", cfg.sensors, ("gyro", "accel"), ("mag", "tracker"))
     if overrides.get("profile") == "noise_free":
         cfg = replace(cfg, noise=False)
     rng = np.random.default_rng(seed)
@@ -140,9 +165,13 @@ def simulate_attitude9(seed: int = 0, config: Attitude9ScenarioConfig | None = N
     streams = {
         "gyro": Stream("gyro", "gyro", t, gyro, KIND_COLUMNS["gyro"], 0.0, dict(meta)),
         "accel": Stream("accel", "accel", t, accel, KIND_COLUMNS["accel"], 0.0, dict(meta)),
-        "mag": Stream("mag", "mag", t, mag_raw, KIND_COLUMNS["mag"], 0.0, {**meta, "unit": "uT"}),
-        "mag_cal": Stream("mag_cal", "mag", t_cal, cal_raw, KIND_COLUMNS["mag"], 0.0, {**meta, "unit": "uT", "role": "calibration recording"}),
     }
+    if "mag" in cfg.sensors:
+        streams["mag"] = Stream("mag", "mag", t, mag_raw, KIND_COLUMNS["mag"], 0.0, {**meta, "unit": "uT"})
+        streams["mag_cal"] = Stream("mag_cal", "mag", t_cal, cal_raw, KIND_COLUMNS["mag"], 0.0, {**meta, "unit": "uT", "role": "calibration recording"})
+    if "tracker" in cfg.sensors:
+        streams["tracker"] = attitude_tracker_stream(t, q, np.random.default_rng([seed, 2]), cfg.tracker_rate_hz, cfg.tracker_latency_s,
+                                                     cfg.tracker_sigma_deg, cfg.noise)
     truth = Stream("truth", "attitude", t, q, KIND_COLUMNS["attitude"], 0.0, {"frame": "world_R_body", "world_frame": "ENU"})
     session_meta = {
         "session": {"system": "attitude9", "scenario": "attitude9", "seed": seed, "world_frame": "ENU"},

@@ -16,10 +16,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..catalogue import check_sensors
+from ..factors.attitude import AttitudeTrack
 from ..factors.gaze import SceneCamera
 from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx
 from ..session import KIND_COLUMNS, Session, Stream
-from .attitude9 import _noisy_readings
+from .attitude9 import _noisy_readings, attitude_tracker_stream
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,8 @@ class GazeSession:
     truth_gaze_xz_m: FloatArray
     """True gaze point on the wall (X, Z) at the tracker times, shape (M, 2)."""
     config: GazeScenarioConfig
+    head_tracker: AttitudeTrack | None = None
+    """An optional head attitude tracker (its own room frame, possibly late)."""
 
 
 def head_motion(t: FloatArray, config: GazeScenarioConfig, rng: np.random.Generator) -> FloatArray:
@@ -113,10 +117,13 @@ def simulate_gaze(seed: int = 0, config: GazeScenarioConfig | None = None) -> Ga
                        truth_gaze_xz_m=gaze_xz, config=config)
 
 
-def gaze_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None) -> Session:
+def gaze_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None, sensors: tuple[str, ...] | None = None) -> Session:
     """The scenario as a session directory's content (``fusegraph simulate gaze``): head IMU streams,
     the tracker's ``gaze`` pixels (kind ``pixel``: u right, v up, origin at the image centre), the wall
-    and camera in the metadata, and the true gaze point (world x, y, z) as the truth."""
+    and camera in the metadata, and the true gaze point (world x, y, z) as the truth. With ``tracker``
+    among ``sensors``, a head attitude tracker (``head_tracker``, kind attitude: 50 Hz, 100 ms late, 0.4 deg,
+    in its own room frame) is written too."""
+    sensors = check_sensors("gaze", sensors or ("gyro", "accel", "mag", "gaze"), ("gyro", "accel", "mag", "gaze"), ("tracker",))
     if profile not in (None, "realistic"):
         raise ValueError(f"--profile {profile} does not apply to gaze (its noise is the realistic one)")
     config = GazeScenarioConfig()
@@ -128,6 +135,8 @@ def gaze_session(seed: int = 0, profile: str | None = None, duration_s: float | 
     streams = {name: Stream(name, name, g.t, values, cols) for name, (values, cols) in imu.items()}
     streams["gaze"] = Stream("gaze", "pixel", g.tracker_t, g.gaze_px, KIND_COLUMNS["pixel"],
                              meta={"focal_px": cam.focal_px, "width_px": cam.width_px, "height_px": cam.height_px, "pixel_sigma": cam.pixel_sigma})
+    if "tracker" in sensors:
+        streams["head_tracker"] = attitude_tracker_stream(g.t, g.truth_quat_wxyz, np.random.default_rng([seed, 2]), 50.0, 0.1, 0.4, name="head_tracker")
     point = np.column_stack([np.full(len(g.tracker_t), config.wall_m), g.truth_gaze_xz_m])
     truth = Stream("truth", "position", g.tracker_t, point, KIND_COLUMNS["position"])
     meta = {"session": {"description": f"gaze scenario, seed {seed}: a wall {config.wall_m} m ahead (+x), marks, nodding and shaking",

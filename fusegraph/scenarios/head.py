@@ -18,6 +18,7 @@ from typing import Literal
 
 import numpy as np
 
+from ..catalogue import check_sensors
 from ..geometry import FloatArray, body_rates_from_euler_rates, quat_from_euler_zyx, quat_from_rotvec, quat_multiply
 from ..session import KIND_COLUMNS, Session, Stream
 
@@ -128,9 +129,7 @@ def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **ove
             raise ValueError(f"tracker gap {gap_start}:{gap_end} s: need 0 < start < end")
         stamps_all = t_gyro[tracker_idx]
         keep &= ~((stamps_all >= gap_start) & (stamps_all < gap_end))
-    unknown = set(cfg.sensors) - {"gyro", "tracker", "accel"}
-    if unknown or not {"gyro", "tracker"} <= set(cfg.sensors):
-        raise ValueError(f"head sensors {','.join(cfg.sensors)}: gyro and tracker are required, accel optional (unknown: {', '.join(sorted(unknown)) or '-'})")
+    check_sensors("head", cfg.sensors, ("gyro", "tracker"), ("accel",))
 
     gyro = Stream(
         "gyro", "gyro", t_gyro, omega_meas, KIND_COLUMNS["gyro"], 0.0,

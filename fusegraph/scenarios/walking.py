@@ -26,7 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from ..catalogue import check_sensors
 from ..factors.imu import GRAVITY_M_S2
+from ..factors.ranging import BeaconRanges
 from ..geometry import FloatArray
 from ..session import KIND_COLUMNS, Session, Stream
 
@@ -121,6 +123,8 @@ class WalkingSession:
     """(x, y, z, yaw) at the start, known to the estimator."""
     bouts: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     """Calibration walks only: rows (start_s, end_s, true mean speed m/s) of each straight leg."""
+    beacons: BeaconRanges | None = None
+    """Optional ranges to known UWB beacons (the Plaza factors in the walker's graph)."""
 
 
 class _Tour:
@@ -398,11 +402,43 @@ def simulate_calibration_walk(seed: int = 0, speeds_m_s: tuple[float, ...] = (0.
     )
 
 
-def walking_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None) -> Session:
+def beacon_ranges(seed: int, t: FloatArray, truth_xyz_m: FloatArray, building: Building, rate_hz: float = 1.0, sigma_m: float = 0.15,
+                  nlos_frac: float = 0.05) -> tuple[FloatArray, FloatArray, np.ndarray, FloatArray]:
+    """UWB beacons under the ceiling at the corners of each floor's walked area (2 m beyond it), ranges at
+    ``rate_hz`` from every beacon of the walker's floor: white noise ``sigma_m`` and, on a fraction
+    ``nlos_frac``, a non-line-of-sight excess of 0.5-3 m (always longer). Returns (beacons_m, t, beacon, range_m)."""
+    rng = np.random.default_rng([seed, 3])
+    floor = np.round(truth_xyz_m[:, 2] / building.floor_height_m).astype(int)
+    beacons = []
+    for f in range(building.floors):
+        xy = truth_xyz_m[floor == f, :2]
+        if not len(xy):
+            continue
+        lo, hi = xy.min(axis=0) - 2.0, xy.max(axis=0) + 2.0
+        z = f * building.floor_height_m + 2.5
+        beacons += [(lo[0], lo[1], z), (hi[0], lo[1], z), (hi[0], hi[1], z), (lo[0], hi[1], z)]
+    beacons_m = np.array(beacons)
+    beacon_floor = np.round((beacons_m[:, 2] - 2.5) / building.floor_height_m).astype(int)
+    rows = np.arange(0, len(t), max(1, int(round(1.0 / (rate_hz * float(np.median(np.diff(t))))))))
+    times, which, ranges = [], [], []
+    for i in rows:
+        for b in np.flatnonzero(beacon_floor == floor[i]):
+            d = float(np.linalg.norm(truth_xyz_m[i] - beacons_m[b])) + rng.normal(0.0, sigma_m)
+            if rng.random() < nlos_frac:
+                d += rng.uniform(0.5, 3.0)
+            times.append(t[i])
+            which.append(b)
+            ranges.append(d)
+    return beacons_m, np.array(times), np.array(which), np.array(ranges)
+
+
+def walking_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None, sensors: tuple[str, ...] | None = None) -> Session:
     """The walk as a session (``fusegraph simulate walking``): waist ``gyro`` and ``accel``, the image
     ``fixes`` (kind ``pose``: x, y, z, yaw in radians), the building and the start in the metadata,
     the waist position as truth. The per-person speed model is fitted on the scenario's calibration
-    walk (as a user would on theirs) and stored in ``[speed_model]``."""
+    walk (as a user would on theirs) and stored in ``[speed_model]``. With ``beacons`` among ``sensors``,
+    ranges to UWB beacons (``beacons``, kind beacon_ranges; see ``beacon_ranges``) are written too."""
+    sensors = check_sensors("walking", sensors or ("gyro", "accel", "fixes"), ("gyro", "accel"), ("fixes", "beacons"))
     from ..frontends.pdr import detect_cycles, fit_speed_model
 
     if profile not in (None, "realistic"):
@@ -415,8 +451,13 @@ def walking_session(seed: int = 0, profile: str | None = None, duration_s: float
     streams = {
         "gyro": Stream("gyro", "gyro", w.t, w.gyro_rad_s, KIND_COLUMNS["gyro"]),
         "accel": Stream("accel", "accel", w.t, w.accel_m_s2, KIND_COLUMNS["accel"]),
-        "fixes": Stream("fixes", "pose", w.fixes.t, w.fixes.pose, KIND_COLUMNS["pose"]),
     }
+    if "fixes" in sensors:
+        streams["fixes"] = Stream("fixes", "pose", w.fixes.t, w.fixes.pose, KIND_COLUMNS["pose"])
+    if "beacons" in sensors:
+        beacons_m, bt, which, ranges = beacon_ranges(seed, w.t, w.truth_xyz_m, w.building)
+        streams["beacons"] = Stream("beacons", "beacon_ranges", bt, np.column_stack([which, ranges]), KIND_COLUMNS["beacon_ranges"],
+                                    meta={"beacons_m": beacons_m.tolist(), "sigma_m": 0.15, "bias_sigma_m": 0.3})
     b = w.building
     meta = {
         "session": {"description": f"walking scenario, seed {seed}: a 3-floor building tour, waist IMU, image fixes (some wrong)",

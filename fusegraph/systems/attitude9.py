@@ -1,4 +1,8 @@
-"""9-axis attitude end to end: Session (gyro, accel, mag) -> Estimate, for fusegraph and every baseline.
+"""9-axis attitude end to end: Session (gyro, accel, mag[, attitude tracker]) -> Estimate, for fusegraph and every baseline.
+
+An optional attitude tracker (an optical or magnetic tracker's world_R_body, kind ``attitude``, possibly
+late: ``latency_s``) joins the same graph: online, each sample enters when it arrives; its room frame
+is estimated (one constant rotation), so it need not be aligned with ENU. The baselines ignore it.
 
 Methods: ``online`` (iSAM2, causal: each sample's attitude uses nothing after it), ``batch`` (the same
 factors smoothed over the whole session, in two passes: the first levels the magnetometer with dead
@@ -18,11 +22,12 @@ import gtsam
 import numpy as np
 
 from ..estimate import Estimate
+from ..factors.attitude import AttitudeTrack
 from ..factors.mag import MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3
-from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, B, V, X, fill_samples
+from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples
 from ..progress import progress
-from ..session import Session
+from ..session import Session, SessionError
 from ..solvers.online import OnlineConfig, OnlineSmoother
 
 #: Online solver settings for this graph: 1 s of keyframes stays live, re-anchored every 2 s (20 s made each
@@ -46,6 +51,22 @@ def imu9(session: Session) -> Imu9:
     streams = session.synchronous(*names)
     gyro, accel = streams[0], streams[1]
     return Imu9(gyro.t, gyro.values, accel.values, streams[2].values if len(streams) == 3 else None)
+
+
+def attitude_tracker(session: Session) -> AttitudeTrack | None:
+    """The session's attitude tracker (its one ``attitude`` stream), if any.
+
+    The tracker's white and slowly varying error are taken together as one white sigma here (the 9-axis
+    graph does not carry the Gauss-Markov chain the head graph has).
+    """
+    streams = session.streams_of_kind("attitude")
+    if not streams:
+        return None
+    if len(streams) > 1:
+        raise SessionError(f"{session.system}: one attitude tracker stream at most (have: {', '.join(s.name for s in streams)})")
+    tracker = streams[0]
+    sigma_deg = float(np.hypot(float(tracker.meta.get("noise_sigma_deg", 0.4)), float(tracker.meta.get("markov_sigma_deg", 0.0))))
+    return AttitudeTrack(tracker.t, tracker.latency_s, tracker.values, float(np.deg2rad(sigma_deg)))
 
 
 def model_for(session: Session, model: Attitude9Model | None = None) -> Attitude9Model:
@@ -72,14 +93,24 @@ def run_online(session: Session, model: Attitude9Model | None = None, config: On
     period = builder.model.keyframe_period_s
     dt = float(np.median(np.diff(data.t)))
     block = max(1, int(round(period / dt)))  # any block size gives the same graph; one keyframe's worth is cheapest
+    tracker = attitude_tracker(session)
     bar = progress(range(0, len(data.t), block), desc="online", enabled=None if show_progress else False)
     for i in bar:
         j = i + block
         builder.add_samples(data.t[i:j], data.gyro[i:j], data.accel[i:j], None if data.mag is None else data.mag[i:j])
+        if tracker is not None:  # the tracker samples that have arrived by the newest gyro sample
+            builder.feed_tracker(tracker, float(data.t[min(j, len(data.t)) - 1]))
         solver.update()
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), np.array(builder.posterior_quat), np.array(builder.posterior_gyro_bias), False)
     runtime = time.perf_counter() - start
-    return Estimate("online", data.t.copy(), quats, None, runtime, {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors})
+    extras = {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors, **_tracker_extras(builder)}
+    return Estimate("online", data.t.copy(), quats, None, runtime, extras)
+
+
+def _tracker_extras(builder: Attitude9Builder) -> dict[str, int]:
+    if not builder.tracker_factors and not builder.tracker_dropped:
+        return {}
+    return {"tracker_factors": builder.tracker_factors, "tracker_dropped": builder.tracker_dropped}
 
 
 def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: gtsam.Ordering, max_iterations: int) -> gtsam.Values:
@@ -98,17 +129,22 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     start = time.perf_counter()
     builder = Attitude9Builder(model_for(session, model), deferred_mag=True)
     builder.add_samples(data.t, data.gyro, data.accel, data.mag)
+    tracker = attitude_tracker(session)
+    if tracker is not None:
+        builder.feed_tracker(tracker)
     increment = builder.take()
     keyframes = len(builder.keyframe_t)
     order = gtsam.Ordering()
     for k in range(keyframes):
         for key in (X(k), V(k), B(k)):
             order.push_back(key)
+    if builder.tracker_factors:
+        order.push_back(TRACKER_WORLD)  # one variable tied to every keyframe: eliminated last
     base = increment.graph()
-    initial = increment.values
+    initial = builder.tracker_seeded(increment.values)
     values = initial
     attitude = [initial.atPose3(X(k)).rotation() for k in range(keyframes)]
-    for robust in (False, True) if builder.mag_readings else (True,):
+    for robust in builder.heading_passes():
         graph = gtsam.NonlinearFactorGraph(base)
         for factor in builder.heading_factors(attitude, robust):
             graph.add(factor)
@@ -120,7 +156,7 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     kb = np.array([values.atConstantBias(B(k)).gyroscope() for k in range(keyframes)])
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), kq, kb, True)
     runtime = time.perf_counter() - start
-    return Estimate("batch", data.t.copy(), quats, None, runtime, {"keyframes": keyframes})
+    return Estimate("batch", data.t.copy(), quats, None, runtime, {"keyframes": keyframes, **_tracker_extras(builder)})
 
 
 def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:

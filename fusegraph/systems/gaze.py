@@ -6,6 +6,8 @@ from keyframe to keyframe (random walk with a Cauchy kernel, so a saccade is a j
 absorbs), and every 60 Hz gaze pixel as gtsam's ``GenericProjectionFactorCal3_S2`` of ``g(k)`` into
 the head camera at keyframe k, the sample's offset from the keyframe carried by the gyro's rotation
 (``factors.gaze``). The head translation is a nuisance held near the eye's rest position (5 cm).
+An optional head attitude tracker (kind ``attitude``, own room frame, possibly late) joins the
+head's graph as in the 9-axis system (``Attitude9Builder.add_attitude``); the EKF ignores it.
 Online: iSAM2 after every keyframe, the gaze estimate of a sample is its keyframe's point right
 after the update that added it (causal). Batch: the same graph, Levenberg-Marquardt, the point
 of the sample's keyframe.
@@ -27,6 +29,7 @@ from ..scenarios.gaze import GazeScenarioConfig, GazeSession, simulate_gaze
 from ..session import Session, SessionError
 from ..solvers.ekf_gaze import run_gaze_ekf
 from ..solvers.online import OnlineConfig, OnlineSmoother
+from .attitude9 import attitude_tracker
 
 METHODS = ("ekf", "online", "batch")
 
@@ -71,6 +74,8 @@ class GazeGraph:
         first = self._next_gaze
         s = self.session
         self.builder.add_samples(s.t[i0:i1], s.gyro_rad_s[i0:i1], s.accel_m_s2[i0:i1], s.mag[i0:i1])
+        if s.head_tracker is not None and self.builder.started:  # what has arrived by the newest IMU sample
+            self.builder.feed_tracker(s.head_tracker, float(s.t[min(i1, len(s.t)) - 1]))
         if not self.builder.started:
             return range(first, first)
         kf_t = self.builder.keyframe_t
@@ -155,7 +160,8 @@ def from_session(session: Session) -> GazeSession:
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream):
         truth = session.truth.values[:, 1:3].copy()
     return GazeSession(t=t, gyro_rad_s=imu["gyro"].values, accel_m_s2=imu["accel"].values, mag=imu["mag"].values, tracker_t=gaze_stream.t,
-                       gaze_px=gaze_stream.values, truth_quat_wxyz=np.full((len(t), 4), np.nan), truth_gaze_xz_m=truth, config=config)
+                       gaze_px=gaze_stream.values, truth_quat_wxyz=np.full((len(t), 4), np.nan), truth_gaze_xz_m=truth, config=config,
+                       head_tracker=attitude_tracker(session))
 
 
 def _block(session: GazeSession, model: GazeModel) -> int:
@@ -199,13 +205,13 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> tuple[Flo
         graph.push(i, i + block)
     increment = graph.builder.take()
     keyframes = len(graph.builder.keyframe_t)
-    values = increment.values
+    values = graph.builder.tracker_seeded(increment.values)
     attitude = [values.atPose3(X(k)).rotation() for k in range(keyframes)]
     params = gtsam.LevenbergMarquardtParams()
     params.setRelativeErrorTol(1e-4)
     params.setMaxIterations(30)
     params.setlambdaFactor(3.0)
-    for robust in (False, True):
+    for robust in graph.builder.heading_passes():
         factors = increment.graph()
         for factor in graph.builder.heading_factors(attitude, robust):
             factors.add(factor)

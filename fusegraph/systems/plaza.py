@@ -19,7 +19,7 @@ from ..datasets.plaza import PlazaRecording, load_plaza
 from ..factors.odometry import OdometryNoise, PlanarMotion, dead_reckon, level_pose
 from ..factors.ranging import RangeNoise
 from ..geometry import FloatArray
-from ..graphs.planar import PlanarGraph, causal_online, poses_of
+from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig
 
@@ -59,15 +59,6 @@ def _start(rec: PlazaRecording) -> gtsam.Pose3:
     return level_pose(float(rec.truth_xy[0, 0]), float(rec.truth_xy[0, 1]), 0.0, rec.start_yaw_rad)
 
 
-def _range_schedule(rec: PlazaRecording) -> tuple[np.ndarray, np.ndarray]:
-    """For each range: the state it attaches to (nearest in time) and the first update that may add it (causal)."""
-    times = rec.truth_t
-    first = np.clip(np.searchsorted(times, rec.range_t, side="left"), 1, len(times) - 1)
-    earlier = np.abs(rec.range_t - times[first - 1]) < np.abs(times[first] - rec.range_t)
-    attach = np.where(earlier, first - 1, first)
-    return attach, first
-
-
 def run_odometry(rec: PlazaRecording) -> PlazaRun:
     """Dead reckoning from the known start."""
     t0 = time.perf_counter()
@@ -79,7 +70,7 @@ def run_odometry(rec: PlazaRecording) -> PlazaRun:
 def _build(rec: PlazaRecording, on_state: Callable[[PlanarGraph, int], None] | None = None) -> PlanarGraph:
     """The whole graph in arrival order; ``on_state`` runs after each new state's factors are in."""
     graph = PlanarGraph(_start(rec), START_SIGMAS, start_t=float(rec.truth_t[0]))
-    attach, first = _range_schedule(rec)
+    attach, first = range_schedule(rec.truth_t, rec.range_t)
     order = np.argsort(first, kind="stable")
     r = 0
     for i, motion in enumerate(_motions(rec), start=1):

@@ -225,7 +225,7 @@ def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
 def _gaze_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
     from ..scenarios.gaze import gaze_session
 
-    return gaze_session(seed, duration_s=duration_s or 40.0, **options)
+    return gaze_session(seed, duration_s=duration_s or 40.0, **{k: v for k, v in options.items() if v is not None})
 
 
 def _gaze_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
@@ -286,6 +286,11 @@ def _bicycle_simulate(seed: int, duration_s: float | None = None, **options: Any
 def _walking_run(session: Session, solver: str) -> Result:
     from . import walking
 
+    if solver == "steps":
+        return _count_steps(session)
+    if "gyro" not in session.streams:
+        raise SessionError(f"{session.path or 'walking session'}: no gyro stream: an accelerometer-only recording (a phone's step "
+                           "recording) is counted with --solver steps; the trajectory solvers need the waist gyro too")
     walk, speed = walking.from_session(session)
     cycles, rides, events = walking.analyse(walk, speed)
     if solver == "dead_reckoning":
@@ -296,8 +301,26 @@ def _walking_run(session: Session, solver: str) -> Result:
     return PointEstimate(solver, run.t, run.xyz[:, None, :], ("x", "y", "z"), run.seconds, {"steps": len(cycles), "activity": activity, "rides": len(rides)})
 
 
+def _count_steps(session: Session) -> PointEstimate:
+    """Steps of the accelerometer (waist or phone) as their times; ``points`` hold the running count."""
+    from .walking import step_times
+
+    accel = session.stream("accel")
+    start = time.perf_counter()
+    step_t = step_times(accel.t, accel.values)
+    count = np.arange(1, len(step_t) + 1, dtype=float)
+    return PointEstimate("steps", step_t, count[:, None, None], ("steps",), time.perf_counter() - start, {"steps": len(step_t)})
+
+
 def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     from . import walking
+
+    if estimate.method == "steps":
+        true = session.meta.get("truth_extra", {}).get("steps")
+        if not isinstance(estimate, PointEstimate) or true is None:
+            return None
+        counted = len(estimate.t)
+        return {"steps": counted, "steps_true": int(true), "step_error_frac": abs(counted - int(true)) / max(int(true), 1)}
 
     walk, _ = walking.from_session(session)
     if not np.isfinite(walk.truth_xyz_m).all() or not isinstance(estimate, PointEstimate):
@@ -308,7 +331,7 @@ def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
 def _walking_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
     from ..scenarios.walking import walking_session
 
-    session = walking_session(seed, **options)
+    session = walking_session(seed, **{k: v for k, v in options.items() if v is not None})
     if duration_s is not None:
         session = _clip(session, duration_s)
     return session
@@ -454,7 +477,8 @@ PRESETS: dict[str, Preset] = {
     "attitude9": Preset(
         name="attitude9",
         summary="9-axis attitude from gyro, accelerometer (gravity) and magnetometer (heading, calibrated, disturbances rejected)",
-        streams="gyro, accel, mag sampled together (kinds gyro, accel, mag); optional mag_cal (a calibration recording), movement (kind flag)",
+        streams="gyro, accel, mag sampled together (kinds gyro, accel, mag); optional mag_cal (a calibration recording), movement (kind flag), "
+        "an attitude tracker (kind attitude, its own room frame, latency_s: a factor in the same graph)",
         session_keys=(KeySpec("truth_extra.disturbance_s", None, "simulations: when the field is disturbed (documentation)"),
                       KeySpec("truth_extra.gyro_bias_rad_s", None, "simulations: the true gyro bias (documentation)"),
                       KeySpec("truth_extra.mag_gain", None, "simulations: the true magnetometer gain (documentation)"),
@@ -467,12 +491,13 @@ PRESETS: dict[str, Preset] = {
         default_duration_s=10.0,
         picture=_attitude_picture,
         metric_keys=("total_deg", "heading_deg", "inclination_deg"),
-        simulate_options=("profile",),
+        simulate_options=("profile", "sensors"),
     ),
     "gaze": Preset(
         name="gaze",
         summary="the gaze point on a wall in world coordinates from a head 9-axis IMU and an eye tracker's scene-image gaze pixels",
-        streams="gyro, accel, mag sampled together; gaze (kind pixel, with the scene camera's focal_px, width_px, height_px, pixel_sigma)",
+        streams="gyro, accel, mag sampled together; gaze (kind pixel, with the scene camera's focal_px, width_px, height_px, pixel_sigma); "
+        "optional head attitude tracker (kind attitude, own room frame, latency_s)",
         session_keys=(KeySpec("wall_m", None, "distance from the head to the wall along world +x, m (required)"),
                       KeySpec("switch_s", None, "simulations: when the subject switches to the second mark, s (documentation)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)"},
@@ -484,6 +509,7 @@ PRESETS: dict[str, Preset] = {
         estimate_name="gaze",
         picture=_gaze_picture,
         metric_keys=("rms.x_mm", "rms.z_mm"),
+        simulate_options=("sensors",),
     ),
     "bicycle": Preset(
         name="bicycle",
@@ -505,15 +531,16 @@ PRESETS: dict[str, Preset] = {
     "walking": Preset(
         name="walking",
         summary="a walker's 3D trajectory over floors from a waist IMU (PDR steps, stairs, elevator) and image-match fixes (some wrong)",
-        streams="gyro, accel sampled together (waist IMU); optional fixes (kind pose)",
+        streams="gyro, accel sampled together (waist IMU); optional fixes (kind pose); optional ranges to known UWB beacons (kind beacon_ranges)",
         session_keys=(KeySpec("start_pose", None, "[x, y, z, yaw] of the known start (required)"),
                       KeySpec("building.floor_height_m", 3.5, "m"), KeySpec("building.floors", 3, "count"),
                       KeySpec("building.elevator_xy_m", None, "[x, y] of the elevator, m"), KeySpec("building.stairs_foot_xy_m", None, "[x, y], m"),
                       KeySpec("building.riser_m", 0.175, "stair riser, m"), KeySpec("building.tread_m", 0.28, "stair tread, m"),
+                      KeySpec("truth_extra.steps", None, "steps counted by hand (scores --solver steps)"),
                       KeySpec("speed_model.intercept_m_s", None, "walking speed = intercept + slope x peak-to-peak acceleration (required: a person's own)"),
                       KeySpec("speed_model.slope_s", None, "see intercept_m_s (required)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (wrong fixes rejected at 5 sigma, solved again)", "ekf": "the paper's Kalman framework",
-                 "dead_reckoning": "steps and rides only"},
+                 "dead_reckoning": "steps and rides only", "steps": "step count of the accelerometer alone (a phone's step recording; no trajectory)"},
         run=_walking_run,
         score=_walking_score,
         simulate=_walking_simulate,
@@ -522,6 +549,7 @@ PRESETS: dict[str, Preset] = {
         estimate_name="trajectory",
         picture=_walking_picture,
         metric_keys=("rmse_m", "final_error_m"),
+        simulate_options=("sensors",),
     ),
     "ultrasonic": Preset(
         name="ultrasonic",

@@ -14,7 +14,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,9 +24,10 @@ from scipy.stats import chi2
 
 from ..datasets import steps_oxford
 from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose, odometry_sigmas
+from ..factors.ranging import BeaconRanges, beacon_ranges_from
 from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model, gravity_filter
 from ..geometry import FloatArray
-from ..graphs.planar import PlanarGraph, causal_online, poses_of
+from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule
 from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingSession, simulate_calibration_walk, simulate_walking
 from ..session import Session, SessionError
 from ..solvers.online import OnlineConfig
@@ -105,6 +106,11 @@ def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_s
     times = np.array([0.0] + [e.t for e in events])
     schedule = _fix_schedule(session, times)
     elevator = np.array([*session.building.elevator_xy_m, 0.0])
+    r = 0
+    attach, first, order = np.zeros(0, int), np.zeros(0, int), np.zeros(0, int)
+    if session.beacons is not None and len(session.beacons.t) and len(times) > 1:
+        attach, first = range_schedule(times, session.beacons.t)
+        order = np.argsort(first, kind="stable")
     for i, e in enumerate(events, start=1):
         if e.ride:
             graph.add_position(i - 1, elevator, ELEVATOR_SIGMAS_M)
@@ -115,9 +121,24 @@ def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_s
             if keep is not None and not keep[k]:
                 continue
             graph.add_fix(i - 1 if k in schedule[i - 1] else i, level_pose(*fixes[k]), FIX_NOISE)
+        while r < len(order) and first[order[r]] <= i:
+            _add_beacon_range(graph, session.beacons, int(order[r]), int(attach[order[r]]), times)  # type: ignore[arg-type]
+            r += 1
         if on_state is not None:
             on_state(graph, i)
     return graph
+
+
+#: Walking speed that bounds how far the walker moves between a range and the state it attaches to, m/s.
+_WALK_SPEED_M_S = 1.5
+
+
+def _add_beacon_range(graph: PlanarGraph, ranges: BeaconRanges, n: int, state: int, times: FloatArray) -> None:
+    """Range ``n`` on its nearest state; the walker's motion over the time between them widens the sigma."""
+    moved = _WALK_SPEED_M_S * abs(float(ranges.t[n]) - float(times[state]))
+    noise = replace(ranges.noise, sigma_m=float(np.hypot(ranges.noise.sigma_m, moved)))
+    b = int(ranges.beacon[n])
+    graph.add_range(state, b, ranges.beacons_m[b], float(ranges.range_m[n]), noise)
 
 
 def run_dead_reckoning(session: WalkingSession, events: list[Event]) -> WalkRun:
@@ -265,9 +286,16 @@ def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
     truth = np.full((len(gyro), 3), np.nan)
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gyro):
         truth = session.truth.values.copy()
+    beacon_streams = session.streams_of_kind("beacon_ranges")
+    if len(beacon_streams) > 1:
+        raise SessionError(f"{where}: one beacon_ranges stream at most (have: {', '.join(b.name for b in beacon_streams)})")
+    try:
+        beacons = beacon_ranges_from(beacon_streams[0], where) if beacon_streams else None
+    except ValueError as err:
+        raise SessionError(str(err)) from None
     walk = WalkingSession(t=gyro.t, accel_m_s2=accel.values, gyro_rad_s=gyro.values, fixes=fixes, truth_xyz_m=truth,
                           truth_yaw_rad=np.full(len(gyro), np.nan), step_t=np.zeros(0), step_activity=(), rides=np.zeros((0, 3)),
-                          building=building, start_pose=np.asarray(header["start_pose"], dtype=float))
+                          building=building, start_pose=np.asarray(header["start_pose"], dtype=float), beacons=beacons)
     return walk, speed
 
 
@@ -280,9 +308,14 @@ def run_all(session: WalkingSession, events: list[Event], fixes: FloatArray) -> 
     }
 
 
+def step_times(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> FloatArray:
+    """Times of the walking cycles (steps) in an accelerometer-only recording, seconds."""
+    return np.array([c.t for c in detect_cycles(t, accel, None, config)], dtype=float)
+
+
 def count_steps(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> int:
     """Walking cycles (steps) in an accelerometer-only recording."""
-    return len(detect_cycles(t, accel, None, config))
+    return len(step_times(t, accel, config))
 
 
 def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None) -> dict[str, object]:
