@@ -9,8 +9,15 @@ Tracker, sampled d seconds before it arrives: z = angles(t - d) ~ angles - d * E
 paper's H = (I, -d F') with F' = E^-1 (the first-order extrapolation of the delay).
 
 * Method I: every measurement its own sequential update (gyro at each sample, tracker on arrival).
-* Method II: one joint update with the stacked H at tracker arrivals; gyro-only update in between.
+* Method II: between tracker samples ONLY the time update r(n+1|n+1) = F r(n|n), with the rates set to
+  the mean of the 3 preceding gyro samples (no measurement update: why the paper times it at half of
+  Method I); at a tracker arrival one joint update with the stacked H = [(I, -d F'); (0, I)] of the
+  tracker and the current gyro sample.
 * Kalman (tracker only): the same model without the gyro updates.
+
+What the paper leaves open and is chosen here: the noise figures (``HeadEkfConfig``, the paper's values
+where it gives them), "preceding" read as the last three samples before the current one, and the
+covariance propagated (P = F P F' + Q) through Method II's prediction-only steps.
 
 Updates use the Joseph form, which keeps P symmetric and positive definite in long runs.
 """
@@ -56,12 +63,14 @@ class HeadEkf:
         self.started = False
         self._t = float("nan")
         self._pending_tracker: FloatArray | None = None
+        self._preceding: list[FloatArray] = []  # Method II: the last gyro samples (at most 3)
 
     def start(self, t: float, angles: FloatArray, omega: FloatArray | None = None) -> None:
         """Initialise from a first tracker fix (and a gyro sample when there is one)."""
         self.x = np.concatenate([angles, np.zeros(3) if omega is None else omega])
         self.P = np.diag([self.cfg.tracker_sigma_rad**2] * 3 + [self.cfg.gyro_sigma_rad_s**2 if omega is not None else 1.0] * 3)
         self._t = t
+        self._preceding = [] if omega is None else [np.asarray(omega, dtype=float)]
         self.started = True
 
     def predict(self, t: float) -> None:
@@ -81,8 +90,11 @@ class HeadEkf:
 
     def gyro(self, t: float, omega: FloatArray) -> None:
         """A gyro sample at t: time update, then (unless tracker-only) the update(s) of this step."""
-        self.predict(t)
         tracker, self._pending_tracker = self._pending_tracker, None
+        if self.mode == "method2":
+            self._method2(t, np.asarray(omega, dtype=float), tracker)
+            return
+        self.predict(t)
         if self.mode == "kalman":
             if tracker is not None:
                 self._update(*self._tracker_model(tracker))
@@ -90,16 +102,24 @@ class HeadEkf:
         H_g = np.hstack([np.zeros((3, 3)), np.eye(3)])
         residual_g = np.asarray(omega) - self.x[3:]
         R_g = self.cfg.gyro_sigma_rad_s**2 * np.eye(3)
-        if tracker is None:
-            self._update(residual_g, H_g, R_g)
-        elif self.mode == "method1":
-            self._update(residual_g, H_g, R_g)
+        self._update(residual_g, H_g, R_g)
+        if tracker is not None:  # method1: the tracker's own sequential update after the gyro's
             self._update(*self._tracker_model(tracker))
-        else:  # method2: one joint update
-            residual_t, H_t, R_t = self._tracker_model(tracker)
-            R = np.zeros((6, 6))
-            R[:3, :3], R[3:, 3:] = R_t, R_g
-            self._update(np.concatenate([residual_t, residual_g]), np.vstack([H_t, H_g]), R)
+
+    def _method2(self, t: float, omega: FloatArray, tracker: FloatArray | None) -> None:
+        """Method II's step: rates from the mean of the 3 preceding gyro samples, the time update, and only
+        at a tracker arrival the joint update of tracker and gyro."""
+        if self._preceding:
+            self.x[3:] = np.mean(self._preceding, axis=0)
+        self.predict(t)
+        self._preceding = [*self._preceding[-2:], omega]
+        if tracker is None:
+            return
+        residual_t, H_t, R_t = self._tracker_model(tracker)
+        H_g = np.hstack([np.zeros((3, 3)), np.eye(3)])
+        R = np.zeros((6, 6))
+        R[:3, :3], R[3:, 3:] = R_t, self.cfg.gyro_sigma_rad_s**2 * np.eye(3)
+        self._update(np.concatenate([residual_t, omega - self.x[3:]]), np.vstack([H_t, H_g]), R)
 
     def tracker(self, angles: FloatArray) -> None:
         """A tracker sample ARRIVED; it is used with the next gyro step (same instant in the paper)."""

@@ -13,6 +13,7 @@ reckoning and a Gaussian heading noise, the second with the first's attitude and
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -24,10 +25,10 @@ import numpy as np
 from ..estimate import Estimate
 from ..factors.attitude import AttitudeTrack
 from ..factors.mag import MagCalibration, fit_mag_calibration
-from ..geometry import quat_wxyz_from_rot3
+from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
 from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples
 from ..progress import progress
-from ..session import Session, SessionError
+from ..session import Session, SessionError, SessionWarning
 from ..solvers.online import OnlineConfig, OnlineSmoother
 
 #: Online solver settings for this graph: 1 s of keyframes stays live, re-anchored every 2 s (20 s made each
@@ -123,10 +124,53 @@ def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: 
     return gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
 
 
+#: Median heading residual (angle between the levelled field and north) above which a batch solution is
+#: taken as diverged, degrees: a converged batch on BROAD stays within a few degrees, a slid one near 180.
+DIVERGED_HEADING_DEG = 30.0
+
+
+def heading_residuals_deg(builder: Attitude9Builder, attitude: Sequence[gtsam.Rot3]) -> np.ndarray:
+    """For every magnetometer reading: the angle between its horizontal field, turned into the world with its
+    keyframe's attitude, and magnetic north (degrees). Unlike the factor's projected error it grows to 180."""
+    out = []
+    for k, mag in builder.mag_readings:
+        m_world = attitude[k].rotate(mag)
+        out.append(abs(np.degrees(np.arctan2(m_world[0], m_world[1]))))
+    return np.array(out)
+
+
 def run_batch(session: Session, model: Attitude9Model | None = None, max_iterations: int = 30) -> Estimate:
-    """fusegraph batch: every factor at once, two Levenberg-Marquardt passes; smoothed attitude per sample."""
+    """fusegraph batch: every factor at once, two Levenberg-Marquardt passes; smoothed attitude per sample.
+
+    Checked, never silently wrong: when the median heading residual of the solution exceeds
+    ``DIVERGED_HEADING_DEG`` the batch is solved again from the causal (online) estimate; if that too
+    fails the check, a warning says so and ``extras["check"]`` is ``"suspect"``.
+    """
     data = imu9(session)
     start = time.perf_counter()
+    builder, keyframes, kq, kb, residual = _solve_batch(session, data, model, max_iterations, None)
+    check = "ok"
+    if np.isfinite(residual) and residual > DIVERGED_HEADING_DEG:
+        online = run_online(session, model)
+        seed = online.quat_wxyz[np.array(builder.keyframe_index)]
+        builder, keyframes, kq, kb, again = _solve_batch(session, data, model, max_iterations, seed)
+        check = "repaired" if again <= DIVERGED_HEADING_DEG else "suspect"
+        if check == "suspect":
+            where = session.path or session.meta.get("session", {}).get("trial", "session")
+            warnings.warn(f"{where}: the 9-axis batch did not converge (median heading residual {again:.0f} deg, also from the online "
+                          "estimate): its result is suspect", SessionWarning, stacklevel=2)
+        residual = again
+    quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), kq, kb, True)
+    runtime = time.perf_counter() - start
+    extras = {"keyframes": keyframes, "check": check, "heading_residual_median_deg": residual, **_tracker_extras(builder)}
+    return Estimate("batch", data.t.copy(), quats, None, runtime, extras)
+
+
+def _solve_batch(
+    session: Session, data: Imu9, model: Attitude9Model | None, max_iterations: int, seed_quat_wxyz: np.ndarray | None,
+) -> tuple[Attitude9Builder, int, np.ndarray, np.ndarray, float]:
+    """One batch solve: (builder, keyframes, keyframe quats, keyframe gyro biases, median heading residual deg).
+    ``seed_quat_wxyz`` (one per keyframe) replaces the initial attitudes (the repair from the online estimate)."""
     builder = Attitude9Builder(model_for(session, model), deferred_mag=True)
     builder.add_samples(data.t, data.gyro, data.accel, data.mag)
     tracker = attitude_tracker(session)
@@ -141,9 +185,12 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     if builder.tracker_factors:
         order.push_back(TRACKER_WORLD)  # one variable tied to every keyframe: eliminated last
     base = increment.graph()
-    initial = builder.tracker_seeded(increment.values)
-    values = initial
-    attitude = [initial.atPose3(X(k)).rotation() for k in range(keyframes)]
+    values = builder.complementary_initial(builder.tracker_seeded(increment.values))
+    if seed_quat_wxyz is not None:
+        for k, quat in enumerate(seed_quat_wxyz):
+            if np.all(np.isfinite(quat)):
+                values.update(X(k), gtsam.Pose3(rot3_from_quat_wxyz(quat), values.atPose3(X(k)).translation()))
+    attitude = [values.atPose3(X(k)).rotation() for k in range(keyframes)]
     for robust in builder.heading_passes():
         graph = gtsam.NonlinearFactorGraph(base)
         for factor in builder.heading_factors(attitude, robust):
@@ -154,9 +201,8 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
         attitude = [values.atPose3(X(k)).rotation() for k in range(keyframes)]
     kq = np.array([quat_wxyz_from_rot3(r) for r in attitude])
     kb = np.array([values.atConstantBias(B(k)).gyroscope() for k in range(keyframes)])
-    quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), kq, kb, True)
-    runtime = time.perf_counter() - start
-    return Estimate("batch", data.t.copy(), quats, None, runtime, {"keyframes": keyframes, **_tracker_extras(builder)})
+    residuals = heading_residuals_deg(builder, attitude)
+    return builder, keyframes, kq, kb, float(np.median(residuals)) if len(residuals) else float("nan")
 
 
 def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:

@@ -55,14 +55,14 @@ def from_session(session: Session) -> BicycleSession:
                           config=config)
 
 
-def run_no_removal(s: BicycleSession) -> FloatArray:
-    return run_ekf9(s.t, s.thigh_gyro, s.thigh_accel, s.thigh_mag, PAPER_EKF)
+def run_no_removal(s: BicycleSession, config: Ekf9Config = PAPER_EKF) -> FloatArray:
+    return run_ekf9(s.t, s.thigh_gyro, s.thigh_accel, s.thigh_mag, config)
 
 
-def run_pipeline(s: BicycleSession) -> FloatArray:
-    frame_q = run_ekf9(s.t, s.frame_gyro, s.frame_accel, s.frame_mag, PAPER_EKF)
+def run_pipeline(s: BicycleSession, config: Ekf9Config = PAPER_EKF) -> FloatArray:
+    frame_q = run_ekf9(s.t, s.frame_gyro, s.frame_accel, s.frame_mag, config)
     linear = np.einsum("nij,nj->ni", matrix_from_quat(frame_q), s.frame_accel) - np.array([0.0, 0.0, GRAVITY_M_S2])
-    return run_ekf9(s.t, s.thigh_gyro, s.thigh_accel, s.thigh_mag, PAPER_EKF, linear_accel_world=linear)
+    return run_ekf9(s.t, s.thigh_gyro, s.thigh_accel, s.thigh_mag, config, linear_accel_world=linear)
 
 
 def _imu(s: BicycleSession, i: int, j: int) -> tuple[tuple[FloatArray, FloatArray, FloatArray], tuple[FloatArray, FloatArray, FloatArray]]:

@@ -100,7 +100,7 @@ def _fix_schedule(session: WalkingSession, times: FloatArray) -> list[list[int]]
 
 
 def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_state: Callable[[PlanarGraph, int], None] | None = None,
-           keep: np.ndarray | None = None) -> PlanarGraph:
+           keep: np.ndarray | None = None, fix_noise: FixNoise = FIX_NOISE) -> PlanarGraph:
     start = level_pose(*session.start_pose)
     graph = PlanarGraph(start, START_SIGMAS, start_t=0.0)
     times = np.array([0.0] + [e.t for e in events])
@@ -120,7 +120,7 @@ def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_s
         for k in schedule[i - 1] + (schedule[i] if i == len(events) else []):
             if keep is not None and not keep[k]:
                 continue
-            graph.add_fix(i - 1 if k in schedule[i - 1] else i, level_pose(*fixes[k]), FIX_NOISE)
+            graph.add_fix(i - 1 if k in schedule[i - 1] else i, level_pose(*fixes[k]), fix_noise)
         while r < len(order) and first[order[r]] <= i:
             _add_beacon_range(graph, session.beacons, int(order[r]), int(attach[order[r]]), times)  # type: ignore[arg-type]
             r += 1
@@ -147,12 +147,13 @@ def run_dead_reckoning(session: WalkingSession, events: list[Event]) -> WalkRun:
     return WalkRun("dead_reckoning", np.array([0.0] + [e.t for e in events]), np.array([p.translation() for p in poses]), time.perf_counter() - t0)
 
 
-def run_batch(session: WalkingSession, events: list[Event], fixes: FloatArray) -> WalkRun:
+def run_batch(session: WalkingSession, events: list[Event], fixes: FloatArray, fix_noise: FixNoise = FIX_NOISE,
+              reject_sigmas: float = REJECT_SIGMAS) -> WalkRun:
     """Levenberg-Marquardt with the Cauchy fixes, then once more without the fixes the solution puts
     more than ``REJECT_SIGMAS`` position sigmas away (a wrong match still pulls a little through a wide
     kernel; seed 1 measured 1.18 m RMSE with 20 % wrong fixes against 0.98 m with none)."""
     t0 = time.perf_counter()
-    graph = _build(session, events, fixes)
+    graph = _build(session, events, fixes, fix_noise=fix_noise)
     params = gtsam.LevenbergMarquardtParams()
     params.setRelativeErrorTol(1e-6)
     values = gtsam.LevenbergMarquardtOptimizer(graph.graph, graph.initial, params).optimize()
@@ -161,9 +162,9 @@ def run_batch(session: WalkingSession, events: list[Event], fixes: FloatArray) -
     if len(fixes):
         state = [int(np.argmin(np.abs(times - ft))) for ft in session.fixes.t]
         gap = np.linalg.norm(fixes[:, :2] - solved[state, :2], axis=1)
-        keep = gap <= REJECT_SIGMAS * FIX_NOISE.position_m
+        keep = gap <= reject_sigmas * fix_noise.position_m
         if not keep.all():
-            graph = _build(session, events, fixes, keep=keep)
+            graph = _build(session, events, fixes, keep=keep, fix_noise=fix_noise)
             values = gtsam.LevenbergMarquardtOptimizer(graph.graph, values, params).optimize()
             solved = poses_of(values, graph.count)
     return WalkRun("batch", times, solved[:, :3], time.perf_counter() - t0)

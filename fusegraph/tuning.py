@@ -1,0 +1,193 @@
+"""Free settings chosen by one rule for every method: a grid, scored on the TUNING seeds only.
+
+Reports and benches score seeds 0-9 (``TEST_SEEDS``); every setting that a paper leaves open (a
+baseline's noise figures) or that we choose (a graph's kernel) is picked here on seeds 100-119
+(``TUNING_SEEDS``), which no report prints. ``python -m fusegraph.tuning NAME`` reruns a study and
+prints its table; the chosen values are written into the code with the study's name beside them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+TUNING_SEEDS: tuple[int, ...] = tuple(range(100, 120))
+"""Seeds every free setting is chosen on."""
+TEST_SEEDS: tuple[int, ...] = tuple(range(10))
+"""Seeds reports and benches score (never used to choose a setting)."""
+
+
+@dataclass(frozen=True)
+class Study:
+    """One tuning study: a grid of settings and the score (lower is better) of one setting on one seed."""
+
+    name: str
+    """Name used on the command line and in the code comments of the chosen values."""
+    grid: Mapping[str, Sequence[Any]]
+    """Setting name -> candidate values (the full product is tried)."""
+    score: Callable[[dict[str, Any], int], float]
+    """Score of one setting on one seed (lower is better), e.g. a mean RMS."""
+    unit: str
+    """Unit of the score, for the table."""
+
+
+def run_study(study: Study, seeds: Sequence[int] = TUNING_SEEDS) -> list[tuple[dict[str, Any], float]]:
+    """Every setting of the grid scored as the mean over ``seeds``, best first."""
+    if set(seeds) & set(TEST_SEEDS):
+        raise ValueError(f"tuning seeds {sorted(set(seeds) & set(TEST_SEEDS))} are test seeds: choose on {TUNING_SEEDS[0]}-{TUNING_SEEDS[-1]}")
+    names = list(study.grid)
+    rows = []
+    for values in itertools.product(*(study.grid[n] for n in names)):
+        setting = dict(zip(names, values, strict=True))
+        rows.append((setting, float(np.mean([study.score(setting, seed) for seed in seeds]))))
+    return sorted(rows, key=lambda row: row[1])
+
+
+def format_study(study: Study, rows: list[tuple[dict[str, Any], float]], seeds: Sequence[int]) -> str:
+    """The study as a table, best first."""
+    names = list(study.grid)
+    lines = [f"{study.name}: mean over seeds {seeds[0]}-{seeds[-1]} ({len(seeds)}), lower is better ({study.unit})",
+             "".join(f"{n:>24}" for n in names) + f"{'score':>12}"]
+    lines += ["".join(f"{setting[n]!s:>24}" for n in names) + f"{score:12.4g}" for setting, score in rows]
+    return "\n".join(lines)
+
+
+def leave_one_group_out(scores: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:
+    """Choose a setting by leave-one-group-out on real recordings (one group per recording).
+
+    ``scores[setting][group]`` is a setting's score on a group (lower is better). For each group, the
+    setting best on all the OTHER groups is chosen and scored on the held-out one: their mean is the
+    cross-validated figure, printed beside the in-sample one (the best setting's mean over all groups).
+    """
+    settings = list(scores)
+    groups = list(next(iter(scores.values())))
+    held_out = {}
+    for group in groups:
+        rest = {s: np.mean([scores[s][g] for g in groups if g != group]) for s in settings}
+        chosen = min(rest, key=lambda s: rest[s])
+        held_out[group] = {"chosen": chosen, "score": scores[chosen][group]}
+    in_sample = {s: float(np.mean(list(scores[s].values()))) for s in settings}
+    best = min(in_sample, key=lambda s: in_sample[s])
+    return {"chosen": best, "in_sample": in_sample[best], "cross_validated": float(np.mean([h["score"] for h in held_out.values()])),
+            "held_out": held_out, "all": in_sample}
+
+
+def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
+    """The 9-axis EKF's open settings (gyro noise; the accelerometer-noise inflation with | |a| - g |, which no
+    paper has) chosen by leave-one-trial-out on the BROAD trials: total RMSE, degrees."""
+    from .datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
+    from .solvers.ekf9 import Ekf9Config, run_ekf9
+    from .systems.attitude9 import imu9, model_for
+
+    grid = [(g, a) for g in (0.01, 0.03, 0.1, 0.3) for a in (0.0, 20.0)]
+    scores: dict[str, dict[str, float]] = {f"gyro_sigma_rad_s={g} accel_inflation={a}": {} for g, a in grid}
+    for path in trial_paths(directory or DEFAULT_DIR):
+        session = load_broad(path)
+        data, cal = imu9(session), model_for(session).mag_calibration
+        movement = session.stream("movement").values[:, 0]
+        for g, a in grid:
+            config = Ekf9Config(gyro_sigma_rad_s=g, accel_inflation=a, mag_gain=cal.gain, mag_offset=cal.offset)
+            quats = run_ekf9(data.t, data.gyro, data.accel, data.mag, config)  # type: ignore[arg-type]
+            scores[f"gyro_sigma_rad_s={g} accel_inflation={a}"][path.stem] = broad_errors(quats, session.truth.values, movement).total  # type: ignore[union-attr]
+    return leave_one_group_out(scores)
+
+
+# ------------------------------------------------------------------------------------- studies
+
+
+def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
+    from .scenarios.gaze import simulate_gaze
+    from .solvers.ekf9 import Ekf9Config
+    from .solvers.ekf_gaze import GazeEkfConfig, run_gaze_ekf
+    from .systems.gaze import rms_mm
+
+    s = simulate_gaze(seed)
+    head = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_inflation=setting["accel_inflation"])
+    config = GazeEkfConfig(head=head, gaze_walk_m_per_sqrt_s=setting["gaze_walk_m_per_sqrt_s"])
+    out = run_gaze_ekf(s.t, s.gyro_rad_s, s.accel_m_s2, s.mag, s.tracker_t, s.gaze_px, s.config.wall_m, s.config.camera, config)
+    rms = rms_mm(out, s)
+    return float(np.hypot(rms["x_mm"], rms["z_mm"]))
+
+
+def _bicycle_ekf_score(setting: dict[str, Any], seed: int) -> float:
+    from .scenarios.bicycle import simulate_bicycle
+    from .solvers.ekf9 import Ekf9Config
+    from .systems.bicycle import braking_rms_deg, run_pipeline
+
+    s = simulate_bicycle(seed)
+    config = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_sigma_m_s2=setting["accel_sigma_m_s2"], accel_inflation=0.0)
+    rms = braking_rms_deg(run_pipeline(s, config), s)
+    return float(np.hypot(rms["pitch_deg"], rms["roll_deg"]))
+
+
+def _walking_fixes_score(setting: dict[str, Any], seed: int) -> float:
+    from dataclasses import replace
+
+    from .frontends.pdr import detect_cycles, fit_speed_model
+    from .scenarios.walking import simulate_calibration_walk, simulate_walking
+    from .systems import walking
+
+    walk = simulate_walking(seed)
+    cal = simulate_calibration_walk(seed)
+    speed = fit_speed_model(detect_cycles(cal.t, cal.accel_m_s2, cal.gyro_rad_s), cal.bouts)
+    _, _, events = walking.analyse(walk, speed)
+    noise = replace(walking.FIX_NOISE, kernel_width=setting["kernel_width"])
+    run = walking.run_batch(walk, events, walk.fixes.pose, noise, setting["reject_sigmas"])
+    return walking.score(run, walk)["rmse_m"]
+
+
+def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
+    from dataclasses import replace
+
+    from .scenarios.head import simulate_head
+    from .systems.head import run_isam2, score_attitude, without_gyro
+
+    session = simulate_head(seed, duration_s=10.0)
+    tracker_only, model = without_gyro(session)
+    model = replace(model, gyro=replace(model.gyro, bias_rw_sigma=setting["bias_rw_sigma"]))
+    estimate = run_isam2(tracker_only, model)
+    assert session.truth is not None
+    return float(np.mean(score_attitude(estimate, session.truth.t, session.truth.values).rms_rad))
+
+
+STUDIES: dict[str, Study] = {
+    "gaze_ekf": Study("gaze_ekf", {"gyro_sigma_rad_s": (0.01, 0.03, 0.1, 0.3), "accel_inflation": (0.0, 20.0),
+                                   "gaze_walk_m_per_sqrt_s": (0.05, 0.2)}, _gaze_ekf_score, "mm, hypot of X and Z RMS on the wall"),
+    "bicycle_ekf": Study("bicycle_ekf", {"gyro_sigma_rad_s": (0.01, 0.03, 0.1), "accel_sigma_m_s2": (0.5, 1.0, 2.0, 4.0)}, _bicycle_ekf_score,
+                         "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),
+    "walking_fixes": Study("walking_fixes", {"kernel_width": (1.0, 3.0, 5.0, 8.0), "reject_sigmas": (3.0, 5.0, 8.0)}, _walking_fixes_score,
+                           "m, batch position RMSE with 20 % wrong image fixes"),
+    "head_no_gyro": Study("head_no_gyro", {"bias_rw_sigma": (0.5, 1.0, 2.0, 5.0)}, _head_no_gyro_score,
+                          "rad, mean of the azimuth/elevation/roll RMS of the online estimate on the tracker alone"),
+}
+"""Every study by name."""
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m fusegraph.tuning", description=__doc__)
+    parser.add_argument("study", choices=[*STUDIES, "broad_ekf"], help="a simulated study (tuning seeds) or broad_ekf (leave-one-trial-out on BROAD)")
+    parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
+    args = parser.parse_args(argv)
+    if args.study == "broad_ekf":
+        result = broad_ekf_logo()
+        for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
+            print(f"{setting:<44} in-sample mean total RMSE {score:7.2f} deg")
+        print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.2f} deg, leave-one-trial-out {result['cross_validated']:.2f} deg")
+        for trial, held in result["held_out"].items():
+            print(f"  held out {trial:<40} chosen {held['chosen']:<40} {held['score']:7.2f} deg")
+        return 0
+    seeds = tuple(range(args.seeds[0], args.seeds[1] + 1))
+    study = STUDIES[args.study]
+    print(format_study(study, run_study(study, seeds), seeds))
+    return 0
+
+
+__all__ = ["STUDIES", "TEST_SEEDS", "TUNING_SEEDS", "Study", "format_study", "run_study"]
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,35 @@
+"""The tuning rule: a grid scored on tuning seeds only, best first."""
+
+from __future__ import annotations
+
+import pytest
+
+from fusegraph.tuning import STUDIES, TEST_SEEDS, TUNING_SEEDS, Study, format_study, run_study
+
+
+def test_study_ranks_the_grid_and_refuses_test_seeds() -> None:
+    study = Study("toy", {"a": (1.0, 2.0, 3.0), "b": (0.0, 1.0)}, lambda s, seed: (s["a"] - 2.0) ** 2 + s["b"] + 0.001 * seed, "-")
+    rows = run_study(study, (100, 101))
+    assert rows[0][0] == {"a": 2.0, "b": 0.0} and len(rows) == 6
+    assert rows[0][1] == pytest.approx(0.1005)
+    assert "toy" in format_study(study, rows, (100, 101))
+    with pytest.raises(ValueError, match="test seeds"):
+        run_study(study, (9, 100))
+    assert not set(TUNING_SEEDS) & set(TEST_SEEDS)
+
+
+def test_the_gaze_ekf_study_scores_a_setting() -> None:
+    score = STUDIES["gaze_ekf"].score({"gyro_sigma_rad_s": 0.1, "accel_inflation": 0.0, "gaze_walk_m_per_sqrt_s": 0.05}, 100)
+    assert 0.0 < score < 1000.0  # mm on a 1 m wall: finite and not absurd
+
+
+def test_leave_one_group_out_scores_each_group_with_a_setting_chosen_without_it() -> None:
+    from fusegraph.tuning import leave_one_group_out
+
+    # "b" is best on average only because of group 3; held out, group 3 is scored with "a"
+    scores = {"a": {"1": 1.0, "2": 1.0, "3": 5.0}, "b": {"1": 2.0, "2": 2.0, "3": 0.0}}
+    result = leave_one_group_out(scores)
+    assert result["chosen"] == "b" and result["in_sample"] == pytest.approx(4.0 / 3.0)
+    assert result["held_out"]["3"]["chosen"] == "a"
+    assert result["held_out"]["1"]["chosen"] == "b"  # without group 1, b's mean 1.0 beats a's 3.0
+    assert result["cross_validated"] == pytest.approx((2.0 + 2.0 + 5.0) / 3.0)
