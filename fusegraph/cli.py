@@ -158,12 +158,15 @@ def build_parser() -> argparse.ArgumentParser:
                          description="broad: a BROAD trial (.mat) or a folder of them -> attitude9 sessions (one per trial). "
                          "uwb: the UWB recording folder (UWB_*.csv + motion_capture_*.csv) -> an ultrasonic session (anchors as receivers, "
                          "tags unlabelled, motion capture as truth). oxford: an Oxford step recording folder or the dataset folder -> walking "
-                         "sessions with the phone accelerometer and the hand-counted steps (run --solver steps).",
+                         "sessions with the phone accelerometer and the hand-counted steps (run --solver steps). plaza: Plaza1|Plaza2 (shipped with gtsam) "
+                         "-> a walking session driven by wheel odometry with beacon ranges (start found from the ranges).",
                          epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
                          "  fusegraph import uwb ../shared/data/uwb_lias --out sessions/uwb\n"
                          "  fusegraph import oxford ../shared/data/steps_oxford --out sessions/oxford\n"
-                         "  fusegraph run sessions/oxford --solver steps --out studies/oxford", formatter_class=argparse.RawDescriptionHelpFormatter)
-    imp.add_argument("format", choices=["broad", "oxford", "uwb"])
+                         "  fusegraph run sessions/oxford --solver steps --out studies/oxford\n"
+                         "  fusegraph import plaza Plaza2 --out sessions/plaza2 && fusegraph run sessions/plaza2 --solver batch --json",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    imp.add_argument("format", choices=["broad", "oxford", "plaza", "uwb"])
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
 

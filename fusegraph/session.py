@@ -182,6 +182,21 @@ def replay_in_arrival_order(session: Session, last_streams: tuple[str, ...] = ()
 # --------------------------------------------------------------------------------------------- I/O
 
 
+def check_overlap(streams: Mapping[str, Stream], where: str) -> None:
+    """Every stream (a calibration recording, ``role = 'calibration recording'``, aside) must share time with
+    the others: one that starts after they end (or ends before they start) is on another clock."""
+    timed = {n: s for n, s in streams.items() if len(s) and s.meta.get("role") != "calibration recording"}
+    if len(timed) < 2:
+        return
+    for name, stream in timed.items():
+        others = [s for n, s in timed.items() if n != name]
+        start, end = min(float(s.t[0]) for s in others), max(float(s.t[-1]) for s in others)
+        if float(stream.t[0]) > end or float(stream.t[-1]) < start:
+            rest = ", ".join(f"'{n}'" for n in timed if n != name)
+            raise SessionError(f"{where}: stream '{name}' ({stream.t[0]:.3f} .. {stream.t[-1]:.3f} s) does not overlap {rest} "
+                               f"({start:.3f} .. {end:.3f} s): another clock, or times in other units (ms? ns?)")
+
+
 def load_session(directory: str | Path) -> Session:
     """Read and validate a session directory (see the module docstring for the format)."""
     root = Path(directory)
@@ -204,6 +219,7 @@ def load_session(directory: str | Path) -> Session:
         if not isinstance(table, Mapping):
             raise SessionError(f"{toml_path}: [streams.{name}] must be a table (kind = ..., file = ...)")
         streams[name] = _load_stream(root, toml_path, name, table)
+    check_overlap(streams, str(toml_path))
     truth = None
     if "truth" in spec:
         table = dict(spec["truth"])

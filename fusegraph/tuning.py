@@ -158,7 +158,7 @@ def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
 STUDIES: dict[str, Study] = {
     "gaze_ekf": Study("gaze_ekf", {"gyro_sigma_rad_s": (0.01, 0.03, 0.1, 0.3), "accel_inflation": (0.0, 20.0),
                                    "gaze_walk_m_per_sqrt_s": (0.05, 0.2)}, _gaze_ekf_score, "mm, hypot of X and Z RMS on the wall"),
-    "bicycle_ekf": Study("bicycle_ekf", {"gyro_sigma_rad_s": (0.01, 0.03, 0.1), "accel_sigma_m_s2": (0.5, 1.0, 2.0, 4.0)}, _bicycle_ekf_score,
+    "bicycle_ekf": Study("bicycle_ekf", {"gyro_sigma_rad_s": (0.003, 0.01, 0.03, 0.1), "accel_sigma_m_s2": (0.25, 0.5, 1.0, 2.0, 4.0)}, _bicycle_ekf_score,
                          "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),
     "walking_fixes": Study("walking_fixes", {"kernel_width": (1.0, 3.0, 5.0, 8.0), "reject_sigmas": (3.0, 5.0, 8.0)}, _walking_fixes_score,
                            "m, batch position RMSE with 20 % wrong image fixes"),

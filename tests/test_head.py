@@ -13,7 +13,7 @@ from fusegraph.metrics import body_errors, score_attitude
 from fusegraph.scenarios import simulate_head
 from fusegraph.solvers.batch import solve_batch
 from fusegraph.solvers.online import OnlineConfig, OnlineSmoother
-from fusegraph.systems.head import METHODS, OnlineHeadTracker, feed, run_batch, run_isam2, run_method
+from fusegraph.systems.head import METHODS, OnlineHeadTracker, RejectedSampleError, feed, run_batch, run_isam2, run_method
 
 
 def noise_free_session(profile: str = "ideal", seed: int = 3):
@@ -108,6 +108,33 @@ def test_live_api_matches_the_replay() -> None:
     assert last is not None
     np.testing.assert_allclose(last.quat_wxyz, replay.quat_wxyz[-1], atol=1e-9)
     assert np.all(np.linalg.eigvalsh(last.cov) > 0)
+
+
+def test_live_api_refuses_bad_samples_and_carries_on() -> None:
+    """A NaN or 1e30 gyro sample, a gyro time 0.5 s back, a tracker sample 5 s in the future, a scaled or zero
+    quaternion: each is refused with a message, and the estimate afterwards equals the replay's (the bad
+    samples never touched the graph; before this, one NaN broke every later update)."""
+    session = simulate_head(0, profile="ideal", duration_s=3.0)
+    replay = run_isam2(session)
+    live = OnlineHeadTracker(head_model_for(session))
+    gyro, tracker = session.stream("gyro"), session.stream("tracker")
+    j, last, refused = 0, None, []
+    for i, (t, omega) in enumerate(zip(gyro.t, gyro.values, strict=True)):
+        while j < len(tracker) and tracker.arrival_t[j] <= t + 1e-9:
+            live.add_tracker(tracker.t[j], tracker.values[j])
+            j += 1
+        if i in (50, 120):
+            bad = [(live.add_gyro, t, np.array([np.nan, 0.0, 0.0])), (live.add_gyro, t, np.array([1e30, 0.0, 0.0])),
+                   (live.add_gyro, t - 0.5, omega), (live.add_tracker, t + 5.0, tracker.values[0]),
+                   (live.add_tracker, t - 0.05, 3.0 * tracker.values[0]), (live.add_tracker, t - 0.05, np.zeros(4))]
+            for add, when, values in bad:
+                with pytest.raises(RejectedSampleError) as info:
+                    add(when, values)  # type: ignore[operator]
+                refused.append(str(info.value))
+        last = live.add_gyro(t, omega)
+    assert last is not None and live.rejected == 12
+    assert any("norm 3" in m for m in refused) and any("after the newest gyro" in m for m in refused) and any("does not follow" in m for m in refused)
+    np.testing.assert_allclose(last.quat_wxyz, replay.quat_wxyz[-1], atol=1e-9)
 
 
 def test_no_estimate_before_the_first_fix_arrives() -> None:

@@ -152,3 +152,15 @@ def test_import_oxford_counts_steps_through_run(tmp_path: Path, capsys: pytest.C
     assert metrics["steps_true"] == 248 and metrics["step_error_frac"] < 0.05, metrics  # the bench's 5 % bound for phone recordings
     assert main(["run", str(tmp_path / name), "--solver", "batch"]) != 0  # trajectories need the gyro: a clear error, not a traceback
     assert "no gyro stream" in capsys.readouterr().err
+
+
+def test_import_plaza_runs_as_a_wheel_odometry_session(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Plaza1 (shipped with gtsam) through import and run: the start is found from the ranges, not the truth
+    (no start_pose in the session), and the batch lands within the bench's figure (0.93 m) plus margin."""
+    assert main(["import", "plaza", "Plaza1", "--out", str(tmp_path / "p1")]) == 0
+    session = load_session(tmp_path / "p1")
+    assert "start_pose" not in session.meta["session"]
+    capsys.readouterr()
+    assert main(["run", str(tmp_path / "p1"), "--solver", "batch", "--json"]) == 0
+    metrics = json.loads(capsys.readouterr().out)["metrics"]
+    assert metrics["rmse_m"] < 1.2, metrics

@@ -134,3 +134,10 @@ def test_truth_may_have_nan_gaps_but_sensors_may_not(tmp_path: Path) -> None:
     gappy = Session(session.system, session.streams, Stream("truth", "attitude", session.truth.t, values, KIND_COLUMNS["attitude"]), session.meta)
     loaded = load_session(save_session(gappy, tmp_path / "s"))
     assert loaded.truth is not None and np.isnan(loaded.truth.values[5]).all()
+
+
+def test_a_stream_on_another_clock_is_named(tmp_path: Path) -> None:
+    """Tracker stamps in milliseconds against a gyro in seconds: the streams do not overlap in time."""
+    tracker_ms = "t,qw,qx,qy,qz\n1000,1,0,0,0\n1020,1,0,0,0\n"
+    with pytest.raises(SessionError, match=r"stream 'gyro' \(0.000 .. 0.020 s\) does not overlap 'tracker' \(1000.000 .. 1020.000 s\).*\(ms\? ns\?\)"):
+        load_session(write_session(tmp_path, GOOD_GYRO, tracker_ms))

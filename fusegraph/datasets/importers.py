@@ -7,6 +7,10 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
 * ``oxford``: an Oxford step recording folder (``accelerometer.csv``) or the dataset folder (with
   ``stats.csv``) -> walking sessions with the phone's accelerometer only and the hand-counted steps in
   ``[truth_extra] steps``: ``run --solver steps`` counts them (there is no gyro for a trajectory).
+* ``plaza``: ``Plaza1`` or ``Plaza2`` (the range + odometry runs that ship with gtsam; SOURCE is the name)
+  -> a walking session driven by wheel odometry: ``odometry`` (kind wheel_odometry), ``ranges`` (kind
+  beacon_ranges: Huber, a bias per beacon), the ground truth (x, y, 0) as truth. No start pose is
+  written: it is found from the first minute of odometry and ranges.
 * ``uwb``: the UWB recording folder (``UWB_*.csv`` and ``motion_capture_*.csv``) -> one ultrasonic
   session: the anchors as receivers, every tag's range per epoch UNLABELLED (the tag labels become
   the scoring-only ``truth_label`` column), the tags' motion-capture positions as truth. Times are
@@ -24,6 +28,8 @@ from ..session import KIND_COLUMNS, Session, SessionError, Stream, save_session
 
 def import_recording(fmt: str, source: str | Path, out: str | Path) -> list[Path]:
     """Write the recording at ``source`` as session directories under ``out``; returns them."""
+    if fmt == "plaza":
+        return [save_session(plaza_session(str(source)), Path(out))]
     source, out = Path(source), Path(out)
     if not source.exists():
         raise SessionError(f"{source}: not found")
@@ -44,7 +50,30 @@ def import_recording(fmt: str, source: str | Path, out: str | Path) -> list[Path
         if (source / "stats.csv").is_file():
             return [save_session(oxford_session(source, name), out / name) for name in recordings(source)]
         return [save_session(oxford_session(source.parent, source.name), out)]
-    raise SessionError(f"unknown format {fmt!r} (known: broad, oxford, uwb)")
+    raise SessionError(f"unknown format {fmt!r} (known: broad, oxford, plaza, uwb)")
+
+
+def plaza_session(name: str) -> Session:
+    """A Plaza run as a wheel-odometry walking session (see the module docstring)."""
+    from ..systems.plaza import ODOMETRY, RANGES, _beacon_table
+    from .plaza import RECORDINGS, load_plaza
+
+    if name not in RECORDINGS:
+        raise SessionError(f"plaza: SOURCE is the recording's name, one of {', '.join(RECORDINGS)} (got {name!r})")
+    rec = load_plaza(name)
+    t = rec.truth_t
+    odometry = np.column_stack([np.r_[0.0, rec.distance_m], np.r_[0.0, rec.dyaw_rad]])
+    meta = {"distance_frac": ODOMETRY.distance_frac, "lateral_frac": ODOMETRY.lateral_frac, "floor_m": ODOMETRY.floor_m,
+            "yaw_sigma_deg": float(np.degrees(ODOMETRY.yaw_rad)), "yaw_frac": ODOMETRY.yaw_frac}
+    beacons, rows = _beacon_table(rec)
+    order = np.argsort(rec.range_t, kind="stable")
+    ranges = Stream("ranges", "beacon_ranges", rec.range_t[order], np.column_stack([rows[order], rec.range_m[order]]), KIND_COLUMNS["beacon_ranges"], 0.0,
+                    {"beacons_m": beacons.tolist(), "sigma_m": RANGES.sigma_m, "bias_sigma_m": RANGES.bias_sigma_m, "kernel_width": RANGES.kernel_width})
+    truth = Stream("truth", "position", t, np.column_stack([rec.truth_xy, np.zeros(len(t))]), KIND_COLUMNS["position"])
+    header = {"session": {"system": "walking", "dataset": "Plaza", "trial": name, "world_frame": "the dataset's local frame (m)",
+                          "description": "vehicle: wheel odometry and ranges to identified beacons; the start is found from the ranges"}}
+    return Session("walking", {"odometry": Stream("odometry", "wheel_odometry", t, odometry, KIND_COLUMNS["wheel_odometry"], 0.0, meta),
+                               "ranges": ranges}, truth, header)
 
 
 def oxford_session(directory: Path, name: str) -> Session:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from ..catalogue import SensorKind
+from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
 
 
@@ -129,6 +129,22 @@ def dead_reckon(start: gtsam.Pose3, motions: list[PlanarMotion]) -> list[gtsam.P
     return poses
 
 CATALOGUE = (
+    SensorKind(
+        kind="wheel_odometry",
+        summary="a vehicle's wheel odometry: distance and heading change per interval (row i = the motion from row i-1's time; "
+        "the first row is the start)",
+        columns=("distance_m", "dyaw_rad"),
+        units=("m", "rad"),
+        frame="body: forward along the heading; dyaw counter-clockwise seen from above",
+        factors="BetweenFactorPose3 between consecutive level poses, sigmas growing with the distance",
+        keys=(
+            KeySpec("distance_frac", 0.02, "sigma of the distance per metre travelled (wheel scale)"),
+            KeySpec("lateral_frac", 0.02, "sigma of the sideways slip per metre travelled"),
+            KeySpec("floor_m", 0.005, "smallest translation sigma, m"),
+            KeySpec("yaw_sigma_deg", 0.1, "heading-change sigma per interval, degrees"),
+            KeySpec("yaw_frac", 0.02, "extra heading-change sigma per radian turned"),
+        ),
+    ),
     SensorKind(
         kind="pose",
         summary="absolute fix (image match): position and heading; some may be wrong",

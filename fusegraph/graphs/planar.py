@@ -201,3 +201,49 @@ def causal_online(config: OnlineConfig) -> Callable[[PlanarGraph], gtsam.Pose3]:
         return graph.latest
 
     return update
+
+
+def start_from_ranges(
+    state_t: FloatArray, motions: list[PlanarMotion], noise: OdometryNoise, ranges_t: FloatArray, beacon: np.ndarray, range_m: FloatArray,
+    beacons_m: FloatArray, range_noise: RangeNoise, window_s: float = 60.0, headings: int = 8,
+) -> gtsam.Pose3:
+    """The start pose from the first ``window_s`` of odometry and ranges to known beacons, no truth needed.
+
+    The start position is first trilaterated from the window's ranges (the mover taken as still: a
+    coarse guess), then the window's graph (odometry, ranges with their biases) is solved from
+    ``headings`` evenly spread start headings with a loose start prior; the solution with the lowest
+    error gives the start. Ranges fix where the track is; the odometry's shape fixes its heading.
+    """
+    from ..solvers.batch import solve_python_loop  # here: solvers import graphs
+
+    end = int(np.searchsorted(state_t, state_t[0] + window_s, side="right"))
+    end = max(end, min(len(state_t), 2))
+    inside = ranges_t <= state_t[end - 1]
+    if inside.sum() < 3:
+        raise ValueError(f"fewer than 3 beacon ranges in the first {window_s:g} s: the start cannot be found from the ranges")
+    position = _trilaterate(beacons_m[beacon[inside]], range_m[inside])
+    attach, _ = range_schedule(state_t[:end], ranges_t[inside])
+    loose = np.array([1e-3, 1e-3, 3.0, 30.0, 30.0, 1e-3])  # heading and position free, the state stays level
+    best: tuple[float, gtsam.Pose3] | None = None
+    for heading in np.linspace(-np.pi, np.pi, headings, endpoint=False):
+        start = gtsam.Pose3(gtsam.Rot3.Yaw(float(heading)), np.array([position[0], position[1], 0.0]))
+        graph = PlanarGraph(start, loose, start_t=float(state_t[0]))
+        for i, motion in enumerate(motions[: end - 1], start=1):
+            graph.add_odometry(motion, noise, float(state_t[i]))
+        for n, state in zip(np.flatnonzero(inside), attach, strict=True):
+            graph.add_range(int(state), int(beacon[n]), beacons_m[beacon[n]], float(range_m[n]), range_noise)
+        result = solve_python_loop(graph.graph, graph.initial)
+        if best is None or result.final_error < best[0]:
+            best = (result.final_error, result.values.atPose3(X(0)))
+    assert best is not None
+    return best[1]
+
+
+def _trilaterate(beacons_m: FloatArray, range_m: FloatArray) -> FloatArray:
+    """Least-squares horizontal position from ranges to known beacons (linearised against the first)."""
+    b = beacons_m[:, :2]
+    a = 2.0 * (b[1:] - b[0])
+    rhs = range_m[0] ** 2 - range_m[1:] ** 2 + np.sum(b[1:] ** 2, axis=1) - np.sum(b[0] ** 2)
+    if len(a) < 2 or np.linalg.matrix_rank(a) < 2:
+        return b.mean(axis=0)
+    return np.linalg.lstsq(a, rhs, rcond=None)[0]

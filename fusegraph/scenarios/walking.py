@@ -125,6 +125,8 @@ class WalkingSession:
     """Calibration walks only: rows (start_s, end_s, true mean speed m/s) of each straight leg."""
     beacons: BeaconRanges | None = None
     """Optional ranges to known UWB beacons (the Plaza factors in the walker's graph)."""
+    start_sigmas: FloatArray | None = None
+    """Prior sigmas of the start (roll, pitch, yaw rad, x, y, z m); None: the walker's known entrance."""
 
 
 class _Tour:

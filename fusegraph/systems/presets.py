@@ -288,11 +288,16 @@ def _walking_run(session: Session, solver: str) -> Result:
 
     if solver == "steps":
         return _count_steps(session)
-    if "gyro" not in session.streams:
+    if session.streams_of_kind("wheel_odometry") and "gyro" not in session.streams:
+        walk, events = walking.vehicle_from_session(session)  # a vehicle: wheel odometry instead of steps
+        cycles: list[Any] = []
+        rides: list[Any] = []
+    elif "gyro" not in session.streams:
         raise SessionError(f"{session.path or 'walking session'}: no gyro stream: an accelerometer-only recording (a phone's step "
-                           "recording) is counted with --solver steps; the trajectory solvers need the waist gyro too")
-    walk, speed = walking.from_session(session)
-    cycles, rides, events = walking.analyse(walk, speed)
+                           "recording) is counted with --solver steps; the trajectory solvers need the waist gyro (or wheel_odometry)")
+    else:
+        walk, speed = walking.from_session(session)
+        cycles, rides, events = walking.analyse(walk, speed)
     if solver == "dead_reckoning":
         run = walking.run_dead_reckoning(walk, events)
     else:
@@ -315,6 +320,11 @@ def _count_steps(session: Session) -> PointEstimate:
 def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     from . import walking
 
+    if session.streams_of_kind("wheel_odometry") and "gyro" not in session.streams and isinstance(estimate, PointEstimate):
+        if session.truth is None:
+            return None
+        run = walking.WalkRun(estimate.method, estimate.t, estimate.points[:, 0, :], estimate.runtime_s)
+        return walking.score_xyz(run, session.truth.t, session.truth.values)
     if estimate.method == "steps":
         true = session.meta.get("truth_extra", {}).get("steps")
         if not isinstance(estimate, PointEstimate) or true is None:

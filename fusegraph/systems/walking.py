@@ -27,9 +27,10 @@ from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_recko
 from ..factors.ranging import BeaconRanges, beacon_ranges_from
 from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model, gravity_filter
 from ..geometry import FloatArray
-from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule
+from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule, start_from_ranges
 from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingSession, simulate_calibration_walk, simulate_walking
 from ..session import Session, SessionError
+from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig
 
 STEP_NOISE = OdometryNoise(distance_frac=0.08, lateral_frac=0.05, floor_m=0.02, yaw_rad=math.radians(0.5), yaw_frac=0.03, vertical_m=0.03)
@@ -102,8 +103,8 @@ def _fix_schedule(session: WalkingSession, times: FloatArray) -> list[list[int]]
 def _build(session: WalkingSession, events: list[Event], fixes: FloatArray, on_state: Callable[[PlanarGraph, int], None] | None = None,
            keep: np.ndarray | None = None, fix_noise: FixNoise = FIX_NOISE) -> PlanarGraph:
     start = level_pose(*session.start_pose)
-    graph = PlanarGraph(start, START_SIGMAS, start_t=0.0)
-    times = np.array([0.0] + [e.t for e in events])
+    graph = PlanarGraph(start, START_SIGMAS if session.start_sigmas is None else session.start_sigmas, start_t=float(session.t[0]))
+    times = np.array([float(session.t[0])] + [e.t for e in events])
     schedule = _fix_schedule(session, times)
     elevator = np.array([*session.building.elevator_xy_m, 0.0])
     r = 0
@@ -144,7 +145,8 @@ def _add_beacon_range(graph: PlanarGraph, ranges: BeaconRanges, n: int, state: i
 def run_dead_reckoning(session: WalkingSession, events: list[Event]) -> WalkRun:
     t0 = time.perf_counter()
     poses = dead_reckon(level_pose(*session.start_pose), [e.motion for e in events])
-    return WalkRun("dead_reckoning", np.array([0.0] + [e.t for e in events]), np.array([p.translation() for p in poses]), time.perf_counter() - t0)
+    return WalkRun("dead_reckoning", np.array([float(session.t[0])] + [e.t for e in events]), np.array([p.translation() for p in poses]),
+                   time.perf_counter() - t0)
 
 
 def run_batch(session: WalkingSession, events: list[Event], fixes: FloatArray, fix_noise: FixNoise = FIX_NOISE,
@@ -156,7 +158,13 @@ def run_batch(session: WalkingSession, events: list[Event], fixes: FloatArray, f
     graph = _build(session, events, fixes, fix_noise=fix_noise)
     params = gtsam.LevenbergMarquardtParams()
     params.setRelativeErrorTol(1e-6)
-    values = gtsam.LevenbergMarquardtOptimizer(graph.graph, graph.initial, params).optimize()
+
+    def solve(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values) -> gtsam.Values:
+        if session.beacons is not None:  # Python range factors: driven from Python (see solve_python_loop), 20x faster
+            return solve_python_loop(graph, initial, relative_error_tol=1e-6).values
+        return gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+
+    values = solve(graph.graph, graph.initial)
     times = np.array(graph.keyframe_t)
     solved = poses_of(values, graph.count)
     if len(fixes):
@@ -165,7 +173,7 @@ def run_batch(session: WalkingSession, events: list[Event], fixes: FloatArray, f
         keep = gap <= reject_sigmas * fix_noise.position_m
         if not keep.all():
             graph = _build(session, events, fixes, keep=keep, fix_noise=fix_noise)
-            values = gtsam.LevenbergMarquardtOptimizer(graph.graph, values, params).optimize()
+            values = solve(graph.graph, values)
             solved = poses_of(values, graph.count)
     return WalkRun("batch", times, solved[:, :3], time.perf_counter() - t0)
 
@@ -191,7 +199,7 @@ def run_ekf(session: WalkingSession, events: list[Event], fixes: FloatArray, gat
     t0 = time.perf_counter()
     x = np.array(session.start_pose, dtype=float)
     P = np.diag(np.square([START_SIGMAS[3], START_SIGMAS[4], START_SIGMAS[5], START_SIGMAS[2]]))
-    times = np.array([0.0] + [e.t for e in events])
+    times = np.array([float(session.t[0])] + [e.t for e in events])
     schedule = _fix_schedule(session, times)
     R_fix = np.diag(np.square([FIX_NOISE.position_m, FIX_NOISE.position_m, FIX_NOISE.height_m, FIX_NOISE.heading_rad]))
     gate4 = chi2.ppf(gate_prob, 4)
@@ -234,9 +242,14 @@ def run_ekf(session: WalkingSession, events: list[Event], fixes: FloatArray, gat
 
 def score(run: WalkRun, session: WalkingSession) -> dict[str, float]:
     """3D position RMSE over the run's states and the error at the end."""
-    truth = np.stack([np.interp(run.t, session.t, session.truth_xyz_m[:, j]) for j in range(3)], axis=1)
+    return score_xyz(run, session.t, session.truth_xyz_m)
+
+
+def score_xyz(run: WalkRun, truth_t: FloatArray, truth_xyz_m: FloatArray) -> dict[str, float]:
+    """3D position RMSE over the run's states (truth interpolated to them) and the error at the end."""
+    truth = np.stack([np.interp(run.t, truth_t, truth_xyz_m[:, j]) for j in range(3)], axis=1)
     err = np.linalg.norm(run.xyz - truth, axis=1)
-    end_error = float(np.linalg.norm(run.xyz[-1] - session.truth_xyz_m[-1]))
+    end_error = float(np.linalg.norm(run.xyz[-1] - truth_xyz_m[-1]))
     return {"rmse_m": float(np.sqrt(np.mean(err**2))), "final_error_m": end_error}
 
 
@@ -259,6 +272,49 @@ def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIS
     cycles = detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config, gravity)
     rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, cycles, config, gravity)
     return cycles, rides, events_from(cycles, rides, speed, session.building)
+
+
+#: Start sigmas when the start is found from the ranges (``graphs.planar.start_from_ranges``): within ~1 m and
+#: ~7 deg on the Plaza runs, refined by the rest of the run.
+RANGE_START_SIGMAS = np.array([1e-3, 1e-3, math.radians(10.0), 2.0, 2.0, 1e-3])
+#: Seconds of odometry and ranges a start is found from when the session gives none.
+RANGE_START_WINDOW_S = 60.0
+
+
+def vehicle_from_session(session: Session) -> tuple[WalkingSession, list[Event]]:
+    """A session driven by wheel odometry (kind ``wheel_odometry``: row i = the motion from row i-1's time to
+    row i's; the first row is the start) instead of a waist IMU; ``start_pose`` optional when the session
+    has beacon ranges (then found from the first minute of odometry and ranges, never from the truth)."""
+    where = f"{session.path / 'session.toml'}" if session.path else "walking session"
+    streams = session.streams_of_kind("wheel_odometry")
+    if len(streams) != 1:
+        raise SessionError(f"{where}: a session without a waist gyro needs one wheel_odometry stream (have {len(streams)})")
+    odo = streams[0]
+    noise = OdometryNoise(**{k: float(odo.meta[k]) for k in ("distance_frac", "lateral_frac", "floor_m", "yaw_frac") if k in odo.meta},
+                          **({"yaw_rad": math.radians(float(odo.meta["yaw_sigma_deg"]))} if "yaw_sigma_deg" in odo.meta else {}))
+    events = [Event(float(t), PlanarMotion(forward_m=float(d), dyaw_rad=float(h)), noise, False) for t, (d, h) in zip(odo.t[1:], odo.values[1:], strict=True)]
+    beacon_streams = session.streams_of_kind("beacon_ranges")
+    try:
+        beacons = beacon_ranges_from(beacon_streams[0], where) if beacon_streams else None
+    except ValueError as err:
+        raise SessionError(str(err)) from None
+    header = session.meta.get("session", {})
+    truth = np.full((len(odo), 3), np.nan)
+    if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(odo):
+        truth = session.truth.values.copy()
+    if "start_pose" in header:
+        start, sigmas = np.asarray(header["start_pose"], dtype=float), None
+    elif beacons is not None:
+        pose = start_from_ranges(odo.t, [e.motion for e in events], noise, beacons.t, beacons.beacon, beacons.range_m, beacons.beacons_m,
+                                 beacons.noise, window_s=RANGE_START_WINDOW_S)
+        start, sigmas = np.r_[pose.translation(), pose.rotation().yaw()], RANGE_START_SIGMAS
+    else:
+        raise SessionError(f"{where}: [session] needs start_pose = [x, y, z, yaw] (no beacon ranges to find the start from)")
+    empty = np.zeros((len(odo), 3))
+    walk = WalkingSession(t=odo.t, accel_m_s2=empty, gyro_rad_s=empty, fixes=Fixes(np.zeros(0), np.zeros((0, 4)), np.zeros((0, 4)), np.zeros(0, dtype=bool)),
+                          truth_xyz_m=truth, truth_yaw_rad=np.full(len(odo), np.nan), step_t=np.zeros(0), step_activity=(), rides=np.zeros((0, 3)),
+                          building=Building(), start_pose=start, beacons=beacons, start_sigmas=sigmas)
+    return walk, events
 
 
 def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
