@@ -63,8 +63,11 @@ def test_graph_finds_the_gaze_point_and_beats_the_ekf(session: gaze.GazeSession)
     # the figures `fusegraph report gaze` prints; bounds with margin over the measured ones (online ~6, batch ~3 mm)
     assert r["batch"]["x_mm"] < 8 and r["batch"]["z_mm"] < 8, r
     assert r["online"]["x_mm"] < 15 and r["online"]["z_mm"] < 15, r
+    # the EKF's open noise figures are tuned on seeds 100-119 (seed 0 here is a test seed): it is a fair
+    # baseline now (~10/6 mm over seeds 0-9), so the graph must beat it, not a crippled version of it
+    assert r["ekf"]["x_mm"] < 25 and r["ekf"]["z_mm"] < 25, r
     for axis in ("x_mm", "z_mm"):
-        assert r["online"][axis] < 0.7 * r["ekf"][axis], r
+        assert r["online"][axis] < r["ekf"][axis] and r["batch"][axis] < 0.6 * r["ekf"][axis], r
 
 
 def test_online_is_causal(session: gaze.GazeSession) -> None:

@@ -52,6 +52,13 @@ class UwbRecording:
     """Rotation from the frame the tag offsets are given in (z up) to the rigid-body frame (z down):
     half a turn about x."""
 
+    def between(self, start_s: float, end_s: float = np.inf) -> UwbRecording:
+        """The UWB epochs from ``start_s`` to ``end_s`` seconds after the first (the motion capture is kept whole)."""
+        from dataclasses import replace
+
+        keep = (self.t >= self.t[0] + start_s) & (self.t <= self.t[0] + end_s)
+        return replace(self, t=self.t[keep], ranges=self.ranges[keep])
+
     def tags_truth(self, t: FloatArray) -> FloatArray:
         """(len(t), T, 3) tag positions from the motion capture (centroid + R local_R_offsets offset), interpolated at t."""
         from ..geometry import matrix_from_quat, quat_normalize
