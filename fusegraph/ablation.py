@@ -295,9 +295,17 @@ def run_study(
     """Run every run of ``study`` not yet in ``out_dir/runs.csv``; returns all rows in study order."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "study.json").write_text(json.dumps(asdict(study), indent=2))
+    described = json.dumps(asdict(study), indent=2)
+    recorded = out / "study.json"
+    if recorded.exists() and recorded.read_text() != described and read_rows(out / "runs.csv"):
+        raise ValueError(f"{out} holds a study with other settings ({recorded}): its rows would mix with these; "
+                         "use another --out folder, or delete that one")
+    recorded.write_text(described)
     table_path = out / "runs.csv"
-    done = {row["key"]: row for row in read_rows(table_path)}
+    # finished runs are kept; failed ones are run again (their rows dropped), so a resume retries them
+    kept = [row for row in read_rows(table_path) if row["status"] == "ok"]
+    done = {row["key"]: row for row in kept}
+    _rewrite(table_path, kept)
     specs = study.runs()
     todo = [s for s in specs if s["key"] not in done]
     new_file = not table_path.exists() or table_path.stat().st_size == 0
@@ -331,25 +339,23 @@ def _execute_all(specs: Sequence[dict[str, Any]], workers: int, scheduler: str |
         return
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    from .cluster import die_with_parent
+
+    with ProcessPoolExecutor(max_workers=workers, initializer=die_with_parent) as pool:
         futures = {pool.submit(execute, spec): spec for spec in specs}
         for future in as_completed(futures):
             yield _result_or_failure(future, futures[future])
 
 
 def _execute_dask(specs: Sequence[dict[str, Any]], workers: int, scheduler: str) -> Iterable[dict[str, Any]]:
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import as_completed
 
-    cluster = LocalCluster(n_workers=max(1, workers), threads_per_worker=1, processes=True, dashboard_address=None) if scheduler == "local" else None
-    client = Client(cluster if cluster is not None else scheduler)
-    try:
+    from .cluster import dask_client
+
+    with dask_client(scheduler, workers) as client:
         futures = {client.submit(execute, spec, key=f"run-{spec['key']}", pure=False): spec for spec in specs}
         for future in as_completed(list(futures)):
             yield _result_or_failure(future, futures[future])
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 def _result_or_failure(future: Any, spec: Mapping[str, Any]) -> dict[str, Any]:
@@ -363,12 +369,26 @@ def _result_or_failure(future: Any, spec: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def read_rows(path: str | Path) -> list[dict[str, Any]]:
-    """Rows of a runs.csv (empty when it does not exist yet)."""
+    """Complete rows of a runs.csv (empty when it does not exist yet). A row cut short (the study killed while
+    writing it) or otherwise damaged is left out: its run counts as not done."""
     path = Path(path)
     if not path.exists() or path.stat().st_size == 0:
         return []
     with path.open(newline="") as handle:
-        return list(csv.DictReader(handle))
+        rows = list(csv.DictReader(handle))
+    return [r for r in rows if None not in r and all(r.get(c) is not None for c in COLUMNS) and r["key"] and r["status"] in ("ok", "failed")]
+
+
+def _rewrite(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
+    """runs.csv holding exactly ``rows`` (atomic: written aside, then renamed)."""
+    if not path.exists():
+        return
+    aside = path.with_suffix(".csv.tmp")
+    with aside.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    aside.replace(path)
 
 
 # ------------------------------------------------------------------------------------ summary

@@ -486,6 +486,10 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     print(f"{len(result.rows)} runs ({result.ran} run now, {result.skipped} already done, {failed} failed); "
           f"wall {result.wall_s:.1f} s on {result.workers} worker(s); time inside the solvers: {100 * result.solver_fraction:.0f}% of the workers' time")
     print(f"wrote {args.out / 'runs.csv'}, " + ", ".join(str(f) for f in files))
+    if failed:
+        print(f"fusegraph ablate: {failed} of {len(result.rows)} runs failed (see the error column of runs.csv; running the same "
+              "command again retries them)", file=sys.stderr)
+        return 1
     return 0
 
 

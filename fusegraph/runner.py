@@ -130,6 +130,9 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
             if row.get("status") == "ok" and row.get("solver") == solver:
                 done[row["path"]] = row
     todo = [(str(p), solver, str(out)) for p in paths if str(p) not in done]
+    if log.exists() and log.stat().st_size and not log.read_bytes().endswith(b"\n"):
+        with log.open("a") as handle:
+            handle.write("\n")  # end the torn line, so the next row starts a line of its own
     with log.open("a") as handle:
         for row in progress(_map(todo, workers, scheduler), len(todo), f"run {solver}"):
             handle.write(json.dumps(row) + "\n")
@@ -142,18 +145,14 @@ def _map(todo: list[tuple[str, str, str]], workers: int, scheduler: str | None) 
     if not todo:
         return
     if scheduler is not None:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import as_completed
 
-        cluster = LocalCluster(n_workers=max(1, workers), threads_per_worker=1, dashboard_address=None) if scheduler == "local" else None
-        client = Client(cluster if cluster is not None else scheduler, timeout="10s")
-        try:
+        from .cluster import dask_client
+
+        with dask_client(scheduler, workers) as client:
             futures: list[Any] = [client.submit(_run_one_to_folder, item, pure=False) for item in todo]
             for future in as_completed(futures):
                 yield future.result()
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
         return
     if workers <= 1:
         for item in todo:
@@ -162,7 +161,9 @@ def _map(todo: list[tuple[str, str, str]], workers: int, scheduler: str | None) 
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures import as_completed as done_in_order
 
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    from .cluster import die_with_parent
+
+    with ProcessPoolExecutor(max_workers=workers, initializer=die_with_parent) as pool:
         local = [pool.submit(_run_one_to_folder, item) for item in todo]
         for future in done_in_order(local):
             yield future.result()

@@ -97,6 +97,29 @@ def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     return leave_one_group_out(scores)
 
 
+def broad_mag_logo(directory: str | None = None, solver: str = "online") -> dict[str, Any]:
+    """Our magnetometer settings (heading sigma, disturbance gains, Cauchy width) chosen by leave-one-trial-out
+    on the BROAD trials for ``solver`` (online or batch): total RMSE, degrees."""
+    from dataclasses import replace
+
+    from .datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
+    from .graphs.attitude9 import Attitude9Model
+    from .systems import attitude9
+
+    base = Attitude9Model()
+    grid = [(h, g, k) for h in (3.0, 5.0, 10.0) for g in (10.0, 20.0, 40.0) for k in (1.0, 2.0)]
+    run = attitude9.run_online if solver == "online" else attitude9.run_batch
+    scores: dict[str, dict[str, float]] = {f"heading_sigma_deg={h} gains={g} cauchy_k={k}": {} for h, g, k in grid}
+    for path in trial_paths(directory or DEFAULT_DIR):
+        session = load_broad(path)
+        movement = session.stream("movement").values[:, 0]
+        for h, g, k in grid:
+            model = replace(base, mag=replace(base.mag, heading_sigma_deg=h, norm_gain=g, dip_gain=g, cauchy_k=k))
+            estimate = run(session, model)
+            scores[f"heading_sigma_deg={h} gains={g} cauchy_k={k}"][path.stem] = broad_errors(estimate.quat_wxyz, session.truth.values, movement).total  # type: ignore[union-attr]
+    return leave_one_group_out(scores)
+
+
 # ------------------------------------------------------------------------------------- studies
 
 
@@ -170,11 +193,12 @@ STUDIES: dict[str, Study] = {
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.tuning", description=__doc__)
-    parser.add_argument("study", choices=[*STUDIES, "broad_ekf"], help="a simulated study (tuning seeds) or broad_ekf (leave-one-trial-out on BROAD)")
+    parser.add_argument("study", choices=[*STUDIES, "broad_ekf", "broad_mag"],
+                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag (leave-one-trial-out on BROAD)")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     args = parser.parse_args(argv)
-    if args.study == "broad_ekf":
-        result = broad_ekf_logo()
+    if args.study in ("broad_ekf", "broad_mag"):
+        result = broad_ekf_logo() if args.study == "broad_ekf" else broad_mag_logo()
         for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
             print(f"{setting:<44} in-sample mean total RMSE {score:7.2f} deg")
         print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.2f} deg, leave-one-trial-out {result['cross_validated']:.2f} deg")

@@ -44,6 +44,23 @@ def test_failed_runs_are_rows_and_a_killed_study_resumes_to_the_same_table(tmp_p
     assert "-gyro latency=0.1" in table
 
 
+def test_a_row_torn_by_a_kill_a_failed_run_and_other_settings_in_the_same_folder(tmp_path: Path) -> None:
+    """Killed while writing a row: the torn row is dropped and its run done again (no crash in the summary);
+    a failed run is retried on resume; the same folder with other settings is refused, not mixed."""
+    study = Study(system="head", seeds=(0, 1), solvers=("ekf",), duration_s=2.0, profile="ideal")
+    first = run_study(study, tmp_path, workers=1)
+    lines = (tmp_path / "runs.csv").read_text().splitlines()
+    broken = lines[1].replace(",ok,", ",failed,", 1)
+    (tmp_path / "runs.csv").write_text("\n".join([lines[0], broken, lines[2][: len(lines[2]) // 2]]))  # one failed, one torn
+    again = run_study(study, tmp_path, workers=1)
+    assert again.ran == 2 and again.skipped == 0
+    assert metrics(again.rows) == metrics(first.rows)
+    assert len(read_rows(tmp_path / "runs.csv")) == 2
+    summary_table(summarize(again.rows))
+    with pytest.raises(ValueError, match="other settings"):
+        run_study(Study(system="head", seeds=(0, 1, 2), solvers=("ekf",), duration_s=2.0, profile="ideal"), tmp_path, workers=1)
+
+
 def test_dask_local_cluster_with_two_workers_gives_the_same_results(tmp_path: Path) -> None:
     pytest.importorskip("dask.distributed")
     study = Study(system="head", drops=(("tracker",),), seeds=(0, 1), solvers=("ekf", "online"), duration_s=2.0, profile="ideal")

@@ -72,3 +72,12 @@ def test_vqf_reproduces_the_reference_figures_on_the_ten_trials() -> None:
     # 0.05 deg allows for the package version
     assert np.mean(online) == pytest.approx(3.03, abs=0.05)
     assert np.mean(offline) == pytest.approx(2.62, abs=0.05)
+
+
+def test_a_nan_estimate_is_scored_as_failing_not_dropped() -> None:
+    truth = np.tile([1.0, 0.0, 0.0, 0.0], (4, 1))
+    estimate = truth.copy()
+    estimate[1] = np.nan
+    errors = broad_errors(estimate, truth, np.ones(4))
+    assert errors.samples == 4 and errors.failed == 1
+    assert errors.total == pytest.approx(np.sqrt(180.0**2 / 4))  # one of four samples at 180 deg

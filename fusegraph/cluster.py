@@ -1,0 +1,46 @@
+"""Workers for studies: a Dask client (a local cluster or an existing scheduler, with a clear error when none
+answers) and the initializer that ties local pool workers to the study process."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+#: How long to wait for an existing scheduler before giving up, seconds.
+CONNECT_TIMEOUT_S = 10
+
+
+@contextmanager
+def dask_client(scheduler: str, workers: int) -> Iterator[Any]:
+    """``scheduler == 'local'``: a LocalCluster of ``workers`` processes on this machine; else the address of a
+    running scheduler (``tcp://host:port``). An unreachable address is a ValueError naming it, not a traceback."""
+    from dask.distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=max(1, workers), threads_per_worker=1, processes=True, dashboard_address=None) if scheduler == "local" else None
+    try:
+        client = Client(cluster if cluster is not None else scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
+    except (OSError, TimeoutError) as err:
+        if cluster is not None:
+            cluster.close()
+        raise ValueError(f"--scheduler {scheduler}: no Dask scheduler answered within {CONNECT_TIMEOUT_S} s ({type(err).__name__}); "
+                         "start one there (`dask scheduler`, then `dask worker ADDRESS`) or use --scheduler local") from None
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def die_with_parent() -> None:
+    """Pool-worker initializer: on Linux, the worker is killed when the study process dies (even by kill -9),
+    so no orphaned worker keeps running a study nobody reads."""
+    import contextlib
+    import ctypes
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError):  # no libc by that name: the workers just are not tied
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
