@@ -170,6 +170,23 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
 
+    liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
+                         description="Read each declared input from an LSL stream (sample times from LSL's clock, time-corrected), feed the "
+                         "online solver as replay does, publish the estimate (qw qx qy qz and the 9 attitude covariance entries) as an "
+                         "LSL stream at the fastest input's rate. head: --in gyro= (3 ch, rad/s), --in tracker= (4 ch, quaternion wxyz; "
+                         "stamped with the sample's capture time, so its latency is real), optional --in accel= (3 ch, m/s^2). "
+                         "attitude9: --in imu= (9 ch: gyro, accel, mag sampled together), optional --in tracker=. Ctrl-C stops.",
+                         epilog="examples:\n  fusegraph live head --in gyro=lsl:HMD_gyro --in tracker=lsl:Polhemus --out lsl:head_estimate "
+                         "--session-toml sessions/head0/session.toml --record sessions/live1\n"
+                         "  fusegraph run sessions/live1 --solver batch        # smooth the live run afterwards",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    liv.add_argument("system", choices=["head", "attitude9"])
+    liv.add_argument("--in", dest="inputs", action="append", default=[], metavar="NAME=lsl:STREAM", help="an input stream (repeatable)")
+    liv.add_argument("--out", required=True, metavar="lsl:STREAM", help="name of the LSL stream the estimate is published on")
+    liv.add_argument("--session-toml", type=Path, help="a session.toml declaring the sensors (noise, rates, latency); defaults otherwise")
+    liv.add_argument("--record", type=Path, metavar="DIR", help="write what was received as a session directory when the run ends")
+    liv.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+
     ben = sub.add_parser("bench", help="head: speed on a long session; broad: every BROAD trial, every method, side by side",
                          description="head: real-time factor of the whole causal loop in the first and last minute, batch time, peak memory.\n"
                          "broad: every trial in DIR through VQF online/offline, the papers' 9-axis EKF, fusegraph online and batch, in one run: "
@@ -179,13 +196,16 @@ def build_parser() -> argparse.ArgumentParser:
                          "crossings; and the recorded UWB run with and without tag labels.\n"
                          "walking: the simulated 3-floor walk through the PDR front end (activity confusion per walking cycle / ride), "
                          "dead reckoning vs EKF vs iSAM2 online vs batch with 20% wrong image fixes and with none; step counts on the "
-                         "Oxford phone recordings; the Plaza range + odometry runs (odometry only, online, batch).",
+                         "Oxford phone recordings; the Plaza range + odometry runs (odometry only, online, batch).\n"
+                         "live: a simulated head session replayed in real time over the LSL loopback into `fusegraph live head` (its own "
+                         "process): latency from a gyro sample's push to its estimate's arrival (p50, p99, max), samples lost, RMS beside "
+                         "the replay's (--duration, default 60 s here).",
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png\n"
                          "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json\n  fusegraph bench ultrasonic --plot tags.png\n"
                          "  fusegraph bench walking --plot walk.png\n  fusegraph bench walking --oxford ../shared/data/steps_oxford --json",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking"])
+    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live"])
     ben.add_argument("directory", nargs="?", type=Path, help="broad: directory of BROAD trials (*.mat; default ../shared/data/broad)")
     ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600); ultrasonic: seconds per run (default 20)")
     ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
@@ -394,6 +414,12 @@ def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "broad":
         return _bench_broad(args)
+    if args.system == "live":
+        from .live import bench_live, format_bench_live
+
+        found = bench_live(60.0 if args.duration == 600.0 else args.duration, seed=(args.seeds or (0,))[0])
+        print(json.dumps(found, indent=2) if args.json else format_bench_live(found))
+        return 0
     if args.system == "walking":
         from .datasets import steps_oxford
         from .systems import walking
@@ -454,6 +480,23 @@ def _cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_live(args: argparse.Namespace) -> int:
+    from .live import declared_session, parse_inputs, run_live
+    from .session import SessionError
+
+    if not args.out.startswith("lsl:") or len(args.out) <= 4:
+        raise SessionError(f"--out {args.out!r}: write lsl:STREAM")
+    inputs = parse_inputs(args.system, args.inputs)
+    stats = run_live(args.system, inputs, args.out[4:], declared_session(args.system, args.session_toml), duration_s=args.duration, record=args.record,
+                     on_ready=lambda: print(f"live {args.system}: reading {', '.join(f'{k}={v}' for k, v in inputs.items())}; publishing {args.out} "
+                                            "(Ctrl-C stops)", flush=True))
+    print(f"received {stats.received}, refused {stats.rejected}, published {stats.published} estimates in {stats.seconds:.1f} s "
+          f"({100 * stats.solve_s / max(stats.seconds, 1e-9):.0f}% in the solver)")
+    if args.record:
+        print(f"wrote {args.record}/ (fusegraph run {args.record} --solver batch smooths it)")
+    return 0
+
+
 def _cmd_ablate(args: argparse.Namespace) -> int:
     import os
     from dataclasses import replace
@@ -493,7 +536,7 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"ablate": _cmd_ablate, "simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view,
+COMMANDS = {"live": _cmd_live, "ablate": _cmd_ablate, "simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view,
             "sensors": _cmd_sensors, "import": _cmd_import}
 
 

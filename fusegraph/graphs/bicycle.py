@@ -22,6 +22,7 @@ import gtsam
 import numpy as np
 
 from ..factors.imu import MotionPriors
+from ..factors.mag import MagNoise
 from ..factors.vehicle import NonholonomicNoise, nonholonomic_factor
 from ..geometry import FloatArray
 from .attitude9 import Attitude9Builder, Attitude9Model
@@ -49,8 +50,9 @@ class CouplingNoise:
 class BicycleModel:
     """Both bodies' 9-axis models and the coupling."""
 
-    frame: Attitude9Model = field(default_factory=lambda: Attitude9Model(motion=TRAVEL))
-    thigh: Attitude9Model = field(default_factory=lambda: Attitude9Model(motion=TRAVEL))
+    # the magnetometer settings these were built with (the BROAD-chosen ones were not re-checked on the cyclist)
+    frame: Attitude9Model = field(default_factory=lambda: Attitude9Model(motion=TRAVEL, mag=MagNoise()))
+    thigh: Attitude9Model = field(default_factory=lambda: Attitude9Model(motion=TRAVEL, mag=MagNoise()))
     coupling: CouplingNoise = field(default_factory=CouplingNoise)
     nonholonomic: NonholonomicNoise | None = field(default_factory=NonholonomicNoise)
     """The frame moves along its own axis (None = off)."""

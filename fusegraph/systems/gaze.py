@@ -23,6 +23,7 @@ import numpy as np
 
 from ..factors.gaze import FixationNoise, SceneCamera, fixation_walk, gaze_factor, wall_plane_prior
 from ..factors.imu import MotionPriors
+from ..factors.mag import MagNoise
 from ..geometry import FloatArray
 from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
 from ..scenarios.gaze import GazeScenarioConfig, GazeSession, simulate_gaze
@@ -43,7 +44,7 @@ def G(k: int) -> int:
 class GazeModel:
     """Everything the gaze graph assumes."""
 
-    head: Attitude9Model = field(default_factory=lambda: Attitude9Model(motion=MotionPriors(position_sigma_m=0.05, velocity_sigma_m_s=0.3)))
+    head: Attitude9Model = field(default_factory=lambda: Attitude9Model(motion=MotionPriors(position_sigma_m=0.05, velocity_sigma_m_s=0.3), mag=MagNoise()))
     """The head's 9-axis graph; its position prior holds the eye within centimetres of its rest place."""
     fixation: FixationNoise = field(default_factory=FixationNoise)
     """How the fixated point moves."""

@@ -1,0 +1,387 @@
+"""Live in the lab: streams in over the Lab Streaming Layer, the causal estimate out, the session recorded.
+
+``run_live`` resolves one LSL stream per declared input (``NAME=lsl:STREAM``), feeds every sample to the
+same online solver as replay, as it arrives, and publishes the estimate as an LSL stream. Sample times
+are LSL time stamps (the sender's capture times) moved onto this machine's clock with the inlet's time
+correction, so a tracker that stamps its samples when they were taken arrives "late" exactly as in a
+recorded session. Systems:
+
+* ``head``: inputs ``gyro`` (3 channels, rad/s), ``tracker`` (4: quaternion wxyz), optional ``accel``
+  (3, m/s^2); one estimate per gyro sample.
+* ``attitude9``: inputs ``imu`` (9 channels: gyro rad/s, accelerometer m/s^2, magnetometer, sampled
+  together), optional ``tracker`` (4); one estimate per keyframe (the 9-axis graph updates per keyframe).
+
+The output stream (type ``Orientation``) has channels ``qw qx qy qz`` and the attitude covariance's 9
+entries (rad^2, NaN when the solver does not compute it), stamped with the sample time it describes.
+``--record DIR`` writes what was received as a session directory, so ``fusegraph run DIR --solver batch``
+smooths the live run afterwards.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .session import KIND_COLUMNS, Session, SessionError, Stream
+
+#: What each system reads live: input name -> (stream kind, channels, required).
+LIVE_INPUTS: dict[str, dict[str, tuple[str, int, bool]]] = {
+    "head": {"gyro": ("gyro", 3, True), "tracker": ("attitude", 4, True), "accel": ("accel", 3, False)},
+    "attitude9": {"imu": ("imu9", 9, True), "tracker": ("attitude", 4, False)},
+}
+OUTPUT_CHANNELS = ("qw", "qx", "qy", "qz", *(f"cov{i}{j}" for i in range(3) for j in range(3)))
+"""Channels of the published estimate."""
+
+
+@dataclass
+class LiveStats:
+    """What a live run did."""
+
+    received: dict[str, int] = field(default_factory=dict)
+    """Samples received per input."""
+    rejected: int = 0
+    """Samples the solver refused (not finite, implausible, out of order)."""
+    published: int = 0
+    """Estimates pushed to the output stream."""
+    seconds: float = 0.0
+    """Wall time of the run."""
+    solve_s: float = 0.0
+    """Time inside the solver."""
+
+
+def _require_pylsl() -> Any:
+    try:
+        import pylsl
+    except (ImportError, RuntimeError) as err:  # pylsl raises RuntimeError when liblsl cannot be loaded
+        raise SessionError(f"the Lab Streaming Layer is not available here ({err}); install the 'pylsl' package (its wheel ships liblsl)") from None
+    return pylsl
+
+
+def parse_inputs(system: str, specs: list[str]) -> dict[str, str]:
+    """``NAME=lsl:STREAM`` items -> {input name: LSL stream name}, checked against the system's inputs."""
+    if system not in LIVE_INPUTS:
+        raise SessionError(f"live: {system} has no live mode yet (have: {', '.join(LIVE_INPUTS)})")
+    known = LIVE_INPUTS[system]
+    out: dict[str, str] = {}
+    for spec in specs:
+        name, _, source = spec.partition("=")
+        if not source.startswith("lsl:") or not name:
+            raise SessionError(f"--in {spec!r}: write NAME=lsl:STREAM, e.g. gyro=lsl:HMD_gyro")
+        if name not in known:
+            raise SessionError(f"--in {spec!r}: {system} reads {', '.join(known)}")
+        out[name] = source[4:]
+    missing = [n for n, (_, _, required) in known.items() if required and n not in out]
+    if missing:
+        raise SessionError(f"live {system}: --in needed for {', '.join(missing)}")
+    return out
+
+
+def declared_session(system: str, toml_path: Path | None) -> Session:
+    """The sensors' declarations (noise, rates, latency) from a session.toml, without any samples."""
+    import tomllib
+
+    spec: dict[str, Any] = {"session": {"system": system}, "streams": {}}
+    if toml_path is not None:
+        try:
+            spec = tomllib.loads(Path(toml_path).read_text())
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise SessionError(f"{toml_path}: {err}") from None
+    streams = {}
+    for name, table in spec.get("streams", {}).items():
+        kind = table.get("kind", name)
+        meta = {k: v for k, v in table.items() if k not in ("kind", "file", "latency_s")}
+        streams[name] = Stream(name, kind, np.zeros(0), np.zeros((0, len(KIND_COLUMNS.get(kind, ())))), KIND_COLUMNS.get(kind, ()),
+                               float(table.get("latency_s", 0.0)), meta)
+    for name, (kind, _, _) in LIVE_INPUTS[system].items():
+        if kind != "imu9" and not any(s.kind == kind for s in streams.values()):
+            streams[name] = Stream(name, kind, np.zeros(0), np.zeros((0, len(KIND_COLUMNS[kind]))), KIND_COLUMNS[kind], 0.0, {})
+    return Session(system, streams, None, {k: v for k, v in spec.items() if k not in ("streams", "truth")})
+
+
+class _HeadSolver:
+    """The head system's live solver: ``OnlineHeadTracker`` (it refuses bad samples and carries on)."""
+
+    def __init__(self, declared: Session) -> None:
+        from .graphs.head import head_model_for
+        from .systems.head import OnlineHeadTracker
+
+        self.tracker = OnlineHeadTracker(head_model_for(declared))
+
+    def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        if name == "tracker":
+            self.tracker.add_tracker(t, values)
+            return []
+        if name == "accel":
+            self.tracker.add_accel(t, values)
+            return []
+        now = self.tracker.add_gyro(t, values)
+        return [] if now is None else [(now.t, now.quat_wxyz, now.cov)]
+
+
+class _Attitude9Solver:
+    """The 9-axis graph fed sample by sample; an estimate per keyframe, right after its iSAM2 update."""
+
+    def __init__(self, declared: Session) -> None:
+        from .graphs.attitude9 import Attitude9Builder
+        from .solvers.online import OnlineSmoother
+        from .systems.attitude9 import ONLINE_CONFIG, model_for
+
+        self.builder = Attitude9Builder(model_for(declared))
+        self.solver = OnlineSmoother(self.builder, ONLINE_CONFIG)
+        self.last_t = -np.inf
+        tracker = declared.streams_of_kind("attitude")
+        sigma = float(np.hypot(float(tracker[0].meta.get("noise_sigma_deg", 0.4)), float(tracker[0].meta.get("markov_sigma_deg", 0.0)))) if tracker else 0.4
+        self.tracker_sigma_rad = float(np.deg2rad(sigma))
+
+    def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        from .geometry import rot3_from_quat_wxyz
+
+        if not np.all(np.isfinite(values)) or not np.isfinite(t):
+            raise ValueError(f"{name} sample at t = {t!r}: not finite")
+        if name == "tracker":
+            norm = float(np.linalg.norm(values))
+            if abs(norm - 1.0) > 0.01:
+                raise ValueError(f"tracker sample at t = {t:.6f} s: quaternion norm {norm:.4g} is not 1")
+            self.builder.add_attitude(t, rot3_from_quat_wxyz(values / norm), self.tracker_sigma_rad)
+            return []
+        if t <= self.last_t:
+            raise ValueError(f"imu sample at t = {t:.6f} s does not follow the previous one ({self.last_t:.6f} s)")
+        keyframes = len(self.builder.keyframe_t)
+        self.builder.add_samples(np.array([t]), values[None, 0:3], values[None, 3:6], values[None, 6:9])
+        self.last_t = t
+        if len(self.builder.keyframe_t) == keyframes:
+            return []
+        self.solver.update()
+        k = self.builder.latest_keyframe
+        return [(self.builder.keyframe_t[k], np.asarray(self.builder.posterior_quat[k]), np.full((3, 3), np.nan))]
+
+
+SOLVERS: dict[str, Callable[[Session], Any]] = {"head": _HeadSolver, "attitude9": _Attitude9Solver}
+
+
+def run_live(
+    system: str,
+    inputs: dict[str, str],
+    out_name: str,
+    declared: Session,
+    duration_s: float | None = None,
+    record: Path | None = None,
+    resolve_timeout_s: float = 10.0,
+    should_stop: Callable[[], bool] | None = None,
+    on_ready: Callable[[], None] | None = None,
+) -> LiveStats:
+    """Read the inputs, publish estimates, until ``duration_s`` passes, ``should_stop()`` or Ctrl-C."""
+    pylsl = _require_pylsl()
+    spec = LIVE_INPUTS[system]
+    inlets = {}
+    rate = 0.0
+    for name, stream_name in inputs.items():
+        found = pylsl.resolve_byprop("name", stream_name, 1, resolve_timeout_s)
+        if not found:
+            raise SessionError(f"--in {name}=lsl:{stream_name}: no LSL stream of that name answered within {resolve_timeout_s:g} s")
+        channels = found[0].channel_count()
+        if channels != spec[name][1]:
+            raise SessionError(f"--in {name}=lsl:{stream_name}: {channels} channels, {system} {name} needs {spec[name][1]}")
+        inlets[name] = pylsl.StreamInlet(found[0], max_buflen=10, processing_flags=pylsl.proc_clocksync)
+        inlets[name].open_stream(timeout=resolve_timeout_s)
+        inlets[name].time_correction(timeout=resolve_timeout_s)  # the first clock sync blocks: do it before data flows
+        rate = max(rate, float(found[0].nominal_srate()))  # the output runs at the fastest input's rate
+    info = pylsl.StreamInfo(out_name, "Orientation", len(OUTPUT_CHANNELS), rate, pylsl.cf_double64, f"fusegraph-{system}-{out_name}")
+    labels = info.desc().append_child("channels")
+    for label in OUTPUT_CHANNELS:
+        labels.append_child("channel").append_child_value("label", label)
+    outlet = pylsl.StreamOutlet(info)
+    solver = SOLVERS[system](declared)
+    stats = LiveStats(received=dict.fromkeys(inputs, 0))
+    recorded: dict[str, list[tuple[float, np.ndarray]]] = {name: [] for name in inputs}
+    transit: dict[str, list[float]] = {name: [] for name in inputs}  # arrival - sample time, s
+    start = time.perf_counter()
+    if on_ready is not None:
+        on_ready()
+    try:
+        while not (should_stop is not None and should_stop()) and (duration_s is None or time.perf_counter() - start < duration_s):
+            got = []
+            for name, inlet in inlets.items():
+                chunk, stamps = inlet.pull_chunk(timeout=0.0)
+                got += [(float(ts), name, np.asarray(sample, dtype=float)) for sample, ts in zip(chunk, stamps, strict=True)]
+                if stamps and record is not None:
+                    transit[name].append(pylsl.local_clock() - float(stamps[-1]))
+            if not got:
+                time.sleep(0.0002)
+                continue
+            got.sort(key=lambda item: (item[0], item[1] != "tracker"))  # in time order; a tracker sample before a gyro one at the same time
+            for t, name, values in got:
+                stats.received[name] += 1
+                if record is not None:
+                    recorded[name].append((t, values))
+                tick = time.perf_counter()
+                try:
+                    estimates = solver.push(name, t, values)
+                except ValueError:
+                    stats.rejected += 1
+                    continue
+                finally:
+                    stats.solve_s += time.perf_counter() - tick
+                for t_est, quat, cov in estimates:
+                    outlet.push_sample([*quat, *np.asarray(cov).reshape(-1)], t_est)
+                    stats.published += 1
+    except KeyboardInterrupt:
+        pass
+    stats.seconds = time.perf_counter() - start
+    if record is not None:
+        reference = float(np.median(transit[next(iter(inputs))])) if transit[next(iter(inputs))] else 0.0
+        lateness = {n: max(0.0, float(np.median(v)) - reference) for n, v in transit.items() if v}
+        save_recording(system, declared, recorded, record, lateness)
+    return stats
+
+
+def save_recording(system: str, declared: Session, recorded: dict[str, list[tuple[float, np.ndarray]]], directory: Path,
+                   lateness_s: dict[str, float] | None = None) -> Path:
+    """What a live run received, as a session directory (time-sorted; repeated stamps kept once). A stream's
+    ``latency_s`` is the declared one, else how much later than the first input its samples arrived (median)."""
+    from .session import save_session
+
+    streams: dict[str, Stream] = {}
+
+    def table(rows: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+        rows = sorted(rows, key=lambda r: r[0])
+        t = np.array([r[0] for r in rows])
+        keep = np.r_[True, np.diff(t) > 0] if len(t) else np.zeros(0, bool)
+        return t[keep], np.array([r[1] for r in rows])[keep]
+
+    for name, rows in recorded.items():
+        if not rows:
+            continue
+        t, values = table(rows)
+        if name == "imu":
+            for part, columns in (("gyro", slice(0, 3)), ("accel", slice(3, 6)), ("mag", slice(6, 9))):
+                meta = dict(declared.streams[part].meta) if part in declared.streams else {}
+                streams[part] = Stream(part, part, t, values[:, columns], KIND_COLUMNS[part], 0.0, meta)
+            continue
+        kind = LIVE_INPUTS[system][name][0]
+        source = declared.streams.get(name) or next((s for s in declared.streams.values() if s.kind == kind), None)
+        latency = source.latency_s if source is not None and source.latency_s > 0 else (lateness_s or {}).get(name, 0.0)
+        streams[name] = Stream(name, kind, t, values, KIND_COLUMNS[kind], latency, {} if source is None else dict(source.meta))
+    meta = {"session": {**declared.meta.get("session", {}), "system": system, "description": "recorded live over LSL by fusegraph live"}}
+    return save_session(Session(system, streams, None, meta), directory)
+
+
+# ------------------------------------------------------------------------------------------ bench
+
+
+def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = True) -> dict[str, Any]:
+    """``fusegraph bench live``: a simulated head session replayed in real time over the loopback into
+    ``fusegraph live head`` (its own process), the estimates read back by an inlet.
+
+    Latency is the time from a gyro sample's push to its estimate's arrival (LSL clock, one machine);
+    lost = gyro samples after the first tracker fix without an estimate. The RMS against the truth is
+    printed beside the replay's (``run --solver online`` on the same session).
+    """
+    import subprocess
+    import sys
+    import tempfile
+    import threading
+
+    from .metrics import score_attitude
+    from .scenarios.head import simulate_head
+    from .session import save_session
+    from .systems.head import run_isam2
+
+    pylsl = _require_pylsl()
+    session = simulate_head(seed, duration_s=duration_s)
+    gyro, tracker, truth = session.stream("gyro"), session.stream("tracker"), session.truth
+    assert truth is not None
+    tag = f"fgbench{seed}_{int(time.time() * 1000) % 100000}"
+    outlets = {
+        "gyro": pylsl.StreamOutlet(pylsl.StreamInfo(f"{tag}_gyro", "gyro", 3, float(gyro.meta.get("rate_hz", 100.0)), pylsl.cf_double64, f"{tag}g")),
+        "tracker": pylsl.StreamOutlet(pylsl.StreamInfo(f"{tag}_tracker", "attitude", 4, float(tracker.meta.get("rate_hz", 50.0)),
+                                                       pylsl.cf_double64, f"{tag}t")),
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+        toml = save_session(session, Path(tmp) / "declared") / "session.toml"
+        command = [sys.executable, "-m", "fusegraph.cli", "live", "head", "--in", f"gyro=lsl:{tag}_gyro", "--in", f"tracker=lsl:{tag}_tracker",
+                   "--out", f"lsl:{tag}_estimate", "--session-toml", str(toml), "--duration", f"{duration_s + 8.0:g}"]
+        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            found = pylsl.resolve_byprop("name", f"{tag}_estimate", 1, 20.0)
+            if not found:
+                why = process.stderr.read() if process.poll() is not None and process.stderr is not None else "still starting"
+                raise SessionError(f"bench live: fusegraph live did not publish its estimate stream ({why})")
+            inlet = pylsl.StreamInlet(found[0], max_buflen=10)
+            inlet.open_stream(timeout=10.0)
+            time.sleep(2.0)  # let the live process's inlets connect to ours
+            received: list[tuple[float, float, list[float]]] = []  # (arrival, stamp, sample)
+            done = threading.Event()
+
+            def read() -> None:
+                while not done.is_set():
+                    chunk, stamps = inlet.pull_chunk(timeout=0.001)
+                    now = pylsl.local_clock()
+                    received.extend((now, float(ts), sample) for sample, ts in zip(chunk, stamps, strict=True))
+
+            reader = threading.Thread(target=read, daemon=True)
+            reader.start()
+            t0 = pylsl.local_clock() + 0.5
+            events = sorted([(float(t), 1, "gyro", i) for i, t in enumerate(gyro.t)]
+                            + [(float(t) + tracker.latency_s, 0, "tracker", j) for j, t in enumerate(tracker.t)])
+            pushed_at = np.full(len(gyro.t), np.nan)
+            for when, _, name, i in events:
+                target = t0 + when
+                while (now := pylsl.local_clock()) < target:
+                    time.sleep(min(0.0005, target - now))
+                if name == "gyro":
+                    pushed_at[i] = t0 + float(gyro.t[i])
+                    outlets["gyro"].push_sample(list(gyro.values[i]), t0 + float(gyro.t[i]))
+                else:
+                    outlets["tracker"].push_sample(list(tracker.values[i]), t0 + float(tracker.t[i]))
+            time.sleep(1.0)
+            done.set()
+            reader.join(timeout=2.0)
+        finally:
+            process.terminate()
+            process.wait(timeout=10)
+    arrival = np.array([r[0] for r in received])
+    stamp = np.array([r[1] for r in received])
+    latency_ms = 1e3 * (arrival - stamp)
+    first_fix = float(tracker.t[0] + tracker.latency_s)
+    expected = int(np.sum(gyro.t >= first_fix))
+    t_session = stamp - t0
+    quats = np.array([r[2][:4] for r in received]) if received else np.zeros((0, 4))
+    from .estimate import Estimate
+
+    replay = run_isam2(session)  # sampled at the gyro times, as the truth
+    live_quat = np.full((len(replay.t), 4), np.nan)
+    index = np.clip(np.searchsorted(replay.t, t_session - 1e-6), 0, len(replay.t) - 1)
+    live_quat[index] = quats
+    live = Estimate("live", replay.t, live_quat, None, 0.0)
+    rms_live = score_attitude(live, truth.t, truth.values).rms_rad
+    rms_replay = score_attitude(replay, truth.t, truth.values).rms_rad
+    axes = ("azimuth", "elevation", "roll")
+    return {
+        "p50_ms": float(np.percentile(latency_ms, 50)) if len(latency_ms) else float("nan"),
+        "p99_ms": float(np.percentile(latency_ms, 99)) if len(latency_ms) else float("nan"),
+        "max_ms": float(latency_ms.max()) if len(latency_ms) else float("nan"),
+        "lost": int(max(expected - len(received), 0)),
+        "rms_deg": {a: float(np.rad2deg(v)) for a, v in zip(axes, rms_live, strict=True)},
+        "replay_rms_deg": {a: float(np.rad2deg(v)) for a, v in zip(axes, rms_replay, strict=True)},
+        "duration_s": duration_s,
+        "estimates": len(received),
+        "latency_ms_by_second": [float(np.max(latency_ms[(stamp - t0 >= k) & (stamp - t0 < k + 1)], initial=0.0)) for k in range(int(duration_s))],
+    }
+
+
+def format_bench_live(result: dict[str, Any]) -> str:
+    """The bench as text."""
+    r, p = result["rms_deg"], result["replay_rms_deg"]
+    return "\n".join([
+        f"live head over LSL loopback, {result['duration_s']:g} s (gyro 100 Hz, tracker 50 Hz 100 ms late), {result['estimates']} estimates",
+        f"latency gyro push -> estimate arrival: p50 {result['p50_ms']:.2f} ms, p99 {result['p99_ms']:.2f} ms, max {result['max_ms']:.2f} ms; "
+        f"lost {result['lost']}",
+        f"RMS deg  live    az {r['azimuth']:.3f} el {r['elevation']:.3f} roll {r['roll']:.3f}",
+        f"         replay  az {p['azimuth']:.3f} el {p['elevation']:.3f} roll {p['roll']:.3f}",
+    ])
