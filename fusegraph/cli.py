@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "  fusegraph report gaze --plot gaze.png\n  fusegraph report bicycle --seeds 0-2 --json --plot bicycle.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     rep.add_argument("system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"])
-    rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default; gaze, bicycle: 0-2) or 0,3,7")
+    rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default: the test seeds; settings are chosen on 100-119) or 0,3,7")
     rep.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
     rep.add_argument("--duration", type=float, default=None, help="seconds per session (default: head 10, like the paper; others their simulate default)")
     rep.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency in seconds (default: the scenario's 0.1)")
@@ -350,6 +350,16 @@ def _cmd_import(args: argparse.Namespace) -> int:
     return 0
 
 
+def _seeds_block(seeds: Any) -> dict[str, list[int]]:
+    """The seeds a report scores and the tuning seeds no setting was chosen outside of (a warning when they meet)."""
+    from .tuning import TUNING_SEEDS
+
+    chosen = [int(x) for x in seeds]
+    if set(chosen) & set(TUNING_SEEDS):
+        print(f"warning: seeds {sorted(set(chosen) & set(TUNING_SEEDS))} are tuning seeds: settings were chosen on them", file=sys.stderr)
+    return {"seeds": chosen, "tuning_seeds": list(TUNING_SEEDS)}
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     if args.system in ("bicycle", "gaze"):
         from .systems import bicycle, gaze
@@ -357,8 +367,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
         if args.duration is not None or args.profile != "realistic":
             raise ValueError(f"report {args.system}: its scenario is fixed (40 s, the realistic profile); --duration and --profile do not apply")
         make, table = {"bicycle": (bicycle.bicycle_report, bicycle.format_bicycle_table), "gaze": (gaze.gaze_report, gaze.format_gaze_table)}[args.system]
-        seeds = tuple(args.seeds) if args.seeds != list(range(10)) else (0, 1, 2)
+        seeds = tuple(args.seeds)
         found = make(seeds, plot=str(args.plot) if args.plot else None)
+        found.update(_seeds_block(seeds))
         print(json.dumps(found, indent=2) if args.json else table(found))
         if args.plot:
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
@@ -368,9 +379,10 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
         if args.latency_true is not None or args.latency_assumed is not None or args.profile != "realistic":
             raise ValueError(f"report {args.system}: --latency-true/--latency-assumed/--profile apply to head only")
-        chosen = args.seeds if args.seeds != list(range(10)) else [0, 1, 2]
+        chosen = args.seeds
         found = generic_report(args.system, chosen, args.duration)
         found.pop("per_seed")
+        found.update(_seeds_block(chosen))
         print(json.dumps(found, indent=2) if args.json else format_generic_report(found))
         if args.plot:
             from .runner import solve_session
@@ -389,7 +401,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     duration = 10.0 if args.duration is None else args.duration
     report = head.head_report(args.seeds, args.profile, duration, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed)
     if args.json:
-        print(json.dumps(report.as_json(), indent=2))
+        print(json.dumps({**report.as_json(), **_seeds_block(args.seeds)}, indent=2))
     else:
         print(report.table())
     if args.plot:

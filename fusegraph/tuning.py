@@ -195,10 +195,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.tuning", description=__doc__)
     parser.add_argument("study", choices=[*STUDIES, "broad_ekf", "broad_mag"],
                         help="a simulated study (tuning seeds), or broad_ekf / broad_mag (leave-one-trial-out on BROAD)")
+    parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag: the estimate the settings are chosen for")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     args = parser.parse_args(argv)
     if args.study in ("broad_ekf", "broad_mag"):
-        result = broad_ekf_logo() if args.study == "broad_ekf" else broad_mag_logo()
+        result = broad_ekf_logo() if args.study == "broad_ekf" else broad_mag_logo(solver=args.solver)
         for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
             print(f"{setting:<44} in-sample mean total RMSE {score:7.2f} deg")
         print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.2f} deg, leave-one-trial-out {result['cross_validated']:.2f} deg")

@@ -115,6 +115,7 @@ def test_ablate_any_system_drops_streams_and_varies_catalogued_keys(tmp_path: Pa
 def test_report_for_a_system_without_a_paper_table(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["report", "ultrasonic", "--seeds", "0", "--duration", "1", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
+    assert report["seeds"] == [0] and report["tuning_seeds"] == list(range(100, 120))  # scored apart from where settings were chosen
     assert set(report["methods"]) == {"online", "batch", "combinatorial"}
     assert 0.5 < report["methods"]["online"]["metrics"]["assoc_acc"] <= 1.0
 
