@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "  fusegraph report gaze --plot gaze.png\n  fusegraph report bicycle --seeds 0-2 --json --plot bicycle.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     rep.add_argument("system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"])
-    rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default: the test seeds; settings are chosen on 100-119) or 0,3,7")
+    rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default: test seeds; settings are chosen on 100-119) or 0,3,7")
     rep.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
     rep.add_argument("--duration", type=float, default=None, help="seconds per session (default: head 10, like the paper; others their simulate default)")
     rep.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency in seconds (default: the scenario's 0.1)")
