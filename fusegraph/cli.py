@@ -199,13 +199,14 @@ def build_parser() -> argparse.ArgumentParser:
                          "Oxford phone recordings; the Plaza range + odometry runs (odometry only, online, batch).\n"
                          "live: a simulated head session replayed in real time over the LSL loopback into `fusegraph live head` (its own "
                          "process): latency from a gyro sample's push to its estimate's arrival (p50, p99, max), samples lost, RMS beside "
-                         "the replay's (--duration, default 60 s here).",
+                         "the replay's (--duration, default 60 s here).\n"
+                         "soak: the online head tracker over an hour of data (--duration, default 3600 s here): speed per 10 minutes and peak memory.",
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png\n"
                          "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json\n  fusegraph bench ultrasonic --plot tags.png\n"
                          "  fusegraph bench walking --plot walk.png\n  fusegraph bench walking --oxford ../shared/data/steps_oxford --json",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live"])
+    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak"])
     ben.add_argument("directory", nargs="?", type=Path, help="broad: directory of BROAD trials (*.mat; default ../shared/data/broad)")
     ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600); ultrasonic: seconds per run (default 20)")
     ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
@@ -227,13 +228,24 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(COMMANDS[args.command](args) or 0)
-    except Exception as exc:  # user-facing: one clear line, not a traceback
+    except Exception as exc:  # user-facing: one clear line, not a traceback (FUSEGRAPH_DEBUG=1 shows it)
+        import os
+
         from .session import SessionError
 
+        if os.environ.get("FUSEGRAPH_DEBUG"):
+            raise
         if isinstance(exc, SessionError | FileNotFoundError | ValueError):
             print(f"fusegraph {args.command}: error: {exc}", file=sys.stderr)
             return 2
-        raise
+        if isinstance(exc, RuntimeError) and "Indeterminant" in str(exc):  # gtsam: the linear system has no unique solution
+            print(f"fusegraph {args.command}: error: the graph has no unique solution ({str(exc).splitlines()[0].strip()}): a variable no "
+                  "measurement reaches (a stream that does not overlap the others, a gap longer than the model bridges) or a "
+                  "declared noise of zero", file=sys.stderr)
+            return 2
+        print(f"fusegraph {args.command}: internal error: {type(exc).__name__}: {exc} (a bug: please report it with the command "
+              "line; FUSEGRAPH_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -426,6 +438,17 @@ def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "broad":
         return _bench_broad(args)
+    if args.system == "soak":
+        from .systems.head import head_soak
+
+        soak = head_soak(3600.0 if args.duration == 600.0 else args.duration)
+        if args.json:
+            print(json.dumps(soak, indent=2))
+        else:
+            print(f"online head tracker over {soak['duration_s']:g} s of data: x real time per {soak['block_s']:g} s: "
+                  + ", ".join(f"{x:.1f}" for x in soak["x_realtime_per_block"])
+                  + f"; last/first {soak['last_over_first']:.2f}; peak RSS {soak['peak_rss_mb']:.0f} MB; every estimate finite: {soak['finite']}")
+        return 0
     if args.system == "live":
         from .live import bench_live, format_bench_live
 

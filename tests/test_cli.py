@@ -94,3 +94,40 @@ def test_walking_session_simulate_and_run(tmp_path: Path, capsys: pytest.Capture
     assert batch["rmse_m"] < 0.5 * dr["rmse_m"]  # the fixes and the map pull the drift back (measured 0.91 vs 6.8 m)
     assert (tmp_path / "w" / "trajectory_batch.csv").read_text().startswith("t,x,y,z")
     assert main(["simulate", "walking", "--duration", "5", "--out", str(tmp_path / "x")]) == 2  # shorter than a scorable walk
+
+
+def test_damaged_copies_of_a_head_session_are_one_clear_line_each(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The issue's damaged copies: gyro in deg/s, stamps in ms, quaternions x3, a misspelled key, a zero sigma:
+    exit 2 with one line naming the file and the likely cause, for online, batch and ekf alike."""
+    import shutil
+
+    good = tmp_path / "ok"
+    assert main(["simulate", "head", "--seed", "0", "--duration", "3", "--out", str(good)]) == 0
+
+    def damaged(name: str, edit) -> Path:  # type: ignore[no-untyped-def]
+        path = tmp_path / name
+        shutil.copytree(good, path)
+        edit(path)
+        return path
+
+    def scale(path: Path, column_from: int, factor: float) -> None:
+        lines = path.read_text().splitlines()
+        rows = [",".join(v if i < column_from or (column_from == 0 and i > 0) else repr(float(v) * factor) for i, v in enumerate(line.split(",")))
+                for line in lines[1:]]
+        path.write_text("\n".join([lines[0], *rows]) + "\n")
+
+    cases = {
+        "deg/s": damaged("degs", lambda p: scale(p / "gyro.csv", 1, 57.3)),
+        "milliseconds": damaged("ms", lambda p: [scale(p / f, 0, 1000.0) for f in ("gyro.csv", "tracker.csv", "truth.csv")]),
+        "quaternion norm 3": damaged("quat3", lambda p: scale(p / "tracker.csv", 1, 3.0)),
+        "did you mean 'noise_sigma_deg'": damaged("typo", lambda p: (p / "session.toml").write_text(
+            (p / "session.toml").read_text().replace("noise_sigma_deg", "noise_sigma_degs"))),
+        "must be a number > 0": damaged("zero", lambda p: (p / "session.toml").write_text(
+            (p / "session.toml").read_text().replace("noise_sigma_rad_s = 0.015", "noise_sigma_rad_s = 0"))),
+    }
+    capsys.readouterr()
+    for cause, path in cases.items():
+        for solver in ("online", "batch", "ekf"):
+            assert main(["run", str(path), "--solver", solver, "--json"]) == 2, (cause, solver)
+            err = capsys.readouterr().err
+            assert cause in err and err.count("\n") == 1 and "Traceback" not in err, err

@@ -573,6 +573,23 @@ def head_bench(
     }
 
 
+def head_soak(duration_s: float = 3600.0, block_s: float = 600.0, seed: int = 0) -> dict[str, Any]:
+    """``fusegraph bench soak``: the online head tracker over ``duration_s`` of data in one run; speed per block
+    (data seconds per wall second) and peak memory, to show both stay flat over hours."""
+    import resource
+
+    from ..scenarios.head import simulate_head
+
+    session = simulate_head(seed, duration_s=duration_s)
+    estimate = run_isam2(session, None)
+    wall, t = estimate.extras["wall_s"], estimate.t
+    starts = np.arange(t[0], t[-1] - 0.5 * block_s, block_s)
+    speed = [block_s / _wall_between(t, wall, float(a), min(float(a) + block_s, float(t[-1]))) for a in starts]
+    return {"duration_s": duration_s, "block_s": block_s, "x_realtime_per_block": [float(x) for x in speed],
+            "last_over_first": float(speed[-1] / speed[0]), "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+            "finite": bool(np.isfinite(estimate.quat_wxyz[len(t) // 100 :]).all())}
+
+
 def _wall_between(t: FloatArray, wall: FloatArray, t0: float, t1: float) -> float:
     i0, i1 = int(np.searchsorted(t, t0)), int(np.searchsorted(t, t1)) - 1
     return float(wall[i1] - wall[i0])
