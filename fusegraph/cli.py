@@ -170,6 +170,18 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
 
+    tun = sub.add_parser("tune", help="choose free settings by one rule: a grid on tuning seeds 100-119, or leave-one-trial-out on BROAD",
+                         description="Every setting a paper leaves open (a baseline's noise) and every free setting of ours is chosen by "
+                         "the same rule: the grid printed here, scored on TUNING seeds 100-119 (reports score 0-9), or on real data by "
+                         "leave-one-trial-out with the cross-validated figure beside the in-sample one. The chosen values are written "
+                         "in the code beside the study's name. Studies: gaze_ekf, bicycle_ekf, walking_fixes, head_no_gyro (simulated); "
+                         "broad_ekf, broad_mag (BROAD trials).",
+                         epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune broad_mag --solver batch",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    tun.add_argument("study", help="the study's name (see above)")
+    tun.add_argument("--seeds", type=_seeds_arg, help="tuning seeds (default 100-119; test seeds 0-9 are refused)")
+    tun.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag: the estimate the settings are chosen for")
+
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
                          description="Read each declared input from an LSL stream (sample times from LSL's clock, time-corrected), feed the "
                          "online solver as replay does, publish the estimate (qw qx qy qz and the 9 attitude covariance entries) as an "
@@ -515,6 +527,15 @@ def _cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_tune(args: argparse.Namespace) -> int:
+    from .tuning import main as tune_main
+
+    argv = [args.study, "--solver", args.solver]
+    if args.seeds:
+        argv += ["--seeds", str(min(args.seeds)), str(max(args.seeds))]
+    return tune_main(argv)
+
+
 def _cmd_live(args: argparse.Namespace) -> int:
     from .live import declared_session, parse_inputs, run_live
     from .session import SessionError
@@ -571,7 +592,8 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"live": _cmd_live, "ablate": _cmd_ablate, "simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view,
+COMMANDS = {"tune": _cmd_tune, "live": _cmd_live,
+            "ablate": _cmd_ablate, "simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view,
             "sensors": _cmd_sensors, "import": _cmd_import}
 
 

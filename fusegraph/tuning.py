@@ -193,11 +193,13 @@ STUDIES: dict[str, Study] = {
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.tuning", description=__doc__)
-    parser.add_argument("study", choices=[*STUDIES, "broad_ekf", "broad_mag"],
+    parser.add_argument("study",
                         help="a simulated study (tuning seeds), or broad_ekf / broad_mag (leave-one-trial-out on BROAD)")
     parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag: the estimate the settings are chosen for")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     args = parser.parse_args(argv)
+    if args.study not in (*STUDIES, "broad_ekf", "broad_mag"):
+        raise ValueError(f"unknown study {args.study!r} (have: {', '.join([*STUDIES, 'broad_ekf', 'broad_mag'])})")
     if args.study in ("broad_ekf", "broad_mag"):
         result = broad_ekf_logo() if args.study == "broad_ekf" else broad_mag_logo(solver=args.solver)
         for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):

@@ -33,3 +33,12 @@ def test_leave_one_group_out_scores_each_group_with_a_setting_chosen_without_it(
     assert result["held_out"]["3"]["chosen"] == "a"
     assert result["held_out"]["1"]["chosen"] == "b"  # without group 1, b's mean 1.0 beats a's 3.0
     assert result["cross_validated"] == pytest.approx((2.0 + 2.0 + 5.0) / 3.0)
+
+
+def test_tune_command_refuses_test_seeds_and_unknown_studies(capsys: pytest.CaptureFixture[str]) -> None:
+    from fusegraph.cli import main
+
+    assert main(["tune", "head_no_gyro", "--seeds", "3-4"]) == 2
+    assert "are test seeds" in capsys.readouterr().err
+    assert main(["tune", "nope"]) == 2
+    assert "unknown study" in capsys.readouterr().err
