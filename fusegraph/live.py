@@ -320,10 +320,14 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
 
             def read() -> None:
                 while not done.is_set():
-                    chunk, stamps = inlet.pull_chunk(timeout=0.001)
-                    now = pylsl.local_clock()
-                    received.extend((now, float(ts), sample) for sample, ts in zip(chunk, stamps, strict=True))
+                    sample, ts = inlet.pull_sample(timeout=0.05)  # returns with the first sample (a chunk pull waits its timeout out)
+                    if sample is not None:
+                        received.append((pylsl.local_clock(), float(ts), sample))
 
+            # the reader thread must get the GIL as soon as an estimate arrives: Python's default 5 ms switch
+            # interval (the replay loop below holds it between sleeps) would be measured as latency
+            switch = sys.getswitchinterval()
+            sys.setswitchinterval(1e-4)
             reader = threading.Thread(target=read, daemon=True)
             reader.start()
             t0 = pylsl.local_clock() + 0.5
@@ -335,19 +339,21 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
                 while (now := pylsl.local_clock()) < target:
                     time.sleep(min(0.0005, target - now))
                 if name == "gyro":
-                    pushed_at[i] = t0 + float(gyro.t[i])
+                    pushed_at[i] = pylsl.local_clock()  # the push itself (the sleep above may overshoot its target)
                     outlets["gyro"].push_sample(list(gyro.values[i]), t0 + float(gyro.t[i]))
                 else:
                     outlets["tracker"].push_sample(list(tracker.values[i]), t0 + float(tracker.t[i]))
             time.sleep(1.0)
             done.set()
             reader.join(timeout=2.0)
+            sys.setswitchinterval(switch)
         finally:
             process.terminate()
             process.wait(timeout=10)
     arrival = np.array([r[0] for r in received])
     stamp = np.array([r[1] for r in received])
-    latency_ms = 1e3 * (arrival - stamp)
+    sample = np.clip(np.searchsorted(gyro.t, stamp - t0 - 1e-6), 0, len(gyro.t) - 1)  # the gyro sample each estimate is for
+    latency_ms = 1e3 * (arrival - pushed_at[sample])
     first_fix = float(tracker.t[0] + tracker.latency_s)
     expected = int(np.sum(gyro.t >= first_fix))
     t_session = stamp - t0
