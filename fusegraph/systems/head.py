@@ -398,6 +398,21 @@ def run_method(session: Session, method: str, model: HeadModel | None = None) ->
 
 # ------------------------------------------------------------------------------------ report
 
+#: Rows of the head report with the noise declared wrong: (row, method, factor on every declared sigma).
+NOISE_ROWS = tuple((f"{m}_noise_x{k:g}", m, k) for m in ("method2", "isam2", "batch") for k in (0.5, 2.0))
+
+
+def with_noise_scaled(session: Session, factor: float) -> tuple[Session, HeadModel, HeadEkfConfig]:
+    """What the estimators are told when every noise sigma is declared ``factor`` times the truth: the graph's
+    model (gyro white noise and bias walk, tracker white and slowly varying error) and the EKF's figures."""
+    model = head_model_for(session)
+    gyro = replace(model.gyro, white_sigma_rad_s=factor * model.gyro.white_sigma_rad_s, bias_rw_sigma=factor * model.gyro.bias_rw_sigma)
+    tracker = replace(model.tracker, white_sigma_deg=factor * model.tracker.white_sigma_deg, markov_sigma_deg=factor * model.tracker.markov_sigma_deg)
+    base = HeadEkfConfig()
+    ekf = replace(base, gyro_sigma_rad_s=factor * base.gyro_sigma_rad_s, tracker_sigma_rad=factor * base.tracker_sigma_rad)
+    return session, replace(model, gyro=gyro, tracker=tracker), ekf
+
+
 
 @dataclass
 class HeadReport:
@@ -451,6 +466,7 @@ class HeadReport:
         return "\n".join(lines)
 
 
+LABELS_BASE = {"method2": "Method II", "isam2": "iSAM2", "batch": "batch"}
 LABELS = {
     "tracker": "tracker",
     "gyro": "gyro",
@@ -462,6 +478,7 @@ LABELS = {
     "method2_wrong_d": "Method II, assumed d",
     "isam2_td": "iSAM2, d estimated",
     "batch_td": "batch, d estimated",
+    **{row: f"{LABELS_BASE[m]}, noise x{k:g}" for row, m, k in NOISE_ROWS},
 }
 
 
@@ -484,8 +501,12 @@ def head_report(
     progress: Callable[[str], None] | None = None,
     latency_true_s: float | None = None,
     latency_assumed_s: float | None = None,
+    noise_rows: bool = True,
 ) -> HeadReport:
     """Simulate each seed, run every method on it, score against the lag-free reference.
+
+    ``noise_rows``: also Method II, iSAM2 and batch told every noise sigma x0.5 and x2 of the truth
+    (``<method>_noise_x0.5``, ``<method>_noise_x2``): what a wrong declaration costs.
 
     With ``latency_true_s`` and ``latency_assumed_s`` the tracker really lags by the true latency; the
     paper's rows, ``isam2`` and ``batch`` are given it (oracle), while ``method2_wrong_d`` uses the
@@ -496,6 +517,8 @@ def head_report(
     if (latency_true_s is None) != (latency_assumed_s is None):
         raise ValueError("give both --latency-true and --latency-assumed, or neither")
     rows = list(methods) + (list(LATENCY_ROWS) if latency_assumed_s is not None else [])
+    if noise_rows and model is None:
+        rows += [row for row, _, _ in NOISE_ROWS]
     per_seed: dict[str, list[AttitudeScore]] = {m: [] for m in rows}
     runtime: dict[str, float] = dict.fromkeys(rows, 0.0)
     estimated: list[tuple[float, float]] = []
@@ -506,10 +529,16 @@ def head_report(
         if latency_assumed_s is not None:
             assumed = simulate_head(seed, profile=profile, duration_s=duration_s, tracker_latency_assumed_s=latency_assumed_s, **true_kw)
         assert oracle.truth is not None
+        noisy = {row: (method, factor) for row, method, factor in NOISE_ROWS}
         for row in rows:
             session = oracle if row not in LATENCY_ROWS else assumed
             assert session is not None
-            estimate = run_method(session, row.removesuffix("_wrong_d").removesuffix("_td"), model)
+            if row in noisy:
+                method, factor = noisy[row]
+                _, scaled, ekf = with_noise_scaled(session, factor)
+                estimate = run_ekf(session, method, ekf) if method == "method2" else run_method(session, method, scaled)
+            else:
+                estimate = run_method(session, row.removesuffix("_wrong_d").removesuffix("_td"), model)
             per_seed[row].append(score_attitude(estimate, oracle.truth.t, oracle.truth.values))
             runtime[row] += estimate.runtime_s
             if row == "isam2_td":
