@@ -29,7 +29,10 @@ def test_simulate_run_and_read_back(tmp_path: Path, capsys: pytest.CaptureFixtur
 def test_report_json_has_the_issue_shape(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["report", "head", "--seeds", "0", "--duration", "3", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert set(report["methods"]) == {"tracker", "gyro", "kalman", "method1", "method2", "isam2", "batch"}
+    paper_and_ours = {"tracker", "gyro", "kalman", "method1", "method2", "isam2", "batch"}
+    wrong_noise = {f"{m}_noise_x{k}" for m in ("method2", "isam2", "batch") for k in ("0.5", "2")}
+    assert set(report["methods"]) == paper_and_ours | wrong_noise
+    assert report["tuning_seeds"] == list(range(100, 120)) and report["seeds"] == [0]
     for name, row in report["methods"].items():
         assert set(row) == {"rms_rad", "ms_per_40ms", "nees"}
         assert (row["nees"] is None) == (name in ("tracker", "gyro"))
