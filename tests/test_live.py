@@ -64,7 +64,10 @@ def test_live_head_publishes_estimates_and_records_a_session_the_batch_smooths(t
     run = stats["run"]
     assert run.received == {"gyro": len(gyro), "tracker": len(tracker)} and run.rejected == 0
     first_fix = tracker.t[0] + tracker.latency_s
-    assert run.published == int(np.sum(gyro.t >= first_fix - 1e-9))  # one estimate per gyro sample after the first fix
+    # one estimate per gyro sample after the first fix; the gyro sample at the very instant the first fix arrives
+    # may be handled before it (two streams, two sockets: their order at one instant is not guaranteed)
+    expected = int(np.sum(gyro.t >= first_fix - 1e-9))
+    assert expected - 1 <= run.published <= expected
     assert len(chunk) > 0 and np.allclose(np.linalg.norm(np.array(chunk)[:, :4], axis=1), 1.0)
     recorded = load_session(tmp_path / "rec")
     # no latency was declared: the recording notes the measured one (the scenario's 0.1 s; a chunk's last sample is
