@@ -371,11 +371,21 @@ def run_gyro_only(session: Session) -> Estimate:
     return Estimate("gyro", gyro.t.copy(), quats, None, time.perf_counter() - start)
 
 
+#: The paper's EKFs with their noise figures chosen by ``fusegraph tune head_ekf`` on seeds 100-119 (Method II's mean
+#: RMS): process noise x0.0625 of the paper's, gyro 1.35 rad/s, tracker 0.0268 rad (the paper's): 0.01443 rad against
+#: 0.01636 with the paper's own figures (the paper fitted them to its hardware). Smaller process noise kept gaining
+#: less and less (x0.125: 0.01447); the paper's values stay as the ``*_paper_values`` rows.
+TUNED_EKF = replace(HeadEkfConfig(), process_angle_sigma_rad=0.0625 * HeadEkfConfig().process_angle_sigma_rad,
+                    process_rate_sigma_rad_s=0.0625 * HeadEkfConfig().process_rate_sigma_rad_s, gyro_sigma_rad_s=1.35)
+
+
 def run_ekf(session: Session, mode: str, config: HeadEkfConfig | None = None) -> Estimate:
-    """One of the paper's EKFs (``kalman``, ``method1``, ``method2``) over the session."""
+    """One of the paper's EKFs (``kalman``, ``method1``, ``method2``) over the session. Method II (the report's
+    reference and the ``ekf`` solver) runs with its tuned noise by default; Method I and the Kalman filter keep
+    the paper's figures (Method II's tuned ones made Method I 5x worse: each needs its own study, not done yet)."""
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     # the filter's H = (I, -d F') uses the latency the session declares (true, or only assumed)
-    cfg = replace(config or HeadEkfConfig(), tracker_latency_s=tracker.latency_s)
+    cfg = replace(config or (TUNED_EKF if mode == "method2" else HeadEkfConfig()), tracker_latency_s=tracker.latency_s)
     start = time.perf_counter()
     quats, covs = run_head_ekf(mode, gyro.t, gyro.values, tracker.t, tracker.values, cfg, latency_s=tracker.latency_s)  # type: ignore[arg-type]
     return Estimate(mode, gyro.t.copy(), quats, covs, time.perf_counter() - start)
@@ -389,6 +399,8 @@ def run_method(session: Session, method: str, model: HeadModel | None = None) ->
         return run_gyro_only(session)
     if method in ("kalman", "method1", "method2"):
         return run_ekf(session, method)
+    if method == "method2_paper_values":
+        return replace(run_ekf(session, "method2", HeadEkfConfig()), method=method)
     if method == "isam2":
         return run_isam2(session, model)
     if method == "batch":
@@ -408,7 +420,7 @@ def with_noise_scaled(session: Session, factor: float) -> tuple[Session, HeadMod
     model = head_model_for(session)
     gyro = replace(model.gyro, white_sigma_rad_s=factor * model.gyro.white_sigma_rad_s, bias_rw_sigma=factor * model.gyro.bias_rw_sigma)
     tracker = replace(model.tracker, white_sigma_deg=factor * model.tracker.white_sigma_deg, markov_sigma_deg=factor * model.tracker.markov_sigma_deg)
-    base = HeadEkfConfig()
+    base = TUNED_EKF
     ekf = replace(base, gyro_sigma_rad_s=factor * base.gyro_sigma_rad_s, tracker_sigma_rad=factor * base.tracker_sigma_rad)
     return session, replace(model, gyro=gyro, tracker=tracker), ekf
 
@@ -478,6 +490,7 @@ LABELS = {
     "method2_wrong_d": "Method II, assumed d",
     "isam2_td": "iSAM2, d estimated",
     "batch_td": "batch, d estimated",
+    "method2_paper_values": "Method II, paper's noise",
     **{row: f"{LABELS_BASE[m]}, noise x{k:g}" for row, m, k in NOISE_ROWS},
 }
 
@@ -519,6 +532,7 @@ def head_report(
     rows = list(methods) + (list(LATENCY_ROWS) if latency_assumed_s is not None else [])
     if noise_rows and model is None:
         rows += [row for row, _, _ in NOISE_ROWS]
+    rows += ["method2_paper_values"] if "method2" in methods else []
     per_seed: dict[str, list[AttitudeScore]] = {m: [] for m in rows}
     runtime: dict[str, float] = dict.fromkeys(rows, 0.0)
     estimated: list[tuple[float, float]] = []
@@ -535,7 +549,7 @@ def head_report(
             assert session is not None
             if row in noisy:
                 method, factor = noisy[row]
-                _, scaled, ekf = with_noise_scaled(session, factor)
+                _, scaled, ekf = with_noise_scaled(session, factor)  # the EKF row scales its tuned figures
                 estimate = run_ekf(session, method, ekf) if method == "method2" else run_method(session, method, scaled)
             else:
                 estimate = run_method(session, row.removesuffix("_wrong_d").removesuffix("_td"), model)
