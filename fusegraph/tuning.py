@@ -178,7 +178,7 @@ def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
     return float(np.mean(score_attitude(estimate, session.truth.t, session.truth.values).rms_rad))
 
 
-def _head_ekf_score(setting: dict[str, Any], seed: int) -> float:
+def _head_ekf_score(setting: dict[str, Any], seed: int, mode: str = "method2") -> float:
     from dataclasses import replace
 
     from .metrics import score_attitude
@@ -192,7 +192,7 @@ def _head_ekf_score(setting: dict[str, Any], seed: int) -> float:
                      process_rate_sigma_rad_s=setting["process_scale"] * base.process_rate_sigma_rad_s,
                      gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], tracker_sigma_rad=setting["tracker_sigma_rad"])
     assert session.truth is not None
-    return float(np.mean(score_attitude(run_ekf(session, "method2", config), session.truth.t, session.truth.values).rms_rad))
+    return float(np.mean(score_attitude(run_ekf(session, mode, config), session.truth.t, session.truth.values).rms_rad))
 
 
 STUDIES: dict[str, Study] = {
@@ -205,6 +205,9 @@ STUDIES: dict[str, Study] = {
     "head_ekf": Study("head_ekf", {"process_scale": (0.5, 1.0, 2.0), "gyro_sigma_rad_s": (0.05, 0.15, 0.45),
                                    "tracker_sigma_rad": (0.0134, 0.0268, 0.0536)}, _head_ekf_score,
                       "rad, mean of the azimuth/elevation/roll RMS of Method II (the paper's noise: scale 1, 0.15, 0.0268)"),
+    "head_ekf_method1": Study("head_ekf_method1", {"process_scale": (0.0625, 0.25, 1.0), "gyro_sigma_rad_s": (0.05, 0.15, 0.45),
+                                                   "tracker_sigma_rad": (0.0268,)}, lambda s, seed: _head_ekf_score(s, seed, "method1"),
+                              "rad, mean of the azimuth/elevation/roll RMS of Method I (the paper's noise: scale 1, 0.15, 0.0268)"),
     "head_no_gyro": Study("head_no_gyro", {"bias_rw_sigma": (0.5, 1.0, 2.0, 5.0)}, _head_no_gyro_score,
                           "rad, mean of the azimuth/elevation/roll RMS of the online estimate on the tracker alone"),
 }

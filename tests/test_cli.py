@@ -31,7 +31,7 @@ def test_report_json_has_the_issue_shape(capsys: pytest.CaptureFixture[str]) -> 
     report = json.loads(capsys.readouterr().out)
     paper_and_ours = {"tracker", "gyro", "kalman", "method1", "method2", "isam2", "batch"}
     wrong_noise = {f"{m}_noise_x{k}" for m in ("method2", "isam2", "batch") for k in ("0.5", "2")}
-    assert set(report["methods"]) == paper_and_ours | wrong_noise | {"method2_paper_values"}  # method2 itself is tuned
+    assert set(report["methods"]) == paper_and_ours | wrong_noise | {"method1_paper_values", "method2_paper_values"}  # method1/2 are tuned
     assert report["tuning_seeds"] == list(range(100, 120)) and report["seeds"] == [0]
     for name, row in report["methods"].items():
         assert set(row) == {"rms_rad", "ms_per_40ms", "nees"}
