@@ -208,6 +208,10 @@ STUDIES: dict[str, Study] = {
     "head_ekf_method1": Study("head_ekf_method1", {"process_scale": (0.0625, 0.25, 1.0), "gyro_sigma_rad_s": (0.05, 0.15, 0.45),
                                                    "tracker_sigma_rad": (0.0268,)}, lambda s, seed: _head_ekf_score(s, seed, "method1"),
                               "rad, mean of the azimuth/elevation/roll RMS of Method I (the paper's noise: scale 1, 0.15, 0.0268)"),
+    "head_ekf_kalman": Study("head_ekf_kalman", {"process_scale": (0.25, 0.5, 1.0, 2.0, 4.0), "gyro_sigma_rad_s": (0.15,),
+                                                 "tracker_sigma_rad": (0.0134, 0.0268, 0.0536)},
+                             lambda s, seed: _head_ekf_score(s, seed, "kalman"),
+                             "rad, mean of the azimuth/elevation/roll RMS of the paper's tracker-only Kalman filter (paper: scale 1, 0.0268)"),
     "head_no_gyro": Study("head_no_gyro", {"bias_rw_sigma": (0.5, 1.0, 2.0, 5.0)}, _head_no_gyro_score,
                           "rad, mean of the azimuth/elevation/roll RMS of the online estimate on the tracker alone"),
 }
