@@ -174,7 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Every setting a paper leaves open (a baseline's noise) and every free setting of ours is chosen by "
                          "the same rule: the grid printed here, scored on TUNING seeds 100-119 (reports score 0-9), or on real data by "
                          "leave-one-trial-out with the cross-validated figure beside the in-sample one. The chosen values are written "
-                         "in the code beside the study's name. Studies: gaze_ekf, bicycle_ekf, walking_fixes, head_no_gyro (simulated); "
+                         "in the code beside the study's name. Studies: gaze_ekf, bicycle_ekf, head_ekf, head_ekf_method1, head_ekf_kalman, "
+                         "walking_fixes, head_no_gyro (simulated); "
                          "broad_ekf, broad_mag (BROAD trials).",
                          epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune broad_mag --solver batch",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
