@@ -328,34 +328,10 @@ def run_study(
 
 
 def _execute_all(specs: Sequence[dict[str, Any]], workers: int, scheduler: str | None) -> Iterable[dict[str, Any]]:
-    if not specs:
-        return
-    if scheduler is not None:
-        yield from _execute_dask(specs, workers, scheduler)
-        return
-    if workers <= 1:
-        for spec in specs:
-            yield execute(spec)
-        return
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from .cluster import completed
 
-    from .cluster import die_with_parent
-
-    with ProcessPoolExecutor(max_workers=workers, initializer=die_with_parent) as pool:
-        futures = {pool.submit(execute, spec): spec for spec in specs}
-        for future in as_completed(futures):
-            yield _result_or_failure(future, futures[future])
-
-
-def _execute_dask(specs: Sequence[dict[str, Any]], workers: int, scheduler: str) -> Iterable[dict[str, Any]]:
-    from dask.distributed import as_completed
-
-    from .cluster import dask_client
-
-    with dask_client(scheduler, workers) as client:
-        futures = {client.submit(execute, spec, key=f"run-{spec['key']}", pure=False): spec for spec in specs}
-        for future in as_completed(list(futures)):
-            yield _result_or_failure(future, futures[future])
+    for spec, future in completed(execute, specs, workers, scheduler):
+        yield _result_or_failure(future, spec)
 
 
 def _result_or_failure(future: Any, spec: Mapping[str, Any]) -> dict[str, Any]:

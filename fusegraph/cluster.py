@@ -3,7 +3,8 @@ answers) and the initializer that ties local pool workers to the study process."
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any
 
@@ -44,3 +45,31 @@ def die_with_parent() -> None:
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError):  # no libc by that name: the workers just are not tied
             ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
+
+
+def completed(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, scheduler: str | None) -> Iterator[tuple[Any, Any]]:
+    """``fn`` over ``items`` in this process (``workers <= 1``), a local process pool, or Dask (``scheduler``); yields
+    ``(item, future)`` as each finishes, the future's ``result()`` giving ``fn(item)`` or raising what it raised."""
+    if not items:
+        return
+    if scheduler is not None:
+        from dask.distributed import as_completed as dask_completed
+
+        with dask_client(scheduler, workers) as client:
+            futures = {client.submit(fn, item, pure=False): item for item in items}
+            for future in dask_completed(list(futures)):
+                yield futures[future], future
+        return
+    if workers <= 1:
+        for item in items:
+            done: Future[Any] = Future()
+            try:
+                done.set_result(fn(item))
+            except Exception as exc:  # noqa: BLE001 - handed to the caller through the future, as from a pool
+                done.set_exception(exc)
+            yield item, done
+        return
+    with ProcessPoolExecutor(max_workers=workers, initializer=die_with_parent) as pool:
+        pending = {pool.submit(fn, item): item for item in items}
+        for future in as_completed(pending):
+            yield pending[future], future

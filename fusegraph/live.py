@@ -129,14 +129,13 @@ class _Attitude9Solver:
     def __init__(self, declared: Session) -> None:
         from .graphs.attitude9 import Attitude9Builder
         from .solvers.online import OnlineSmoother
-        from .systems.attitude9 import ONLINE_CONFIG, model_for
+        from .systems.attitude9 import ONLINE_CONFIG, attitude_tracker, model_for
 
         self.builder = Attitude9Builder(model_for(declared))
         self.solver = OnlineSmoother(self.builder, ONLINE_CONFIG)
         self.last_t = -np.inf
-        tracker = declared.streams_of_kind("attitude")
-        sigma = float(np.hypot(float(tracker[0].meta.get("noise_sigma_deg", 0.4)), float(tracker[0].meta.get("markov_sigma_deg", 0.0)))) if tracker else 0.4
-        self.tracker_sigma_rad = float(np.deg2rad(sigma))
+        declared_tracker = attitude_tracker(declared)  # the declared noise, read as replay reads it
+        self.tracker_sigma_rad = declared_tracker.sigma_rad if declared_tracker is not None else float(np.deg2rad(0.4))
 
     def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray]]:
         from .geometry import rot3_from_quat_wxyz

@@ -142,31 +142,10 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
 
 
 def _map(todo: list[tuple[str, str, str]], workers: int, scheduler: str | None) -> Iterable[dict[str, Any]]:
-    if not todo:
-        return
-    if scheduler is not None:
-        from dask.distributed import as_completed
+    from .cluster import completed
 
-        from .cluster import dask_client
-
-        with dask_client(scheduler, workers) as client:
-            futures: list[Any] = [client.submit(_run_one_to_folder, item, pure=False) for item in todo]
-            for future in as_completed(futures):
-                yield future.result()
-        return
-    if workers <= 1:
-        for item in todo:
-            yield _run_one_to_folder(item)
-        return
-    from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures import as_completed as done_in_order
-
-    from .cluster import die_with_parent
-
-    with ProcessPoolExecutor(max_workers=workers, initializer=die_with_parent) as pool:
-        local = [pool.submit(_run_one_to_folder, item) for item in todo]
-        for future in done_in_order(local):
-            yield future.result()
+    for _, future in completed(_run_one_to_folder, todo, workers, scheduler):
+        yield future.result()
 
 
 def format_many(rows: Sequence[dict[str, Any]]) -> str:

@@ -103,6 +103,11 @@ class Session:
     path: Path | None = None
     """Directory the session was loaded from, if any."""
 
+    @property
+    def where(self) -> str:
+        """How errors name this session: its session.toml, or ``<system> session`` when it was not loaded from disk."""
+        return f"{self.path / 'session.toml'}" if self.path else f"{self.system} session"
+
     def stream(self, name: str) -> Stream:
         """The stream called ``name``; a SessionError lists the ones that exist."""
         try:
@@ -117,7 +122,7 @@ class Session:
         first = streams[0]
         for stream in streams[1:]:
             if len(stream) != len(first) or not np.allclose(stream.t, first.t):
-                where = f"{self.path / 'session.toml'}" if self.path else f"{self.system} session"
+                where = self.where
                 raise SessionError(f"{where}: stream '{stream.name}' must be sampled with '{first.name}' (same times)")
         return streams
 

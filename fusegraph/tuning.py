@@ -9,6 +9,7 @@ prints its table; the chosen values are written into the code with the study's n
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -123,13 +124,36 @@ def broad_mag_logo(directory: str | None = None, solver: str = "online") -> dict
 # ------------------------------------------------------------------------------------- studies
 
 
+@functools.lru_cache(maxsize=32)
+def _simulated(scenario: str, seed: int) -> Any:
+    """A tuning seed's simulation, made once for the whole grid (every cell scores the same sessions)."""
+    if scenario == "gaze":
+        from .scenarios.gaze import simulate_gaze
+
+        return simulate_gaze(seed)
+    if scenario == "bicycle":
+        from .scenarios.bicycle import simulate_bicycle
+
+        return simulate_bicycle(seed)
+    if scenario == "head":
+        from .scenarios.head import simulate_head
+
+        return simulate_head(seed, duration_s=10.0)
+    from .frontends.pdr import detect_cycles, fit_speed_model
+    from .scenarios.walking import simulate_calibration_walk, simulate_walking
+    from .systems import walking
+
+    walk, cal = simulate_walking(seed), simulate_calibration_walk(seed)
+    speed = fit_speed_model(detect_cycles(cal.t, cal.accel_m_s2, cal.gyro_rad_s), cal.bouts)
+    return walk, walking.analyse(walk, speed)[2]
+
+
 def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
-    from .scenarios.gaze import simulate_gaze
     from .solvers.ekf9 import Ekf9Config
     from .solvers.ekf_gaze import GazeEkfConfig, run_gaze_ekf
     from .systems.gaze import rms_mm
 
-    s = simulate_gaze(seed)
+    s = _simulated("gaze", seed)
     head = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_inflation=setting["accel_inflation"])
     config = GazeEkfConfig(head=head, gaze_walk_m_per_sqrt_s=setting["gaze_walk_m_per_sqrt_s"])
     out = run_gaze_ekf(s.t, s.gyro_rad_s, s.accel_m_s2, s.mag, s.tracker_t, s.gaze_px, s.config.wall_m, s.config.camera, config)
@@ -138,11 +162,10 @@ def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
 
 
 def _bicycle_ekf_score(setting: dict[str, Any], seed: int) -> float:
-    from .scenarios.bicycle import simulate_bicycle
     from .solvers.ekf9 import Ekf9Config
     from .systems.bicycle import braking_rms_deg, run_pipeline
 
-    s = simulate_bicycle(seed)
+    s = _simulated("bicycle", seed)
     config = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_sigma_m_s2=setting["accel_sigma_m_s2"], accel_inflation=0.0)
     rms = braking_rms_deg(run_pipeline(s, config), s)
     return float(np.hypot(rms["pitch_deg"], rms["roll_deg"]))
@@ -151,14 +174,9 @@ def _bicycle_ekf_score(setting: dict[str, Any], seed: int) -> float:
 def _walking_fixes_score(setting: dict[str, Any], seed: int) -> float:
     from dataclasses import replace
 
-    from .frontends.pdr import detect_cycles, fit_speed_model
-    from .scenarios.walking import simulate_calibration_walk, simulate_walking
     from .systems import walking
 
-    walk = simulate_walking(seed)
-    cal = simulate_calibration_walk(seed)
-    speed = fit_speed_model(detect_cycles(cal.t, cal.accel_m_s2, cal.gyro_rad_s), cal.bouts)
-    _, _, events = walking.analyse(walk, speed)
+    walk, events = _simulated("walking", seed)
     noise = replace(walking.FIX_NOISE, kernel_width=setting["kernel_width"])
     run = walking.run_batch(walk, events, walk.fixes.pose, noise, setting["reject_sigmas"])
     return walking.score(run, walk)["rmse_m"]
@@ -167,10 +185,9 @@ def _walking_fixes_score(setting: dict[str, Any], seed: int) -> float:
 def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
     from dataclasses import replace
 
-    from .scenarios.head import simulate_head
     from .systems.head import run_isam2, score_attitude, without_gyro
 
-    session = simulate_head(seed, duration_s=10.0)
+    session = _simulated("head", seed)
     tracker_only, model = without_gyro(session)
     model = replace(model, gyro=replace(model.gyro, bias_rw_sigma=setting["bias_rw_sigma"]))
     estimate = run_isam2(tracker_only, model)
@@ -182,11 +199,10 @@ def _head_ekf_score(setting: dict[str, Any], seed: int, mode: str = "method2") -
     from dataclasses import replace
 
     from .metrics import score_attitude
-    from .scenarios.head import simulate_head
     from .solvers.ekf import HeadEkfConfig
     from .systems.head import run_ekf
 
-    session = simulate_head(seed, duration_s=10.0)
+    session = _simulated("head", seed)
     base = HeadEkfConfig()
     config = replace(base, process_angle_sigma_rad=setting["process_scale"] * base.process_angle_sigma_rad,
                      process_rate_sigma_rad_s=setting["process_scale"] * base.process_rate_sigma_rad_s,

@@ -41,7 +41,7 @@ def session_from_epochs(epochs: RangeEpochs, meta: dict[str, object] | None = No
 
 def epochs_from_session(session: Session) -> RangeEpochs:
     """The session's ``ranges`` stream (and truth, labels when present) as per-epoch sorted distances."""
-    where = f"{session.path / 'session.toml'}" if session.path else "ultrasonic session"
+    where = session.where
     streams = session.streams_of_kind("ranges")
     if not streams:
         raise SessionError(f"{where}: an ultrasonic session needs a stream of kind 'ranges' (see `fusegraph sensors ranges`)")

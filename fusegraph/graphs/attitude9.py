@@ -15,6 +15,7 @@ attitude (``heading_factors``).
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
 
 import gtsam
@@ -129,7 +130,8 @@ class Attitude9Builder:
         self._solved = False
         self._keyframe_guess: list[gtsam.Rot3] = []  # each keyframe's attitude as first predicted
         self._keyframe_accel: list[FloatArray] = []  # mean specific force over each keyframe's interval (batch initial values)
-        self._recent: list[tuple[float, FloatArray]] = []  # (t, gyro) of the samples a late tracker sample may need
+        self._recent_t: list[float] = []  # times and gyro readings of the samples a late tracker sample may need
+        self._recent_gyro: list[FloatArray] = []
         self.tracker_factors = 0
         """How many attitude-tracker samples became factors."""
         self.tracker_readings: dict[int, gtsam.Rot3] = {}
@@ -217,7 +219,8 @@ class Attitude9Builder:
             if dt <= 0:
                 raise ValueError(f"sample {self._count}: time {t[i]:.6f} s does not increase (previous {self._last_t:.6f} s)")
             self._interval.append((accel[i], gyro[i], dt))
-            self._recent.append((float(t[i]), gyro[i]))
+            self._recent_t.append(float(t[i]))
+            self._recent_gyro.append(gyro[i])
             self._last_t = float(t[i])
             if self._last_t - self.keyframe_t[-1] >= period - 0.5 * dt:
                 self._close_keyframe(accel[i], None if mag is None else mag[i])
@@ -327,13 +330,13 @@ class Attitude9Builder:
         self._pending.add(k, gtsam.BetweenFactorPose3(TRACKER_WORLD, self.X(k), gtsam.Pose3(measured, np.zeros(3)), noise))
         self.tracker_readings[k] = measured
         self.tracker_factors += 1
-        if len(self._recent) > 4000 and not self.deferred_mag:  # online: samples older than the window are never needed
-            self._recent = self._recent[-2000:]
+        if len(self._recent_t) > 4000 and not self.deferred_mag:  # online: samples older than the window are never needed
+            del self._recent_t[:-2000], self._recent_gyro[:-2000]
         return True
 
     def feed_tracker(self, track: AttitudeTrack, now_s: float = np.inf) -> None:
         """Every sample of ``track`` that has arrived by ``now_s`` (sample time + latency) and was not fed yet."""
-        stop = int(np.searchsorted(track.t + track.latency_s, now_s + 1e-9, side="right"))
+        stop = int(np.searchsorted(track.t, now_s - track.latency_s + 1e-9, side="right"))  # one latency: arrival order = time order
         for n in range(self._tracker_fed, stop):
             self.add_attitude(float(track.t[n]), rot3_from_quat_wxyz(track.tracker_R_body_wxyz[n]), track.sigma_rad)
         self._tracker_fed = max(self._tracker_fed, stop)
@@ -386,14 +389,14 @@ class Attitude9Builder:
 
     def _gyro_rotation(self, t0: float, t1: float) -> gtsam.Rot3:
         """body(t0)_R_body(t1) from the bias-corrected gyro samples in (t0, t1] (sample i covers (t_{i-1}, t_i])."""
-        times = [t for t, _ in self._recent]
-        i0 = int(np.searchsorted(times, t0 + 1e-9, side="left"))
-        i1 = int(np.searchsorted(times, t1 + 1e-9, side="right"))
+        times = self._recent_t  # bisect on the kept list: no copy per tracker sample (the batch keeps every sample)
+        i0 = bisect.bisect_left(times, t0 + 1e-9)
+        i1 = bisect.bisect_right(times, t1 + 1e-9)
         bias = np.asarray(self._bias.gyroscope())
         out = gtsam.Rot3()
         for i in range(i0, i1):
             prev = times[i - 1] if i > 0 else times[i]
-            out = out.compose(gtsam.Rot3.Expmap((self._recent[i][1] - bias) * (times[i] - prev)))
+            out = out.compose(gtsam.Rot3.Expmap((self._recent_gyro[i] - bias) * (times[i] - prev)))
         return out
 
     def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:

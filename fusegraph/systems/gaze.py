@@ -145,7 +145,7 @@ def from_session(session: Session) -> GazeSession:
     """A gaze session directory's content as the system's input: head ``gyro``/``accel``/``mag`` sampled
     together, the tracker's ``gaze`` pixels (kind ``pixel``, camera in its metadata), ``wall_m`` in
     ``[session]``; the truth (gaze point, world x, y, z at the tracker times) is optional."""
-    where = f"{session.path / 'session.toml'}" if session.path else "gaze session"
+    where = session.where
     imu = dict(zip(("gyro", "accel", "mag"), session.synchronous("gyro", "accel", "mag"), strict=True))
     t = imu["gyro"].t
     gaze_stream = session.stream("gaze")

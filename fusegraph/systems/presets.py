@@ -66,7 +66,7 @@ class Preset:
 
     def check_session(self, session: Session) -> None:
         """Top-level keys of session.toml against this preset's (a misspelled key names the nearest)."""
-        where = f"{session.path / 'session.toml'}" if session.path else f"{self.name} session"
+        where = session.where
         tables: dict[str, list[str]] = {"session": ["system", "description", "world_frame", "scenario", "seed", "profile", "dataset", "trial"]}
         for spec in self.session_keys:
             table, _, key = spec.name.rpartition(".")

@@ -283,11 +283,22 @@ RANGE_START_SIGMAS = np.array([1e-3, 1e-3, math.radians(10.0), 2.0, 2.0, 1e-3])
 RANGE_START_WINDOW_S = 60.0
 
 
+def _beacons_of(session: Session, where: str) -> BeaconRanges | None:
+    """The session's ranges to known beacons (one ``beacon_ranges`` stream at most), if any."""
+    streams = session.streams_of_kind("beacon_ranges")
+    if len(streams) > 1:
+        raise SessionError(f"{where}: one beacon_ranges stream at most (have: {', '.join(b.name for b in streams)})")
+    try:
+        return beacon_ranges_from(streams[0], where) if streams else None
+    except ValueError as err:
+        raise SessionError(str(err)) from None
+
+
 def vehicle_from_session(session: Session) -> tuple[WalkingSession, list[Event]]:
     """A session driven by wheel odometry (kind ``wheel_odometry``: row i = the motion from row i-1's time to
     row i's; the first row is the start) instead of a waist IMU; ``start_pose`` optional when the session
     has beacon ranges (then found from the first minute of odometry and ranges, never from the truth)."""
-    where = f"{session.path / 'session.toml'}" if session.path else "walking session"
+    where = session.where
     streams = session.streams_of_kind("wheel_odometry")
     if len(streams) != 1:
         raise SessionError(f"{where}: a session without a waist gyro needs one wheel_odometry stream (have {len(streams)})")
@@ -295,11 +306,7 @@ def vehicle_from_session(session: Session) -> tuple[WalkingSession, list[Event]]
     noise = OdometryNoise(**{k: float(odo.meta[k]) for k in ("distance_frac", "lateral_frac", "floor_m", "yaw_frac") if k in odo.meta},
                           **({"yaw_rad": math.radians(float(odo.meta["yaw_sigma_deg"]))} if "yaw_sigma_deg" in odo.meta else {}))
     events = [Event(float(t), PlanarMotion(forward_m=float(d), dyaw_rad=float(h)), noise, False) for t, (d, h) in zip(odo.t[1:], odo.values[1:], strict=True)]
-    beacon_streams = session.streams_of_kind("beacon_ranges")
-    try:
-        beacons = beacon_ranges_from(beacon_streams[0], where) if beacon_streams else None
-    except ValueError as err:
-        raise SessionError(str(err)) from None
+    beacons = _beacons_of(session, where)
     header = session.meta.get("session", {})
     truth = np.full((len(odo), 3), np.nan)
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(odo):
@@ -323,7 +330,7 @@ def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
     """A walking session directory's content: waist ``gyro`` and ``accel`` sampled together, optional
     ``fixes`` (kind ``pose``), ``[building]`` (the map), ``start_pose`` in ``[session]``, the person's
     ``[speed_model]``; the truth (waist position) is optional."""
-    where = f"{session.path / 'session.toml'}" if session.path else "walking session"
+    where = session.where
     gyro, accel = session.synchronous("gyro", "accel")
     header, table = session.meta.get("session", {}), session.meta.get("building", {})
     if "start_pose" not in header:
@@ -345,13 +352,7 @@ def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
     truth = np.full((len(gyro), 3), np.nan)
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gyro):
         truth = session.truth.values.copy()
-    beacon_streams = session.streams_of_kind("beacon_ranges")
-    if len(beacon_streams) > 1:
-        raise SessionError(f"{where}: one beacon_ranges stream at most (have: {', '.join(b.name for b in beacon_streams)})")
-    try:
-        beacons = beacon_ranges_from(beacon_streams[0], where) if beacon_streams else None
-    except ValueError as err:
-        raise SessionError(str(err)) from None
+    beacons = _beacons_of(session, where)
     walk = WalkingSession(t=gyro.t, accel_m_s2=accel.values, gyro_rad_s=gyro.values, fixes=fixes, truth_xyz_m=truth,
                           truth_yaw_rad=np.full(len(gyro), np.nan), step_t=np.zeros(0), step_activity=(), rides=np.zeros((0, 3)),
                           building=building, start_pose=np.asarray(header["start_pose"], dtype=float), beacons=beacons)
