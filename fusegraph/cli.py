@@ -159,14 +159,16 @@ def build_parser() -> argparse.ArgumentParser:
                          "uwb: the UWB recording folder (UWB_*.csv + motion_capture_*.csv) -> an ultrasonic session (anchors as receivers, "
                          "tags unlabelled, motion capture as truth). oxford: an Oxford step recording folder or the dataset folder -> walking "
                          "sessions with the phone accelerometer and the hand-counted steps (run --solver steps). plaza: Plaza1|Plaza2 (shipped with gtsam) "
-                         "-> a walking session driven by wheel odometry with beacon ranges (start found from the ranges).",
+                         "-> a walking session driven by wheel odometry with beacon ranges (start found from the ranges). tobii: a Tobii Pro Glasses 3 "
+                         "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth).",
                          epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
                          "  fusegraph import uwb ../shared/data/uwb_lias --out sessions/uwb\n"
                          "  fusegraph import oxford ../shared/data/steps_oxford --out sessions/oxford\n"
                          "  fusegraph run sessions/oxford --solver steps --out studies/oxford\n"
-                         "  fusegraph import plaza Plaza2 --out sessions/plaza2 && fusegraph run sessions/plaza2 --solver batch --json",
+                         "  fusegraph import plaza Plaza2 --out sessions/plaza2 && fusegraph run sessions/plaza2 --solver batch --json\n"
+                         "  fusegraph import tobii ../shared/data/gaze_tobii --out sessions/tobii && fusegraph run sessions/tobii --solver batch",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    imp.add_argument("format", choices=["broad", "oxford", "plaza", "uwb"])
+    imp.add_argument("format", choices=["broad", "oxford", "plaza", "tobii", "uwb"])
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
 
@@ -213,19 +215,28 @@ def build_parser() -> argparse.ArgumentParser:
                          "live: a simulated head session replayed in real time over the LSL loopback into `fusegraph live head` (its own "
                          "process): latency from a gyro sample's push to its estimate's arrival (p50, p99, max), samples lost, RMS beside "
                          "the replay's (--duration, default 60 s here).\n"
+                         "head-recorded: every BROAD trial in DIR as a head session (its recorded gyro; its optical attitude as a 50 Hz "
+                         "tracker 100 ms late with the realistic profile's errors; the optical attitude at the gyro rate as the reference): "
+                         "tracker, Method II (noise chosen leaving the trial out), the paper's values, iSAM2 online, batch; RMS per axis in "
+                         "movement, Euler-angle domain exits listed.\n"
+                         "gaze-recorded: the head-worn eye tracker's recording in DIR (default ../shared/data/gaze_tobii): the gaze-to-IMU "
+                         "time offset found from the data, fixations with head motion, and the dispersion of the world gaze ray in them for "
+                         "the head-frame gaze, the raw gyro, the paper's EKF, fusegraph online and batch.\n"
                          "soak: the online head tracker over an hour of data (--duration, default 3600 s here): speed per 10 minutes and peak memory.",
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png\n"
                          "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json\n  fusegraph bench ultrasonic --plot tags.png\n"
-                         "  fusegraph bench walking --plot walk.png\n  fusegraph bench walking --oxford ../shared/data/steps_oxford --json",
+                         "  fusegraph bench walking --plot walk.png\n  fusegraph bench walking --oxford ../shared/data/steps_oxford --json\n"
+                         "  fusegraph bench head-recorded --plot head_recorded.png\n  fusegraph bench gaze-recorded --plot gaze_recorded.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak"])
-    ben.add_argument("directory", nargs="?", type=Path, help="broad: directory of BROAD trials (*.mat; default ../shared/data/broad)")
+    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak", "head-recorded", "gaze-recorded"])
+    ben.add_argument("directory", nargs="?", type=Path, help="broad, head-recorded: directory of BROAD trials (*.mat; default ../shared/data/broad); "
+                     "gaze-recorded: the eye-tracker export (default ../shared/data/gaze_tobii)")
     ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600); ultrasonic: seconds per run (default 20)")
     ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
     ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="head: sensor error profile")
     ben.add_argument("--methods", default=None, help="broad: comma list of vqf,vqf_offline,ekf,online,batch (default all)")
-    ben.add_argument("--trials", default=None, help="broad: comma list of file-name prefixes, e.g. 01,32 (default all)")
+    ben.add_argument("--trials", default=None, help="broad, head-recorded: comma list of file-name prefixes, e.g. 01,32 (default all)")
     ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method; walking: the trajectories; "
                      "ultrasonic: the tracks, errors and rest probability of the largest N, first seed")
     ben.add_argument("--seeds", type=_seeds_arg, default=None, help="ultrasonic: seeds per N (default 0-2); walking: the first is the walk's seed (default 0)")
@@ -233,6 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("--uwb", default="default", metavar="DIR", help="ultrasonic: the recorded UWB run (default ../shared/data/uwb_lias; 'none' skips it)")
     ben.add_argument("--oxford", default="default", metavar="DIR", help="walking: Oxford step recordings (default ../shared/data/steps_oxford; 'none' skips)")
     ben.add_argument("--no-plaza", action="store_true", help="walking: skip the Plaza runs")
+    ben.add_argument("--use-mag", action="store_true", help="gaze-recorded: use the magnetometer as recorded (default: not; it cannot be calibrated)")
+    ben.add_argument("--workers", type=int, default=2, help="head-recorded: trials run side by side in processes (default 2)")
     ben.add_argument("--json", action="store_true", help="print JSON")
     return parser
 
@@ -467,6 +480,24 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         found = bench_live(60.0 if args.duration == 600.0 else args.duration, seed=(args.seeds or (0,))[0])
         print(json.dumps(found, indent=2) if args.json else format_bench_live(found))
+        return 0
+    if args.system == "head-recorded":
+        from .systems import head_recorded
+
+        trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
+        found = head_recorded.bench_head_recorded(args.directory, workers=args.workers, trials=trials,
+                                                  progress=lambda line: print(line, file=sys.stderr))
+        print(json.dumps(found, indent=2) if args.json else head_recorded.format_head_recorded(found))
+        if args.plot:
+            print(f"wrote {head_recorded.plot_head_recorded(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
+        return 0
+    if args.system == "gaze-recorded":
+        from .systems import gaze_recorded
+
+        found = gaze_recorded.bench_gaze_recorded(args.directory, use_mag=args.use_mag)
+        print(json.dumps(found, indent=2) if args.json else gaze_recorded.format_gaze_recorded(found))
+        if args.plot:
+            print(f"wrote {gaze_recorded.plot_gaze_recorded(args.directory, found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
         return 0
     if args.system == "walking":
         from .datasets import steps_oxford

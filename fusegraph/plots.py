@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -58,6 +59,16 @@ def plot_attitude_axes(
     if title:
         fig.suptitle(title)
     return save_figure(fig, path)
+
+
+def grouped_bars(ax: Any, labels: Sequence[str], series: Mapping[str, Sequence[float | None]]) -> None:
+    """Bars side by side per label, one colour per series (None: no bar), labels under the groups."""
+    x = np.arange(len(labels))
+    width = 0.8 / max(len(series), 1)
+    for i, (name, values) in enumerate(series.items()):
+        heights = [np.nan if v is None else v for v in values]
+        ax.bar(x + (i - (len(series) - 1) / 2) * width, heights, width, label=name)
+    ax.set_xticks(x, labels, fontsize=7)
 
 
 def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:

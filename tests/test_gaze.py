@@ -56,9 +56,9 @@ def session() -> gaze.GazeSession:
 
 
 def test_graph_finds_the_gaze_point_and_beats_the_ekf(session: gaze.GazeSession) -> None:
-    online, _ = gaze.run_online(session)
-    batch, _ = gaze.run_batch(session)
-    ekf, _ = gaze.run_ekf(session)
+    online = gaze.run_online(session).points_xz_m
+    batch = gaze.run_batch(session).points_xz_m
+    ekf = gaze.run_ekf(session).points_xz_m
     r = {name: gaze.rms_mm(est, session) for name, est in (("online", online), ("batch", batch), ("ekf", ekf))}
     # the figures `fusegraph report gaze` prints; bounds with margin over the measured ones (online ~6, batch ~3 mm)
     assert r["batch"]["x_mm"] < 8 and r["batch"]["z_mm"] < 8, r
@@ -79,7 +79,7 @@ def test_online_is_causal(session: gaze.GazeSession) -> None:
                     accel_m_s2=session.accel_m_s2[session.t < cut_s], mag=session.mag[session.t < cut_s],
                     tracker_t=session.tracker_t[session.tracker_t < cut_s], gaze_px=session.gaze_px[session.tracker_t < cut_s],
                     truth_quat_wxyz=session.truth_quat_wxyz[session.t < cut_s], truth_gaze_xz_m=session.truth_gaze_xz_m[session.tracker_t < cut_s])
-    full, _ = gaze.run_online(session)
-    part, _ = gaze.run_online(short)
+    full = gaze.run_online(session).points_xz_m
+    part = gaze.run_online(short).points_xz_m
     done = np.all(np.isfinite(part), axis=1)
     np.testing.assert_allclose(part[done], full[: len(part)][done], atol=1e-9)

@@ -67,3 +67,19 @@ def test_method2_only_predicts_between_tracker_samples() -> None:
 def test_euler_angles_round_trip_in_the_helpers() -> None:
     angles = np.array([[0.3, -0.2, 0.1]])
     assert np.allclose(euler_zyx_from_quat(quat_from_euler_zyx(angles)), angles)
+
+
+def test_rate_jacobian_matches_central_differences() -> None:
+    from fusegraph.solvers.ekf import _d_rate_d_angles
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        angles = rng.uniform([-3, -1.3, -3], [3, 1.3, 3])  # inside the Euler domain (|el| < 75 deg)
+        omega = rng.normal(0, 2, 3)
+        numeric = np.empty((3, 3))
+        for j in range(3):
+            step = np.zeros(3)
+            step[j] = 1e-6
+            numeric[:, j] = (euler_rate_matrix(angles + step) @ omega - euler_rate_matrix(angles - step) @ omega) / 2e-6
+        # central differences are exact to ~1e-9 here; 1e-6 leaves room for 1/cos(el)^2 up to ~15
+        np.testing.assert_allclose(_d_rate_d_angles(angles, omega), numeric, atol=1e-6)

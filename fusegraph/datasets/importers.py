@@ -15,6 +15,9 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
   session: the anchors as receivers, every tag's range per epoch UNLABELLED (the tag labels become
   the scoring-only ``truth_label`` column), the tags' motion-capture positions as truth. Times are
   seconds from the first UWB epoch.
+* ``tobii``: a Tobii Pro Glasses 3 export folder (``imudata.gz``, ``gazedata.gz``) -> one gaze session
+  (gyro in rad/s and head axes, accel, mag on the IMU times, gaze pixels; no wall: ``target_depth_m``);
+  no truth (``bench gaze-recorded`` scores fixations). See ``datasets.tobii``.
 """
 
 from __future__ import annotations
@@ -50,7 +53,11 @@ def import_recording(fmt: str, source: str | Path, out: str | Path) -> list[Path
         if (source / "stats.csv").is_file():
             return [save_session(oxford_session(source, name), out / name) for name in recordings(source)]
         return [save_session(oxford_session(source.parent, source.name), out)]
-    raise SessionError(f"unknown format {fmt!r} (known: broad, oxford, plaza, uwb)")
+    if fmt == "tobii":
+        from .tobii import load_tobii
+
+        return [save_session(_portable(load_tobii(source)), out)]
+    raise SessionError(f"unknown format {fmt!r} (known: broad, oxford, plaza, tobii, uwb)")
 
 
 def plaza_session(name: str) -> Session:

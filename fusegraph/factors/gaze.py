@@ -89,13 +89,24 @@ def wall_plane_prior(point_key: int, wall_x_m: float, noise: FixationNoise) -> g
     sigmas = np.array([noise.plane_sigma_m, 100.0, 100.0])
     return gtsam.PriorFactorPoint3(point_key, np.array([wall_x_m, 0.0, 0.0]), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
+
+def depth_prior(point_key: int, world_t_point: FloatArray, noise: FixationNoise) -> gtsam.PriorFactorPoint3:
+    """No wall known (targets anywhere in a room): the point stays at its initial depth along its initial
+    direction from the head (sigma ``plane_sigma_m``), free across it: a small wall facing the head."""
+    point = np.asarray(world_t_point, dtype=float)
+    normal = point / np.linalg.norm(point)
+    across = 10.0**2 * (np.eye(3) - np.outer(normal, normal))  # 10 m is free at room depths; 100 m left it near-indeterminate
+    cov = noise.plane_sigma_m**2 * np.outer(normal, normal) + across
+    return gtsam.PriorFactorPoint3(point_key, point, gtsam.noiseModel.Gaussian.Covariance(cov))
+
+
 def _pixels_in_view(values: FloatArray, keys: Mapping[str, Any]) -> str | None:
     """Pixels (centred on the principal point) within two image sizes of the image."""
     width, height = float(keys.get("width_px", 640)), float(keys.get("height_px", 480))
     worst_u, worst_v = float(np.max(np.abs(values[:, 0]))), float(np.max(np.abs(values[:, 1])))
     if worst_u > 2 * width or worst_v > 2 * height:
         return (f"|u| up to {worst_u:.0f}, |v| up to {worst_v:.0f} px for a {width:.0f} x {height:.0f} image: pixels measured from the "
-                f"image centre (u right, v down) are expected; normalised or top-left coordinates, or another camera size?")
+                f"image centre (u right, v UP) are expected; normalised or top-left coordinates, or another camera size?")
     return None
 
 
@@ -105,7 +116,7 @@ CATALOGUE = (
         summary="eye tracker: gaze point in the head-fixed scene camera image",
         columns=("u", "v"),
         units=("px", "px"),
-        frame="scene image, measured from the principal point (u right, v down)",
+        frame="scene image, measured from the principal point (u right, v UP: image rows counted downwards are negated)",
         factors="GenericProjectionFactorCal3_S2 of the fixated world point into the scene camera at the sample's head pose",
         keys=(
             KeySpec("focal_px", 500.0, "focal length, px"),

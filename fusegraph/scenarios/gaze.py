@@ -34,6 +34,9 @@ class GazeScenarioConfig:
     """When the subject looks from the first mark to the second, seconds."""
     wall_m: float = 1.0
     """Distance to the wall, metres."""
+    target_depth_m: float | None = None
+    """None: the gaze targets lie on the wall x = ``wall_m``. Set (a recording without a wall): each
+    fixation point is held at this depth along its first ray, metres."""
     first_mark_xz_m: tuple[float, float] = (0.0, 0.0)
     """First mark on the wall (X, Z), metres."""
     second_mark_xz_m: tuple[float, float] = (-0.25, -0.15)

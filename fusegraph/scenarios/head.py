@@ -108,18 +108,7 @@ def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **ove
     step = int(round(cfg.gyro_rate_hz / cfg.tracker_rate_hz))
     tracker_idx = np.arange(0, n_gyro, step)
     n_tracker = tracker_idx.size
-    if realistic:
-        white = np.deg2rad(cfg.tracker_white_sigma_realistic_deg)
-        phi = np.exp(-1.0 / (cfg.tracker_rate_hz * cfg.tracker_gm_tau_s))
-        gm_sigma = np.deg2rad(cfg.tracker_gm_sigma_deg)
-        drive = rng.normal(0.0, gm_sigma * np.sqrt(1 - phi**2), (n_tracker, 3))
-        gm = np.empty((n_tracker, 3))
-        gm[0] = rng.normal(0.0, gm_sigma, 3)
-        for k in range(1, n_tracker):
-            gm[k] = phi * gm[k - 1] + drive[k]
-        error = gm + rng.normal(0.0, white, (n_tracker, 3))
-    else:
-        error = rng.normal(0.0, np.deg2rad(cfg.tracker_white_sigma_deg), (n_tracker, 3))
+    error = tracker_errors(rng, n_tracker, cfg)
     quat_tracker = quat_multiply(quat_true[tracker_idx], quat_from_rotvec(error))
     keep = rng.random(n_tracker) >= cfg.tracker_drop_fraction
     keep[0] = True  # the session starts with a tracker fix, as a real tracker reports at power-up
@@ -170,6 +159,22 @@ def simulate_head(seed: int = 0, config: HeadScenarioConfig | None = None, **ove
 
 
 GRAVITY_M_S2 = 9.80665
+
+
+def tracker_errors(rng: np.random.Generator, n_tracker: int, cfg: HeadScenarioConfig) -> FloatArray:
+    """The tracker's attitude errors (rotation vectors, rad) of n consecutive samples for the config's profile:
+    white noise, plus the realistic profile's first-order Gauss-Markov error."""
+    if cfg.profile != "realistic":
+        return rng.normal(0.0, np.deg2rad(cfg.tracker_white_sigma_deg), (n_tracker, 3))
+    white = np.deg2rad(cfg.tracker_white_sigma_realistic_deg)
+    phi = np.exp(-1.0 / (cfg.tracker_rate_hz * cfg.tracker_gm_tau_s))
+    gm_sigma = np.deg2rad(cfg.tracker_gm_sigma_deg)
+    drive = rng.normal(0.0, gm_sigma * np.sqrt(1 - phi**2), (n_tracker, 3))
+    gm = np.empty((n_tracker, 3))
+    gm[0] = rng.normal(0.0, gm_sigma, 3)
+    for k in range(1, n_tracker):
+        gm[k] = phi * gm[k - 1] + drive[k]
+    return gm + rng.normal(0.0, white, (n_tracker, 3))
 
 
 def _accelerometer(seed: int, t: FloatArray, quat_true: FloatArray, cfg: HeadScenarioConfig) -> Stream:

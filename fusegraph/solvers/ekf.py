@@ -50,6 +50,9 @@ class HeadEkfConfig:
     """Delay d the filter assumes for the tracker, seconds."""
 
 
+_EYE6 = np.eye(6)
+
+
 class HeadEkf:
     """One of the paper's filters; feed it samples in arrival order and read ``x``, ``P``."""
 
@@ -64,6 +67,7 @@ class HeadEkf:
         self._t = float("nan")
         self._pending_tracker: FloatArray | None = None
         self._preceding: list[FloatArray] = []  # Method II: the last gyro samples (at most 3)
+        self._Q = np.diag([self.cfg.process_angle_sigma_rad**2] * 3 + [self.cfg.process_rate_sigma_rad_s**2] * 3)
 
     def start(self, t: float, angles: FloatArray, omega: FloatArray | None = None) -> None:
         """Initialise from a first tracker fix (and a gyro sample when there is one)."""
@@ -80,12 +84,11 @@ class HeadEkf:
             return
         angles, omega = self.x[:3], self.x[3:]
         rate_matrix = euler_rate_matrix(angles)
-        F = np.eye(6)
+        F = _EYE6.copy()
         F[:3, 3:] = dt * rate_matrix
         F[:3, :3] += dt * _d_rate_d_angles(angles, omega)
-        self.x = np.concatenate([wrap_angle(angles + dt * rate_matrix @ omega), omega])
-        Q = np.diag([self.cfg.process_angle_sigma_rad**2] * 3 + [self.cfg.process_rate_sigma_rad_s**2] * 3)
-        self.P = F @ self.P @ F.T + Q
+        self.x[:3] = wrap_angle(angles + dt * rate_matrix @ omega)
+        self.P = F @ self.P @ F.T + self._Q
         self._t = t
 
     def gyro(self, t: float, omega: FloatArray) -> None:
@@ -110,7 +113,7 @@ class HeadEkf:
         """Method II's step: rates from the mean of the 3 preceding gyro samples, the time update, and only
         at a tracker arrival the joint update of tracker and gyro."""
         if self._preceding:
-            self.x[3:] = np.mean(self._preceding, axis=0)
+            self.x[3:] = sum(self._preceding) / len(self._preceding)
         self.predict(t)
         self._preceding = [*self._preceding[-2:], omega]
         if tracker is None:
@@ -137,17 +140,18 @@ class HeadEkf:
 
     def attitude_cov_body(self) -> FloatArray:
         """Covariance of the attitude as a body-frame rotation vector (for NEES against gtsam's)."""
-        angles = self.x[:3]
-        el, roll = angles[1], angles[2]
-        # body rates = M @ euler rates, so a small angle change maps to Exp(M @ d_angles) on the right
-        M = np.array(
-            [
-                [-np.sin(el), 0.0, 1.0],
-                [np.cos(el) * np.sin(roll), np.cos(roll), 0.0],
-                [np.cos(el) * np.cos(roll), -np.sin(roll), 0.0],
-            ]
-        )
-        return M @ self.P[:3, :3] @ M.T
+        return attitude_cov_body(self.x[:3], self.P[:3, :3])
+
+
+def attitude_cov_body(angles: FloatArray, angle_cov: FloatArray) -> FloatArray:
+    """Covariance of ZYX angles (..., 3) with covariance (..., 3, 3) as a body-frame rotation vector."""
+    el, roll = angles[..., 1], angles[..., 2]
+    # body rates = M @ euler rates, so a small angle change maps to Exp(M @ d_angles) on the right
+    M = np.zeros((*np.shape(el), 3, 3))
+    M[..., 0, 0], M[..., 0, 2] = -np.sin(el), 1.0
+    M[..., 1, 0], M[..., 1, 1] = np.cos(el) * np.sin(roll), np.cos(roll)
+    M[..., 2, 0], M[..., 2, 1] = np.cos(el) * np.cos(roll), -np.sin(roll)
+    return M @ angle_cov @ np.swapaxes(M, -1, -2)
 
 
 def joseph_update(
@@ -162,14 +166,17 @@ def joseph_update(
     return x, I_KH @ P @ I_KH.T + K @ R @ K.T
 
 
-def _d_rate_d_angles(angles: FloatArray, omega: FloatArray, step: float = 1e-6) -> FloatArray:
-    """Jacobian of E^-1(angles) @ omega with respect to the angles (central differences)."""
-    out = np.empty((3, 3))
-    for j in range(3):
-        delta = np.zeros(3)
-        delta[j] = step
-        out[:, j] = (euler_rate_matrix(angles + delta) @ omega - euler_rate_matrix(angles - delta) @ omega) / (2 * step)
-    return out
+def _d_rate_d_angles(angles: FloatArray, omega: FloatArray) -> FloatArray:
+    """Jacobian of E^-1(angles) @ omega with respect to the angles (analytic; a test checks it numerically).
+
+    With a = q sin(roll) + r cos(roll) and b = q cos(roll) - r sin(roll): d(az)/dt = a / cos(el),
+    d(el)/dt = b, d(roll)/dt = p + a tan(el); da/droll = b, db/droll = -a; nothing depends on az.
+    """
+    _, el, roll = float(angles[0]), float(angles[1]), float(angles[2])
+    _, q, r = float(omega[0]), float(omega[1]), float(omega[2])
+    ce, se, cr, sr = np.cos(el), np.sin(el), np.cos(roll), np.sin(roll)
+    a, b = q * sr + r * cr, q * cr - r * sr
+    return np.array([[0.0, a * se / ce**2, b / ce], [0.0, 0.0, -a], [0.0, a / ce**2, b * se / ce]])
 
 
 def run_head_ekf(
@@ -188,8 +195,8 @@ def run_head_ekf(
     ekf = HeadEkf(mode, config)
     arrival = t_tracker + latency_s
     angles_tracker = euler_zyx_from_quat(quat_tracker)
-    quats = np.full((len(t_gyro), 4), np.nan)
-    covs = np.full((len(t_gyro), 3, 3), np.nan)
+    angles = np.full((len(t_gyro), 3), np.nan)
+    angle_covs = np.full((len(t_gyro), 3, 3), np.nan)
     j = 0
     for i, t in enumerate(t_gyro):
         while j < len(arrival) and arrival[j] <= t + 1e-9:
@@ -201,6 +208,6 @@ def run_head_ekf(
         if not ekf.started:
             continue
         ekf.gyro(t, omega[i])
-        quats[i] = quat_from_euler_zyx(ekf.x[:3])
-        covs[i] = ekf.attitude_cov_body()
-    return quats, covs
+        angles[i] = ekf.x[:3]
+        angle_covs[i] = ekf.P[:3, :3]
+    return quat_from_euler_zyx(angles), attitude_cov_body(angles, angle_covs)

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..factors.gaze import SceneCamera
 from ..factors.imu import GRAVITY_M_S2
-from ..geometry import FloatArray, euler_rate_matrix, wrap_angle
+from ..geometry import FloatArray, euler_rate_matrix, quat_wxyz_from_rot3, wrap_angle
 from .ekf import joseph_update
 from .ekf9 import Ekf9Config, _tilt_compensated_yaw
 
@@ -34,6 +34,8 @@ class GazeEkfConfig:
     (0.05 chosen with the above; 0.02 and 0.2 scored worse)."""
     pixel_sigma: float = 5.0
     """Gaze pixel noise, pixels."""
+    use_mag: bool = True
+    """Correct the yaw with the magnetometer (off for a recording whose magnetometer cannot be calibrated)."""
 
 
 def _pixel(x: FloatArray, wall_m: float, camera: SceneCamera) -> FloatArray:
@@ -45,13 +47,39 @@ def _pixel(x: FloatArray, wall_m: float, camera: SceneCamera) -> FloatArray:
 def run_gaze_ekf(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray, tracker_t: FloatArray, gaze_px: FloatArray, wall_m: float,
                  camera: SceneCamera, config: GazeEkfConfig | None = None) -> FloatArray:
     """Gaze point (GX, GZ) on the wall at every tracker sample, causal, shape (M, 2)."""
+    return run_gaze_ekf_full(t, gyro, accel, mag, tracker_t, gaze_px, wall_m, camera, config)[0]
+
+
+def run_gaze_ekf_full(
+    t: FloatArray,
+    gyro: FloatArray,
+    accel: FloatArray,
+    mag: FloatArray,
+    tracker_t: FloatArray,
+    gaze_px: FloatArray,
+    wall_m: float,
+    camera: SceneCamera,
+    config: GazeEkfConfig | None = None,
+    wall_facing_start: bool = False,
+) -> tuple[FloatArray, FloatArray]:
+    """Gaze point (GX, GZ) on the wall and head attitude world_R_head (w, x, y, z) at every tracker sample, causal.
+
+    ``wall_facing_start``: the wall is not world x = D but faces the filter's first heading (a recording
+    without a known wall): the yaw state is counted from that heading, and the attitude returned adds it back.
+    The attitude at a sample is the state after its update, carried back by the gyro over the part of
+    the IMU step after the sample's time.
+    """
     cfg = config or GazeEkfConfig()
     a0 = accel[0] / np.linalg.norm(accel[0])
     x = np.zeros(5)
     x[1], x[2] = np.arctan2(-a0[0], np.hypot(a0[1], a0[2])), np.arctan2(a0[1], a0[2])
-    x[0] = _tilt_compensated_yaw(x[:3], mag[0])
+    x[0] = _tilt_compensated_yaw(x[:3], mag[0]) if cfg.use_mag else 0.0
+    wall_yaw = 0.0
+    if wall_facing_start:
+        wall_yaw, x[0] = x[0], 0.0
     P = np.diag([0.3, 0.05, 0.05, 0.5, 0.5]) ** 2
     out = np.full((len(tracker_t), 2), np.nan)
+    attitude = np.full((len(tracker_t), 4), np.nan)
     j = 0
     angle_rows = slice(0, 1)
     for i in range(1, len(t)):
@@ -70,8 +98,9 @@ def run_gaze_ekf(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatA
         H[:, :3] = GRAVITY_M_S2 * np.array([[0.0, -cp, 0.0], [0.0, -sr * sp, cr * cp], [0.0, -cr * sp, -sr * cp]])
         sigma = cfg.head.accel_sigma_m_s2 + cfg.head.accel_inflation * abs(np.linalg.norm(accel[i]) - GRAVITY_M_S2)
         x, P = joseph_update(x, P, accel[i] - predicted, H, sigma**2 * np.eye(3), angle_rows=angle_rows)
-        residual = wrap_angle(_tilt_compensated_yaw(x[:3], mag[i]) - x[0])
-        x, P = joseph_update(x, P, np.array([residual]), np.eye(5)[:1], np.array([[cfg.head.mag_yaw_sigma_rad**2]]), angle_rows=angle_rows)
+        if cfg.use_mag:
+            residual = wrap_angle(_tilt_compensated_yaw(x[:3], mag[i]) - wall_yaw - x[0])
+            x, P = joseph_update(x, P, np.array([residual]), np.eye(5)[:1], np.array([[cfg.head.mag_yaw_sigma_rad**2]]), angle_rows=angle_rows)
         while j < len(tracker_t) and tracker_t[j] <= t[i]:
             predicted_px = _pixel(x, wall_m, camera)
             H = np.empty((2, 5))
@@ -81,5 +110,7 @@ def run_gaze_ekf(t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatA
                 H[:, c] = (_pixel(x + d, wall_m, camera) - _pixel(x - d, wall_m, camera)) / 2e-6
             x, P = joseph_update(x, P, gaze_px[j] - predicted_px, H, cfg.pixel_sigma**2 * np.eye(2), angle_rows=angle_rows)
             out[j] = x[3:]
+            back = gtsam.Rot3.Expmap(-omega * (t[i] - tracker_t[j]))
+            attitude[j] = quat_wxyz_from_rot3(gtsam.Rot3.Ypr(x[0] + wall_yaw, x[1], x[2]).compose(back))
             j += 1
-    return out
+    return out, attitude

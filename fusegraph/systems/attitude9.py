@@ -317,32 +317,21 @@ def format_broad_table(result: dict[str, Any]) -> str:
 
 
 def plot_broad(result: dict[str, Any], path: str | Path) -> Path:
-    """Grouped bars of total RMSE per trial and method, with the inclination part hatched, as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+    """Grouped bars of the total and the inclination RMSE per trial and method (log scale), as a PNG."""
     import matplotlib.pyplot as plt
+
+    from ..plots import grouped_bars, save_figure
 
     trials = list(result["trials"])
     methods = list(result["mean"])
-    width = 0.8 / len(methods)
     fig, axes = plt.subplots(2, 1, figsize=(max(8, 1.1 * len(trials) + 2), 7), sharex=True)
-    x = np.arange(len(trials) + 1)
     labels = [t.split("_", 1)[0] + "\n" + t.split("_", 1)[-1].replace("undisturbed_", "").replace("disturbed_", "")[:18] for t in trials] + ["mean"]
-    for i, method in enumerate(methods):
-        total = [result["trials"][t][method]["total"] for t in trials] + [result["mean"][method]["total"]]
-        incl = [result["trials"][t][method]["inclination"] for t in trials] + [result["mean"][method]["inclination"]]
-        axes[0].bar(x + (i - (len(methods) - 1) / 2) * width, total, width, label=method)
-        axes[1].bar(x + (i - (len(methods) - 1) / 2) * width, incl, width, label=method)
+    for ax, key in zip(axes, ("total", "inclination"), strict=True):
+        grouped_bars(ax, labels, {m: [result["trials"][t][m][key] for t in trials] + [result["mean"][m][key]] for m in methods})
     axes[0].set_ylabel("total RMSE (deg)")
     axes[1].set_ylabel("inclination RMSE (deg)")
     axes[0].set_yscale("log")
     axes[1].set_yscale("log")
     axes[0].legend(ncol=len(methods), fontsize=8)
-    axes[1].set_xticks(x, labels, fontsize=7)
     fig.suptitle("BROAD: orientation error per trial (log scale)")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)

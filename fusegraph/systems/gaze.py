@@ -16,19 +16,20 @@ of the sample's keyframe.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
 
-from ..factors.gaze import FixationNoise, SceneCamera, fixation_walk, gaze_factor, wall_plane_prior
+from ..factors.gaze import FixationNoise, SceneCamera, depth_prior, fixation_walk, gaze_factor, wall_plane_prior
 from ..factors.imu import MotionPriors
 from ..factors.mag import MagNoise
-from ..geometry import FloatArray
+from ..geometry import FloatArray, quat_wxyz_from_rot3
 from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
 from ..scenarios.gaze import GazeScenarioConfig, GazeSession, simulate_gaze
 from ..session import Session, SessionError
-from ..solvers.ekf_gaze import run_gaze_ekf
+from ..solvers.ekf_gaze import GazeEkfConfig, run_gaze_ekf_full
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from .attitude9 import attitude_tracker
 
@@ -65,6 +66,8 @@ class GazeGraph:
         self._points = 0  # keyframes that have a fixation point
         self.sample_keyframe = np.full(len(session.tracker_t), -1)
         """Keyframe each gaze sample was attached to."""
+        self.keyframe_R_sample = np.tile(np.eye(3), (len(session.tracker_t), 1, 1))
+        """The gyro's rotation from a gaze sample's keyframe to the sample (what its factor carries)."""
         self.gyro_bias = np.zeros(3)
         """Gyro bias used to carry a gaze sample from its keyframe (the online solver refreshes it)."""
         self._cumulative_k = -1
@@ -102,17 +105,24 @@ class GazeGraph:
         """
         s = self.session
         j = int(np.searchsorted(s.tracker_t, self.builder.keyframe_t[k], side="right") - 1)
+        depth = self.session.config.target_depth_m
         if j < 0:
-            return np.array([self.wall_m, 0.0, 0.0])
+            return np.array([depth or self.wall_m, 0.0, 0.0])
         world_R_head = self.builder.predicted_attitude.matrix() if k == self.builder.latest_keyframe else np.eye(3)
         ray = world_R_head @ self.camera.ray(s.gaze_px[j])[0]
+        if depth is not None:
+            return ray * depth
         if ray[0] <= 1e-3:
             return np.array([self.wall_m, 0.0, 0.0])
         return ray * (self.wall_m / ray[0])
 
     def _add_point(self, k: int) -> None:
-        self.builder.add_variable(G(k), self._initial_point(k))
-        self.builder.add_factor(k, wall_plane_prior(G(k), self.wall_m, self.model.fixation))
+        point = self._initial_point(k)
+        self.builder.add_variable(G(k), point)
+        if self.session.config.target_depth_m is None:
+            self.builder.add_factor(k, wall_plane_prior(G(k), self.wall_m, self.model.fixation))
+        else:
+            self.builder.add_factor(k, depth_prior(G(k), point, self.model.fixation))
         if k > 0:
             dt = self.builder.keyframe_t[k] - self.builder.keyframe_t[k - 1]
             self.builder.add_factor(k - 1, fixation_walk(G(k - 1), G(k), dt, self.model.fixation))
@@ -136,15 +146,24 @@ class GazeGraph:
 
     def _add_gaze(self, j: int, k: int) -> None:
         s = self.session
-        factor = gaze_factor(X(k), G(k), s.gaze_px[j], self._rotation_since_keyframe(k, float(s.tracker_t[j])), self.camera)
-        self.builder.add_factor(k, factor)
+        keyframe_R_sample = self._rotation_since_keyframe(k, float(s.tracker_t[j]))
+        self.builder.add_factor(k, gaze_factor(X(k), G(k), s.gaze_px[j], keyframe_R_sample, self.camera))
         self.sample_keyframe[j] = k
+        self.keyframe_R_sample[j] = keyframe_R_sample.matrix()
+
+    def sample_attitudes(self, keyframe_attitude: Callable[[int], gtsam.Rot3], samples: Iterable[int]) -> FloatArray:
+        """world_R_head (quaternions w, x, y, z) at the given gaze samples: their keyframe's attitude carried by the gyro."""
+        rows = [j for j in samples if self.sample_keyframe[j] >= 0]
+        out = np.full((len(self.session.tracker_t), 4), np.nan)
+        for j in rows:
+            out[j] = quat_wxyz_from_rot3(keyframe_attitude(int(self.sample_keyframe[j])).compose(gtsam.Rot3(self.keyframe_R_sample[j])))
+        return out
 
 
 def from_session(session: Session) -> GazeSession:
     """A gaze session directory's content as the system's input: head ``gyro``/``accel``/``mag`` sampled
-    together, the tracker's ``gaze`` pixels (kind ``pixel``, camera in its metadata), ``wall_m`` in
-    ``[session]``; the truth (gaze point, world x, y, z at the tracker times) is optional."""
+    together, the tracker's ``gaze`` pixels (kind ``pixel``, camera in its metadata), ``wall_m`` (or, without a
+    wall, ``target_depth_m``) in ``[session]``; the truth (gaze point, world x, y, z at the tracker times) is optional."""
     where = session.where
     imu = dict(zip(("gyro", "accel", "mag"), session.synchronous("gyro", "accel", "mag"), strict=True))
     t = imu["gyro"].t
@@ -152,11 +171,20 @@ def from_session(session: Session) -> GazeSession:
     if gaze_stream.kind != "pixel":
         raise SessionError(f"{where}: stream 'gaze' must be of kind 'pixel', not '{gaze_stream.kind}'")
     header = session.meta.get("session", {})
-    if "wall_m" not in header:
-        raise SessionError(f"{where}: [session] needs wall_m (distance to the wall, metres)")
+    if "wall_m" not in header and "target_depth_m" not in header:
+        raise SessionError(
+            f"{where}: [session] needs wall_m (distance to the wall, metres) or, without a wall, target_depth_m "
+            "(depth at which each fixation point is held, metres)"
+        )
     m = gaze_stream.meta
     camera = SceneCamera(**{k: type(getattr(SceneCamera(), k))(m[k]) for k in ("focal_px", "width_px", "height_px", "pixel_sigma") if k in m})
-    config = GazeScenarioConfig(duration_s=float(t[-1] - t[0]), switch_s=float(header.get("switch_s", np.nan)), wall_m=float(header["wall_m"]), camera=camera)
+    config = GazeScenarioConfig(
+        duration_s=float(t[-1] - t[0]),
+        switch_s=float(header.get("switch_s", np.nan)),
+        wall_m=float(header.get("wall_m", np.nan)),
+        target_depth_m=float(header["target_depth_m"]) if "wall_m" not in header else None,
+        camera=camera,
+    )
     truth = np.full((len(gaze_stream), 2), np.nan)
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream):
         truth = session.truth.values[:, 1:3].copy()
@@ -170,13 +198,26 @@ def _block(session: GazeSession, model: GazeModel) -> int:
     return max(1, int(round(model.head.keyframe_period_s / dt)))
 
 
-def run_online(session: GazeSession, model: GazeModel | None = None) -> tuple[FloatArray, float]:
-    """Causal gaze point (X, Z) on the wall per tracker sample, and the run time."""
+@dataclass(frozen=True)
+class GazeEstimate:
+    """One method's output at every gaze sample."""
+
+    points_xz_m: FloatArray
+    """Gaze point on the wall (X, Z), metres, shape (M, 2) (with ``target_depth_m``: the world y, z of the point)."""
+    world_R_head: FloatArray
+    """Head attitude at each gaze sample's time (quaternion w, x, y, z), shape (M, 4); NaN where none."""
+    runtime_s: float
+    """Wall time of the run, seconds."""
+
+
+def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEstimate:
+    """Causal gaze point (X, Z) on the wall and head attitude per tracker sample (right after the update that added it)."""
     model = model or GazeModel()
     start = time.perf_counter()
     graph = GazeGraph(session, model)
     solver = OnlineSmoother(graph.builder, model.online)
     out = np.full((len(session.tracker_t), 2), np.nan)
+    attitude = np.full((len(session.tracker_t), 4), np.nan)
     block = _block(session, model)
     for i in range(0, len(session.t), block):
         added = graph.push(i, i + block)
@@ -187,12 +228,15 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> tuple[Fl
         graph.gyro_bias = graph.builder.posterior_gyro_bias[k] if graph.builder.posterior_gyro_bias else graph.gyro_bias
         for j in added:
             kj = graph.sample_keyframe[j]
-            out[j] = (point if kj == k else solver.isam.calculateEstimatePoint3(G(kj)))[1:]
-    return out, time.perf_counter() - start
+            if kj >= 0:  # a sample before the first keyframe has no factor and no estimate
+                out[j] = (point if kj == k else solver.isam.calculateEstimatePoint3(G(kj)))[1:]
+        now = graph.sample_attitudes(lambda kj: solver.isam.calculateEstimatePose3(X(kj)).rotation(), added)
+        attitude[list(added)] = now[list(added)]
+    return GazeEstimate(out, attitude, time.perf_counter() - start)
 
 
-def run_batch(session: GazeSession, model: GazeModel | None = None) -> tuple[FloatArray, float]:
-    """Smoothed gaze point per tracker sample (its keyframe's point), and the run time.
+def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstimate:
+    """Smoothed gaze point per tracker sample (its keyframe's point) and head attitude at each sample.
 
     As the 9-axis batch: heading factors levelled first with dead reckoning (Gaussian), then with
     the first pass's attitude (Cauchy); levelling with a gyro-bias-drifted attitude once put the
@@ -223,14 +267,19 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> tuple[Flo
     out = np.full((len(session.tracker_t), 2), np.nan)
     attached = graph.sample_keyframe >= 0
     out[attached] = points[graph.sample_keyframe[attached]][:, 1:]
-    return out, time.perf_counter() - start
+    at_samples = graph.sample_attitudes(lambda k: values.atPose3(X(k)).rotation(), range(len(session.tracker_t)))
+    return GazeEstimate(out, at_samples, time.perf_counter() - start)
 
 
-def run_ekf(session: GazeSession) -> tuple[FloatArray, float]:
+def run_ekf(session: GazeSession, config: GazeEkfConfig | None = None) -> GazeEstimate:
+    """The gaze paper's EKF; without a wall (``target_depth_m``) its wall faces its own first heading at that distance."""
     start = time.perf_counter()
     s = session
-    out = run_gaze_ekf(s.t, s.gyro_rad_s, s.accel_m_s2, s.mag, s.tracker_t, s.gaze_px, s.config.wall_m, s.config.camera)
-    return out, time.perf_counter() - start
+    wall_m = s.config.wall_m if s.config.target_depth_m is None else s.config.target_depth_m
+    out, attitude = run_gaze_ekf_full(
+        s.t, s.gyro_rad_s, s.accel_m_s2, s.mag, s.tracker_t, s.gaze_px, wall_m, s.config.camera, config, wall_facing_start=s.config.target_depth_m is not None
+    )
+    return GazeEstimate(out, attitude, time.perf_counter() - start)
 
 
 def rms_mm(estimate: FloatArray, session: GazeSession, skip_s: float = 1.0) -> dict[str, float]:
@@ -250,7 +299,8 @@ def gaze_report(seeds: tuple[int, ...] = (0,), plot: str | None = None) -> dict[
         session = simulate_gaze(seed)
         session0 = session0 or session
         for name, run in runners.items():
-            est, seconds = run(session)  # type: ignore[operator]
+            result = run(session)  # type: ignore[operator]
+            est, seconds = result.points_xz_m, result.runtime_s
             if seed == seeds[0]:
                 first[name] = est
             r = rms_mm(est, session)

@@ -209,8 +209,8 @@ def _gaze_run(session: Session, solver: str) -> Result:
     from . import gaze
 
     data = gaze.from_session(session)
-    point, seconds = gaze.RUNNERS[solver](data)  # type: ignore[operator]
-    return PointEstimate(solver, data.tracker_t.copy(), np.asarray(point)[:, None, :], ("X_m", "Z_m"), float(seconds))
+    result = gaze.RUNNERS[solver](data)  # type: ignore[operator]
+    return PointEstimate(solver, data.tracker_t.copy(), np.asarray(result.points_xz_m)[:, None, :], ("X_m", "Z_m"), float(result.runtime_s))
 
 
 def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
@@ -509,8 +509,13 @@ PRESETS: dict[str, Preset] = {
         summary="the gaze point on a wall in world coordinates from a head 9-axis IMU and an eye tracker's scene-image gaze pixels",
         streams="gyro, accel, mag sampled together; gaze (kind pixel, with the scene camera's focal_px, width_px, height_px, pixel_sigma); "
         "optional head attitude tracker (kind attitude, own room frame, latency_s)",
-        session_keys=(KeySpec("wall_m", None, "distance from the head to the wall along world +x, m (required)"),
-                      KeySpec("switch_s", None, "simulations: when the subject switches to the second mark, s (documentation)")),
+        session_keys=(KeySpec("wall_m", None, "distance from the head to the wall along world +x, m (this or target_depth_m is required)"),
+                      KeySpec("target_depth_m", None, "no wall known (a recording in a room): each fixation point held at this depth "
+                              "along its first ray, m; the EKF's wall faces its first heading at this distance"),
+                      KeySpec("switch_s", None, "simulations: when the subject switches to the second mark, s (documentation)"),
+                      KeySpec("gaze_untracked", None, "imports: gaze lines without a measurement (blinks), count (documentation)"),
+                      KeySpec("mag_rate_hz", None, "imports: the magnetometer's own rate before it was interpolated onto the IMU times, Hz "
+                              "(documentation)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)"},
         run=_gaze_run,
         score=_gaze_score,

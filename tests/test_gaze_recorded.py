@@ -1,0 +1,83 @@
+"""Gaze on a recording without ground truth: the Tobii loader, the gaze-to-IMU offset, fixations and dispersion."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import requires_shared_data
+
+from fusegraph.factors.gaze import SceneCamera
+from fusegraph.geometry import matrix_from_quat, quat_from_rotvec
+from fusegraph.scenarios.gaze import GazeScenarioConfig, GazeSession
+from fusegraph.systems.gaze_recorded import dispersion_deg, fixations, gaze_time_offset
+
+
+def _vor_session(delay_s: float, seed: int = 0) -> tuple[GazeSession, np.ndarray]:
+    """The head turns back and forth in yaw while the eyes hold a target still in the world (perfect VOR),
+    with a saccade to a new target every 2 s; the gaze stream is stamped ``delay_s`` late."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 20.0, 1 / 120)
+    yaw = np.deg2rad(15.0) * np.sin(2 * np.pi * 0.4 * t) + np.deg2rad(5.0) * np.sin(2 * np.pi * 1.1 * t)
+    yaw_rate = np.deg2rad(15.0) * 2 * np.pi * 0.4 * np.cos(2 * np.pi * 0.4 * t) + np.deg2rad(5.0) * 2 * np.pi * 1.1 * np.cos(2 * np.pi * 1.1 * t)
+    gyro = np.stack([np.zeros_like(t), np.zeros_like(t), yaw_rate], axis=1) + rng.normal(0, 0.002, (t.size, 3))
+    quat = quat_from_rotvec(np.stack([np.zeros_like(t), np.zeros_like(t), yaw], axis=1))
+    taken = np.arange(0.05, 19.9, 0.01)  # gaze sample instants
+    targets = np.deg2rad(rng.uniform(-10, 10, (10, 2)))
+    az, el = targets[(taken // 2).astype(int)].T
+    world_dir = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)
+    head_yaw = np.interp(taken, t, yaw)
+    head_dir = np.einsum("nji,nj->ni", matrix_from_quat(quat_from_rotvec(np.stack([0 * taken, 0 * taken, head_yaw], axis=1))), world_dir)
+    camera = SceneCamera(focal_px=880.0, width_px=1920, height_px=1080, pixel_sigma=5.0)
+    pixels = camera.project(head_dir) + rng.normal(0, 2.0, (taken.size, 2))
+    quat_at_gaze = quat_from_rotvec(np.stack([0 * taken, 0 * taken, head_yaw], axis=1))
+    session = GazeSession(
+        t=t,
+        gyro_rad_s=gyro,
+        accel_m_s2=np.tile([0, 0, 9.81], (t.size, 1)),
+        mag=np.tile([1.0, 0, 0], (t.size, 1)),
+        tracker_t=taken + delay_s,
+        gaze_px=pixels,
+        truth_quat_wxyz=quat,
+        truth_gaze_xz_m=np.full((taken.size, 2), np.nan),
+        config=GazeScenarioConfig(camera=camera, target_depth_m=2.0),
+    )
+    return session, quat_at_gaze
+
+
+def test_offset_fixations_and_dispersion_on_a_perfect_reflex() -> None:
+    session, true_attitude = _vor_session(0.08)
+    offset, sigma = gaze_time_offset(session, bootstrap=30)
+    # the grid step is 2.5 ms and the smoothing window 90 ms; 10 ms is well inside what a wrong sign or frame would give (160 ms)
+    assert offset == pytest.approx(0.08, abs=0.01) and 0.0 < sigma < 0.02
+    found = fixations(session, offset)
+    assert len(found) >= 8  # one per 2 s target, minus any where the head barely turned
+    from dataclasses import replace
+
+    aligned = replace(session, tracker_t=session.tracker_t - offset)
+    held = dispersion_deg(true_attitude, aligned, found)
+    free = dispersion_deg(None, aligned, found)
+    assert held < 0.3  # pixel noise 2 px at 880 px/rad: 0.13 deg per axis, plus the edges of each fixation
+    assert free > 5 * held  # the eye counter-rotated by several degrees inside each fixation
+    broken = true_attitude.copy()
+    broken[found[0].rows[0]] = np.nan
+    assert np.isnan(dispersion_deg(broken, aligned, found))  # no attitude on a fixation sample: the method fails, not skipped
+
+
+@requires_shared_data("gaze_tobii")
+def test_tobii_export_loads_in_si_units_and_head_axes() -> None:
+    from fusegraph.datasets.tobii import DEFAULT_DIR, load_tobii
+    from fusegraph.systems.gaze import from_session
+
+    session = load_tobii(DEFAULT_DIR)
+    gyro, accel, mag, gaze = (session.stream(n) for n in ("gyro", "accel", "mag", "gaze"))
+    assert gyro.meta["rate_hz"] == pytest.approx(117, abs=2) and len(gaze) > 6000
+    still = gyro.t < 1.0
+    peak = np.max(np.linalg.norm(gyro.values, axis=1))
+    assert 1.0 < peak < 6.0  # rad/s: head turns up to ~130 deg/s in the file's deg/s, converted
+    assert np.median(accel.values[still], axis=0) @ [0, 0, 1] == pytest.approx(9.6, abs=0.3)  # z up in the head frame
+    np.testing.assert_array_equal(mag.t, gyro.t)  # interpolated onto the IMU times
+    assert session.meta["session"]["gaze_untracked"] == 412  # blinks: counted, not silently dropped
+    inside = (np.abs(gaze.values[:, 0]) <= 960) & (np.abs(gaze.values[:, 1]) <= 540)
+    assert inside.mean() > 0.9  # pixels from the centre of the 1920 x 1080 image (the eyes look past its edge at times: 7 %)
+    data = from_session(session)
+    assert data.config.target_depth_m == 2.0 and data.config.camera.focal_px == 880.0
