@@ -175,15 +175,17 @@ def build_parser() -> argparse.ArgumentParser:
     tun = sub.add_parser("tune", help="choose free settings by one rule: a grid on tuning seeds 100-119, or leave-one-trial-out on BROAD",
                          description="Every setting a paper leaves open (a baseline's noise) and every free setting of ours is chosen by "
                          "the same rule: the grid printed here, scored on TUNING seeds 100-119 (reports score 0-9), or on real data by "
-                         "leave-one-trial-out with the cross-validated figure beside the in-sample one. The chosen values are written "
-                         "in the code beside the study's name. Studies: gaze_ekf, bicycle_ekf, head_ekf, head_ekf_method1, head_ekf_kalman, "
+                         "leave-one-trial-out with the cross-validated figure beside the in-sample one. With --write the chosen values go "
+                         "to fusegraph/tuned.toml (with the seeds or trials and the score), which the reports and benches read. "
+                         "Studies: gaze_ekf, bicycle_ekf, head_ekf, head_ekf_method1, head_ekf_kalman, "
                          "walking_fixes, head_no_gyro (simulated); "
                          "broad_ekf, broad_mag (BROAD trials).",
-                         epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune broad_mag --solver batch",
+                         epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune head_ekf --write\n  fusegraph tune broad_mag --solver batch --write",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     tun.add_argument("study", help="the study's name (see above)")
     tun.add_argument("--seeds", type=_seeds_arg, help="tuning seeds (default 100-119; test seeds 0-9 are refused)")
     tun.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag: the estimate the settings are chosen for")
+    tun.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml, which the reports and benches read")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
                          description="Read each declared input from an LSL stream (sample times from LSL's clock, time-corrected), feed the "
@@ -562,7 +564,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def _cmd_tune(args: argparse.Namespace) -> int:
     from .tuning import main as tune_main
 
-    argv = [args.study, "--solver", args.solver]
+    argv = [args.study, "--solver", args.solver] + (["--write"] if args.write else [])
     if args.seeds:
         argv += ["--seeds", str(min(args.seeds)), str(max(args.seeds))]
     return tune_main(argv)

@@ -3,7 +3,8 @@
 Reports and benches score seeds 0-9 (``TEST_SEEDS``); every setting that a paper leaves open (a
 baseline's noise figures) or that we choose (a graph's kernel) is picked here on seeds 100-119
 (``TUNING_SEEDS``), which no report prints. ``python -m fusegraph.tuning NAME`` reruns a study and
-prints its table; the chosen values are written into the code with the study's name beside them.
+prints its table; with ``--write`` the chosen values go to ``fusegraph/tuned.toml`` (``fusegraph.tuned``), which the
+code reads its defaults from.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from .tuned import write_tuned
 
 TUNING_SEEDS: tuple[int, ...] = tuple(range(100, 120))
 """Seeds every free setting is chosen on."""
@@ -78,6 +81,12 @@ def leave_one_group_out(scores: Mapping[str, Mapping[str, float]]) -> dict[str, 
             "held_out": held_out, "all": in_sample}
 
 
+BROAD_EKF_GRID: Mapping[str, Sequence[float]] = {"gyro_sigma_rad_s": (0.01, 0.03, 0.1, 0.3), "accel_inflation": (0.0, 20.0)}
+"""The 9-axis EKF's open settings tried by ``broad_ekf``."""
+BROAD_MAG_GRID: Mapping[str, Sequence[float]] = {"heading_sigma_deg": (3.0, 5.0, 10.0), "gains": (10.0, 20.0, 40.0), "cauchy_k": (1.0, 2.0)}
+"""Our magnetometer settings tried by ``broad_mag`` (the norm and dip gains move together)."""
+
+
 def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     """The 9-axis EKF's open settings (gyro noise; the accelerometer-noise inflation with | |a| - g |, which no
     paper has) chosen by leave-one-trial-out on the BROAD trials: total RMSE, degrees."""
@@ -85,7 +94,7 @@ def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     from .solvers.ekf9 import Ekf9Config, run_ekf9
     from .systems.attitude9 import imu9, model_for
 
-    grid = [(g, a) for g in (0.01, 0.03, 0.1, 0.3) for a in (0.0, 20.0)]
+    grid = list(itertools.product(*BROAD_EKF_GRID.values()))
     scores: dict[str, dict[str, float]] = {f"gyro_sigma_rad_s={g} accel_inflation={a}": {} for g, a in grid}
     for path in trial_paths(directory or DEFAULT_DIR):
         session = load_broad(path)
@@ -108,7 +117,7 @@ def broad_mag_logo(directory: str | None = None, solver: str = "online") -> dict
     from .systems import attitude9
 
     base = Attitude9Model()
-    grid = [(h, g, k) for h in (3.0, 5.0, 10.0) for g in (10.0, 20.0, 40.0) for k in (1.0, 2.0)]
+    grid = list(itertools.product(*BROAD_MAG_GRID.values()))
     run = attitude9.run_online if solver == "online" else attitude9.run_batch
     scores: dict[str, dict[str, float]] = {f"heading_sigma_deg={h} gains={g} cauchy_k={k}": {} for h, g, k in grid}
     for path in trial_paths(directory or DEFAULT_DIR):
@@ -196,19 +205,12 @@ def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
 
 
 def _head_ekf_score(setting: dict[str, Any], seed: int, mode: str = "method2") -> float:
-    from dataclasses import replace
-
     from .metrics import score_attitude
-    from .solvers.ekf import HeadEkfConfig
-    from .systems.head import run_ekf
+    from .systems.head import ekf_config_from, run_ekf
 
     session = _simulated("head", seed)
-    base = HeadEkfConfig()
-    config = replace(base, process_angle_sigma_rad=setting["process_scale"] * base.process_angle_sigma_rad,
-                     process_rate_sigma_rad_s=setting["process_scale"] * base.process_rate_sigma_rad_s,
-                     gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], tracker_sigma_rad=setting["tracker_sigma_rad"])
     assert session.truth is not None
-    return float(np.mean(score_attitude(run_ekf(session, mode, config), session.truth.t, session.truth.values).rms_rad))
+    return float(np.mean(score_attitude(run_ekf(session, mode, ekf_config_from(setting)), session.truth.t, session.truth.values).rms_rad))
 
 
 STUDIES: dict[str, Study] = {
@@ -218,10 +220,10 @@ STUDIES: dict[str, Study] = {
                          "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),
     "walking_fixes": Study("walking_fixes", {"kernel_width": (1.0, 3.0, 5.0, 8.0), "reject_sigmas": (3.0, 5.0, 8.0)}, _walking_fixes_score,
                            "m, batch position RMSE with 20 % wrong image fixes"),
-    "head_ekf": Study("head_ekf", {"process_scale": (0.5, 1.0, 2.0), "gyro_sigma_rad_s": (0.05, 0.15, 0.45),
+    "head_ekf": Study("head_ekf", {"process_scale": (0.03125, 0.0625, 0.125, 0.25, 0.5, 1.0), "gyro_sigma_rad_s": (0.15, 0.45, 1.35, 4.05),
                                    "tracker_sigma_rad": (0.0134, 0.0268, 0.0536)}, _head_ekf_score,
                       "rad, mean of the azimuth/elevation/roll RMS of Method II (the paper's noise: scale 1, 0.15, 0.0268)"),
-    "head_ekf_method1": Study("head_ekf_method1", {"process_scale": (0.0625, 0.25, 1.0), "gyro_sigma_rad_s": (0.05, 0.15, 0.45),
+    "head_ekf_method1": Study("head_ekf_method1", {"process_scale": (0.25, 0.5, 1.0), "gyro_sigma_rad_s": (0.15, 0.45, 1.35),
                                                    "tracker_sigma_rad": (0.0268,)}, lambda s, seed: _head_ekf_score(s, seed, "method1"),
                               "rad, mean of the azimuth/elevation/roll RMS of Method I (the paper's noise: scale 1, 0.15, 0.0268)"),
     "head_ekf_kalman": Study("head_ekf_kalman", {"process_scale": (0.25, 0.5, 1.0, 2.0, 4.0), "gyro_sigma_rad_s": (0.15,),
@@ -240,6 +242,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="a simulated study (tuning seeds), or broad_ekf / broad_mag (leave-one-trial-out on BROAD)")
     parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag: the estimate the settings are chosen for")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
+    parser.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml (what the reports read)")
     args = parser.parse_args(argv)
     if args.study not in (*STUDIES, "broad_ekf", "broad_mag"):
         raise ValueError(f"unknown study {args.study!r} (have: {', '.join([*STUDIES, 'broad_ekf', 'broad_mag'])})")
@@ -250,10 +253,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.2f} deg, leave-one-trial-out {result['cross_validated']:.2f} deg")
         for trial, held in result["held_out"].items():
             print(f"  held out {trial:<40} chosen {held['chosen']:<40} {held['score']:7.2f} deg")
+        if args.write:
+            name = "broad_mag_batch" if args.study == "broad_mag" and args.solver == "batch" else args.study
+            chosen = {key: float(v) for key, v in (part.split("=") for part in result["chosen"].split())}
+            unit = "deg, mean total RMSE" + (f" of the {args.solver} estimate" if args.study == "broad_mag" else "") + " (leave-one-trial-out)"
+            entries = {**chosen, "trials": sorted(result["held_out"]), "in_sample": round(result["in_sample"], 4),
+                       "cross_validated": round(result["cross_validated"], 4), "unit": unit}
+            print(f"wrote {write_tuned(name, entries)}")
         return 0
     seeds = tuple(range(args.seeds[0], args.seeds[1] + 1))
     study = STUDIES[args.study]
-    print(format_study(study, run_study(study, seeds), seeds))
+    rows = run_study(study, seeds)
+    print(format_study(study, rows, seeds))
+    if args.write:
+        best, score = rows[0]
+        print(f"wrote {write_tuned(study.name, {**best, 'seeds': [seeds[0], seeds[-1]], 'score': round(score, 6), 'unit': study.unit})}")
     return 0
 
 

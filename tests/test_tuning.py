@@ -42,3 +42,31 @@ def test_tune_command_refuses_test_seeds_and_unknown_studies(capsys: pytest.Capt
     assert "are test seeds" in capsys.readouterr().err
     assert main(["tune", "nope"]) == 2
     assert "unknown study" in capsys.readouterr().err
+
+
+def test_every_chosen_value_in_tuned_toml_is_a_point_of_its_study_grid() -> None:
+    """The values the code reads come from the grid `fusegraph tune` prints (a grid edited without re-running
+    the study, or a value typed in by hand, fails here)."""
+    from fusegraph.tuned import tuned
+    from fusegraph.tuning import BROAD_EKF_GRID, BROAD_MAG_GRID
+
+    grids = {name: study.grid for name, study in STUDIES.items()}
+    grids.update({"broad_ekf": BROAD_EKF_GRID, "broad_mag": BROAD_MAG_GRID, "broad_mag_batch": BROAD_MAG_GRID})
+    for name, grid in grids.items():
+        chosen = tuned(name)
+        for setting, candidates in grid.items():
+            assert chosen[setting] in candidates, f"[{name}] {setting} = {chosen[setting]} is not in the grid {candidates}"
+        assert ("seeds" in chosen and not set(range(chosen["seeds"][0], chosen["seeds"][1] + 1)) & set(TEST_SEEDS)) or "trials" in chosen
+
+
+def test_write_tuned_replaces_one_study_and_keeps_the_others(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import tomllib
+
+    from fusegraph.tuned import write_tuned
+
+    path = tmp_path / "tuned.toml"
+    write_tuned("a", {"x": 1.0, "seeds": [100, 119], "unit": 'deg, "quoted"'}, path)
+    write_tuned("b", {"y": 2, "flag": True}, path)
+    write_tuned("a", {"x": 3.0}, path)
+    table = tomllib.loads(path.read_text())
+    assert table == {"a": {"x": 3.0}, "b": {"y": 2, "flag": True}}

@@ -35,6 +35,7 @@ from ..factors.imu import (
 )
 from ..factors.mag import FieldReference, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
+from ..tuned import tuned
 from .increment import GraphIncrement
 
 
@@ -61,6 +62,13 @@ TRACKER_WORLD = int(gtsam.symbol("a", 0))
 _FREE_TRANSLATION_SIGMA_M = 1e3
 
 
+def mag_noise_tuned(study: str) -> MagNoise:
+    """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``)."""
+    chosen = tuned(study)
+    return MagNoise(heading_sigma_deg=float(chosen["heading_sigma_deg"]), norm_gain=float(chosen["gains"]), dip_gain=float(chosen["gains"]),
+                    cauchy_k=float(chosen["cauchy_k"]))
+
+
 @dataclass(frozen=True)
 class Attitude9Model:
     """Everything the 9-axis graph assumes; one set serves every recording."""
@@ -72,10 +80,10 @@ class Attitude9Model:
     """Gyro and accelerometer noise and bias walks."""
     motion: MotionPriors = field(default_factory=MotionPriors)
     """Zero-mean position/velocity pseudo-measurements and the rest detector."""
-    mag: MagNoise = field(default_factory=lambda: MagNoise(heading_sigma_deg=3.0, cauchy_k=2.0))
-    """Magnetometer heading noise and disturbance rejection: 3 deg and a Cauchy width of 2 sigma chosen for the online
-    estimate by leave-one-trial-out over the eleven BROAD trials (``python -m fusegraph.tuning broad_mag``: 2.75 deg
-    in-sample, 2.87 cross-validated; the previous 5 deg / 1 sigma: 2.95 in-sample). The gains stayed at 20."""
+    mag: MagNoise = field(default_factory=lambda: mag_noise_tuned("broad_mag"))
+    """Magnetometer heading noise and disturbance rejection, chosen for the online estimate by leave-one-trial-out over
+    the eleven BROAD trials (``fusegraph tune broad_mag``, ``tuned.toml``: 3 deg, gains 20, Cauchy 2 sigma; 2.75 deg
+    in-sample, 2.87 cross-validated; the previous 5 deg / 1 sigma: 2.95 in-sample)."""
     mag_calibration: MagCalibration = field(default_factory=MagCalibration)
     """M = G m + B applied to every reading."""
     use_mag: bool = True

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, euler_rate_matrix, matrix_from_quat, quat_from_euler_zyx, wrap_angle
+from ..tuned import value
 from .ekf import joseph_update
 
 
@@ -23,15 +24,14 @@ from .ekf import joseph_update
 class Ekf9Config:
     """Noise figures of the 9-axis EKF (one set for all recordings)."""
 
-    gyro_sigma_rad_s: float = 0.01
+    gyro_sigma_rad_s: float = float(value("broad_ekf", "gyro_sigma_rad_s"))
     """Gyro noise driving the angles, rad/s (the papers give none; chosen as ``accel_inflation`` says)."""
     accel_sigma_m_s2: float = 0.5
     """Accelerometer noise on the gravity direction at rest, m/s^2."""
-    accel_inflation: float = 0.0
-    """Extra sigma per m/s^2 that |a| departs from g (translational acceleration). In no paper: an option,
-    off by default. Chosen with the gyro noise by leave-one-trial-out on the eleven BROAD trials
-    (``python -m fusegraph.tuning broad_ekf``): off and 0.01 rad/s, 7.93 deg in-sample, 12.49 deg
-    cross-validated; with 20 (the earlier default) 31.6 deg in-sample."""
+    accel_inflation: float = float(value("broad_ekf", "accel_inflation"))
+    """Extra sigma per m/s^2 that |a| departs from g (translational acceleration). In no paper: an option. Chosen
+    with the gyro noise by leave-one-trial-out on the eleven BROAD trials (``fusegraph tune broad_ekf``,
+    ``tuned.toml``: off, 7.93 deg in-sample, 12.49 deg cross-validated; 20, the earlier default, 31.6 deg)."""
     mag_yaw_sigma_rad: float = 0.1
     """Magnetometer yaw noise, rad."""
     mag_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)

@@ -17,6 +17,7 @@ import numpy as np
 from ..factors.gaze import SceneCamera
 from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, euler_rate_matrix, quat_wxyz_from_rot3, wrap_angle
+from ..tuned import value
 from .ekf import joseph_update
 from .ekf9 import Ekf9Config, _tilt_compensated_yaw
 
@@ -25,13 +26,12 @@ from .ekf9 import Ekf9Config, _tilt_compensated_yaw
 class GazeEkfConfig:
     """Noise figures of the gaze EKF."""
 
-    head: Ekf9Config = Ekf9Config(gyro_sigma_rad_s=0.3, accel_inflation=0.0)
-    """Head-angle part. The paper gives no noise values: gyro 0.3 rad/s and no accelerometer inflation (an
-    addition no paper has) were chosen with the gaze walk by ``python -m fusegraph.tuning gaze_ekf`` on seeds
-    100-119 (11.6 mm against 78 mm for the 9-axis figures, 0.01 rad/s with inflation, used before)."""
-    gaze_walk_m_per_sqrt_s: float = 0.05
-    """Random walk of the gaze point, m/sqrt(s): small keeps a fixation steady, large follows a saccade
-    (0.05 chosen with the above; 0.02 and 0.2 scored worse)."""
+    head: Ekf9Config = Ekf9Config(gyro_sigma_rad_s=float(value("gaze_ekf", "gyro_sigma_rad_s")), accel_inflation=float(value("gaze_ekf", "accel_inflation")))
+    """Head-angle part. The paper gives no noise values: the gyro sigma and the accelerometer inflation (an addition no
+    paper has) are chosen with the gaze walk by ``fusegraph tune gaze_ekf`` on seeds 100-119 (``tuned.toml``; 11.6 mm
+    against 78 mm for the 9-axis figures used before)."""
+    gaze_walk_m_per_sqrt_s: float = float(value("gaze_ekf", "gaze_walk_m_per_sqrt_s"))
+    """Random walk of the gaze point, m/sqrt(s): small keeps a fixation steady, large follows a saccade (same study)."""
     pixel_sigma: float = 5.0
     """Gaze pixel noise, pixels."""
     use_mag: bool = True

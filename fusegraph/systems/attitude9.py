@@ -24,9 +24,9 @@ import numpy as np
 
 from ..estimate import Estimate
 from ..factors.attitude import AttitudeTrack
-from ..factors.mag import MagCalibration, MagNoise, fit_mag_calibration
+from ..factors.mag import MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
-from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples
+from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, mag_noise_tuned
 from ..progress import progress
 from ..session import Session, SessionError, SessionWarning
 from ..solvers.online import OnlineConfig, OnlineSmoother
@@ -124,10 +124,10 @@ def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: 
     return gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
 
 
-#: The batch's magnetometer settings (heading sigma 5 deg, disturbance gains 20, Cauchy 1 sigma): chosen for the batch
-#: by leave-one-trial-out over the eleven BROAD trials (``python -m fusegraph.tuning broad_mag --solver batch``: 2.12 deg
-#: in-sample, 2.31 cross-validated); the online estimate's own choice (3 deg, Cauchy 2) scored 2.69 in-sample here.
-BATCH_MAG = MagNoise()
+#: The batch's magnetometer settings, chosen for the batch by leave-one-trial-out over the eleven BROAD trials
+#: (``fusegraph tune broad_mag --solver batch --write``, ``tuned.toml`` [broad_mag_batch]: 5 deg, gains 20, Cauchy 1 sigma;
+#: 2.12 deg in-sample, 2.31 cross-validated); the online estimate's own choice (3 deg, Cauchy 2) scored 2.69 in-sample here.
+BATCH_MAG = mag_noise_tuned("broad_mag_batch")
 
 #: Median heading residual (angle between the levelled field and north) above which a batch solution is
 #: taken as diverged, degrees: a converged batch on BROAD stays within a few degrees, a slid one near 180.

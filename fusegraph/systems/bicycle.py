@@ -28,12 +28,13 @@ from ..session import Session
 from ..solvers.batch import solve_python_loop
 from ..solvers.ekf9 import Ekf9Config, run_ekf9
 from ..solvers.online import OnlineConfig, OnlineSmoother
+from ..tuned import value
 
 METHODS = ("no_removal", "paper_pipeline", "online", "batch")
-PAPER_EKF = Ekf9Config(gyro_sigma_rad_s=0.01, accel_sigma_m_s2=0.5, accel_inflation=0.0)
-"""The papers' EKF with a constant accelerometer noise (the papers give no values): gyro 0.01 rad/s and
-accelerometer 0.5 m/s^2 chosen by ``python -m fusegraph.tuning bicycle_ekf`` on seeds 100-119 (grid gyro
-0.003-0.1 x accelerometer 0.25-4: 2.83 deg against 5.51 for the 2.0 m/s^2 used before)."""
+PAPER_EKF = Ekf9Config(gyro_sigma_rad_s=float(value("bicycle_ekf", "gyro_sigma_rad_s")), accel_sigma_m_s2=float(value("bicycle_ekf", "accel_sigma_m_s2")),
+                       accel_inflation=0.0)
+"""The papers' EKF with a constant accelerometer noise (the papers give no values): gyro and accelerometer sigma chosen
+by ``fusegraph tune bicycle_ekf`` on seeds 100-119 (``tuned.toml``; 2.83 deg against 5.51 for the 2.0 m/s^2 used before)."""
 ONLINE = OnlineConfig(window_s=1.0, reanchor_every=10, relinearize_threshold=0.05, covariance=False, factorization="QR", relinearize=False)
 """iSAM2 as the 9-axis system but with QR (Cholesky reported an indeterminate system on this well-posed
 graph, with or without relinearisation) and no relinearisation between re-anchorings (every 2 s, which

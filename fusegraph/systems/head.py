@@ -9,7 +9,7 @@ paper's EKFs), ``isam2`` (fusegraph online: causal estimate after every gyro sam
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -26,6 +26,7 @@ from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
 from ..solvers.ekf import HeadEkfConfig, run_head_ekf
 from ..solvers.online import OnlineConfig, OnlineSmoother
+from ..tuned import tuned, value
 
 METHODS = ("tracker", "gyro", "kalman", "method1", "method2", "isam2", "batch")
 """Method names in the order of the report's rows."""
@@ -371,25 +372,21 @@ def run_gyro_only(session: Session) -> Estimate:
     return Estimate("gyro", gyro.t.copy(), quats, None, time.perf_counter() - start)
 
 
-#: The paper's EKFs with their noise figures chosen by ``fusegraph tune head_ekf`` on seeds 100-119 (Method II's mean
-#: RMS): process noise x0.0625 of the paper's, gyro 1.35 rad/s, tracker 0.0268 rad (the paper's): 0.01443 rad against
-#: 0.01636 with the paper's own figures (the paper fitted them to its hardware). Smaller process noise kept gaining
-#: less and less (x0.125: 0.01447); the paper's values stay as the ``*_paper_values`` rows.
-TUNED_EKF = replace(HeadEkfConfig(), process_angle_sigma_rad=0.0625 * HeadEkfConfig().process_angle_sigma_rad,
-                    process_rate_sigma_rad_s=0.0625 * HeadEkfConfig().process_rate_sigma_rad_s, gyro_sigma_rad_s=1.35)
+def ekf_config_from(setting: Mapping[str, Any]) -> HeadEkfConfig:
+    """The paper's EKF figures at a tuning setting: ``process_scale`` x the paper's process noise (w1, w2),
+    ``gyro_sigma_rad_s``, and ``tracker_sigma_rad`` when given (else the paper's)."""
+    base = HeadEkfConfig()
+    return replace(base, process_angle_sigma_rad=float(setting["process_scale"]) * base.process_angle_sigma_rad,
+                   process_rate_sigma_rad_s=float(setting["process_scale"]) * base.process_rate_sigma_rad_s,
+                   gyro_sigma_rad_s=float(setting["gyro_sigma_rad_s"]), tracker_sigma_rad=float(setting.get("tracker_sigma_rad", base.tracker_sigma_rad)))
 
 
-#: Method I's own study (``fusegraph tune head_ekf_method1``, seeds 100-119): process noise x0.5, gyro 0.45 rad/s:
-#: 0.01399 rad against 0.0165 with the paper's figures (Method II's tuned figures gave Method I 5x worse: each its own).
-TUNED_EKF_METHOD1 = replace(HeadEkfConfig(), process_angle_sigma_rad=0.5 * HeadEkfConfig().process_angle_sigma_rad,
-                            process_rate_sigma_rad_s=0.5 * HeadEkfConfig().process_rate_sigma_rad_s, gyro_sigma_rad_s=0.45)
-
-
-#: The tracker-only Kalman filter's study (``fusegraph tune head_ekf_kalman``): only the ratio of process to tracker
-#: noise matters; x2 process noise and a 0.0134 rad tracker: 0.03303 rad against 0.0344 with the paper's (x4 ratio and
-#: beyond: the same 0.03303).
-TUNED_EKF_KALMAN = replace(HeadEkfConfig(), process_angle_sigma_rad=2.0 * HeadEkfConfig().process_angle_sigma_rad,
-                           process_rate_sigma_rad_s=2.0 * HeadEkfConfig().process_rate_sigma_rad_s, tracker_sigma_rad=0.0134)
+#: The paper's EKFs, each with its noise figures chosen by its own study on seeds 100-119 (``fusegraph tune head_ekf``,
+#: ``head_ekf_method1``, ``head_ekf_kalman``; the values and scores are in ``fusegraph/tuned.toml``). The paper fitted its
+#: figures to its hardware; they stay as the ``*_paper_values`` rows.
+TUNED_EKF = ekf_config_from(tuned("head_ekf"))
+TUNED_EKF_METHOD1 = ekf_config_from(tuned("head_ekf_method1"))
+TUNED_EKF_KALMAN = ekf_config_from(tuned("head_ekf_kalman"))
 
 
 def run_ekf(session: Session, mode: str, config: HeadEkfConfig | None = None) -> Estimate:
@@ -655,10 +652,9 @@ def _wall_between(t: FloatArray, wall: FloatArray, t0: float, t1: float) -> floa
 # ------------------------------------------------------------------------------ without a gyro
 
 
-#: Constant-angular-velocity model used when the gyro is dropped (see ``without_gyro``).
-#: Angular-acceleration noise 1 rad/s/sqrt(s): picked from 0.5, 1, 2, 5 by ``python -m fusegraph.tuning head_no_gyro``
-#: on seeds 100-119 (online RMS 0.0288 rad; 0.5: 0.0298, 2: 0.0318, 5: 0.0420).
-NO_GYRO_MODEL = GyroNoise(white_sigma_rad_s=0.01, bias_rw_sigma=1.0, bias_prior_sigma_rad_s=2.0)
+#: Constant-angular-velocity model used when the gyro is dropped (see ``without_gyro``). Its angular-acceleration noise
+#: (rad/s/sqrt(s)) is chosen by ``fusegraph tune head_no_gyro`` on seeds 100-119 (``tuned.toml``).
+NO_GYRO_MODEL = GyroNoise(white_sigma_rad_s=0.01, bias_rw_sigma=float(value("head_no_gyro", "bias_rw_sigma")), bias_prior_sigma_rad_s=2.0)
 
 
 def without_gyro(session: Session) -> tuple[Session, HeadModel]:

@@ -118,10 +118,10 @@ def head_session_from_broad(path: str | Path, config: RecordedHeadConfig | None 
 
 # ------------------------------------------------------------------------------------ scoring
 
-#: Method II's open settings, chosen by leave-one-trial-out over the trials of the run (the paper's values
+#: Method II's open settings, chosen by leave-one-trial-out (``_choose``) over the trials of the run (the paper's values
 #: fit its own hardware and rate): process noise (x the paper's w1, w2) and gyro sigma; the tracker sigma
 #: stays the paper's 0.0268 rad (the same tracker error model as the simulated head report's).
-EKF_GRID: tuple[tuple[float, float], ...] = tuple((p, g) for p in (1 / 64, 1 / 16, 1 / 4, 1.0) for g in (0.0167, 0.05, 0.15, 0.45, 1.35))
+EKF_GRID: tuple[tuple[float, float], ...] = tuple((p, g) for p in (1 / 256, 1 / 64, 1 / 16, 1 / 4, 1.0) for g in (0.00185, 0.0056, 0.0167, 0.05, 0.15))
 
 
 def ekf_setting_name(setting: tuple[float, float]) -> str:
@@ -131,13 +131,7 @@ def ekf_setting_name(setting: tuple[float, float]) -> str:
 
 def ekf_config(setting: tuple[float, float]) -> HeadEkfConfig:
     """Method II's figures at a grid point (process noise scaled from the paper's, gyro sigma replaced)."""
-    base = HeadEkfConfig()
-    return replace(
-        base,
-        process_angle_sigma_rad=setting[0] * base.process_angle_sigma_rad,
-        process_rate_sigma_rad_s=setting[0] * base.process_rate_sigma_rad_s,
-        gyro_sigma_rad_s=setting[1],
-    )
+    return head.ekf_config_from({"process_scale": setting[0], "gyro_sigma_rad_s": setting[1]})
 
 
 def scored_samples(session: Session, start_s: float = 1.0) -> FloatArray:
@@ -184,6 +178,19 @@ def _score(estimate: Estimate, session: Session, scored: FloatArray, euler_filte
     return MethodResult(np.full(3, np.nan) if invalid else rms, invalid, estimate.runtime_s)
 
 
+GRAPH_GYRO_GRID: tuple[float, ...] = (0.0005, 0.0015, 0.005, 0.015)
+"""The gyro white noise per sample that fusegraph's graph is told (its one free setting here), chosen by the same
+leave-one-trial-out rule as Method II's; BROAD's IMU has no data sheet in the dataset."""
+
+TUNED_METHODS = ("method2", "isam2", "batch")
+"""Methods whose free settings are chosen per held-out trial."""
+
+
+def graph_setting_name(sigma: float) -> str:
+    """A graph grid point as text."""
+    return f"gyro_noise_sigma_rad_s={sigma:g}"
+
+
 @dataclass(frozen=True)
 class TrialRuns:
     """Everything measured on one trial (what a worker returns)."""
@@ -191,11 +198,11 @@ class TrialRuns:
     stem: str
     """Trial file name without extension."""
     methods: dict[str, MethodResult]
-    """Results of the fixed methods (``tracker``, ``method2_paper_values``, ``isam2``, ``batch``)."""
-    ekf_grid: dict[str, MethodResult]
-    """Method II at every grid point (``ekf_setting_name``), for the leave-one-trial-out choice."""
-    ekf_grid_rms_deg: dict[str, FloatArray]
-    """Method II's RMS at every grid point even where it left its domain (the choice uses these), degrees."""
+    """Results of the methods without a free setting (``tracker``, ``method2_paper_values``)."""
+    grids: dict[str, dict[str, MethodResult]]
+    """Per tuned method (``TUNED_METHODS``), its result at every grid point, for the leave-one-trial-out choice."""
+    grid_rms_deg: dict[str, dict[str, FloatArray]]
+    """The same RMS even where an Euler filter left its domain (what the choice compares), degrees."""
     scored_fraction: float
     """Scored samples over the samples in movement."""
     duration_s: float
@@ -203,21 +210,26 @@ class TrialRuns:
 
 
 def run_trial(path: str | Path) -> TrialRuns:
-    """Every method and every Method II grid point on one BROAD trial turned head session."""
+    """Every method at every grid point on one BROAD trial turned head session."""
     session = head_session_from_broad(path)
     scored = scored_samples(session)
     methods = {"tracker": _score(head.run_tracker_only(session), session, scored)}
     paper = replace(head.run_ekf(session, "method2", HeadEkfConfig()), method="method2_paper_values")
     methods["method2_paper_values"] = _score(paper, session, scored, euler_filter=True)
-    methods["isam2"] = _score(head.run_isam2(session), session, scored)
-    methods["batch"] = _score(head.run_batch(session), session, scored)
-    grid, grid_rms = {}, {}
+    grids: dict[str, dict[str, MethodResult]] = {m: {} for m in TUNED_METHODS}
+    rms: dict[str, dict[str, FloatArray]] = {m: {} for m in TUNED_METHODS}
     for setting in EKF_GRID:
         estimate = head.run_ekf(session, "method2", ekf_config(setting))
-        grid[ekf_setting_name(setting)] = _score(estimate, session, scored, euler_filter=True)
-        grid_rms[ekf_setting_name(setting)] = _score(estimate, session, scored).rms_deg
+        grids["method2"][ekf_setting_name(setting)] = _score(estimate, session, scored, euler_filter=True)
+        rms["method2"][ekf_setting_name(setting)] = _score(estimate, session, scored).rms_deg
+    for sigma in GRAPH_GYRO_GRID:
+        declared = head_session_from_broad(path, RecordedHeadConfig(gyro_noise_sigma_rad_s=sigma))
+        for name, run in (("isam2", head.run_isam2), ("batch", head.run_batch)):
+            result = _score(run(declared), session, scored)
+            grids[name][graph_setting_name(sigma)] = result
+            rms[name][graph_setting_name(sigma)] = result.rms_deg
     moving = session.stream("movement").values[:, 0] > 0
-    return TrialRuns(Path(path).stem, methods, grid, grid_rms, float(scored.sum() / max(moving.sum(), 1)), session.duration_s)
+    return TrialRuns(Path(path).stem, methods, grids, rms, float(scored.sum() / max(moving.sum(), 1)), session.duration_s)
 
 
 # ------------------------------------------------------------------------------------ bench
@@ -230,40 +242,47 @@ def _rms_json(rms_deg: FloatArray) -> dict[str, float | None]:
     return {axis: (float(v) if np.isfinite(v) else None) for axis, v in zip(AXES, rms_deg, strict=True)}
 
 
+def _choose(runs: dict[str, TrialRuns], method: str, stems: list[str]) -> tuple[dict[str, str], dict[str, Any]]:
+    """One method's setting per trial by leave-one-trial-out over the trials where every grid point is valid
+    (an Euler filter outside its domain gives the singularity's figures: choosing by them once picked
+    settings 2x worse on the trials inside it); trials outside that set get the best over all of it."""
+    from ..tuning import leave_one_group_out
+
+    inside = [stem for stem in stems if all(r.invalid is None for r in runs[stem].grids[method].values())]
+    tuning_trials = inside if len(inside) >= 2 else stems
+    settings = list(runs[stems[0]].grid_rms_deg[method])
+    # a setting that returned nothing finite on a trial scores as far off (it must not win by failing)
+    scores = {s: {stem: float(np.nan_to_num(np.mean(runs[stem].grid_rms_deg[method][s]), nan=1e3)) for stem in tuning_trials} for s in settings}
+    logo = leave_one_group_out(scores)
+    chosen = {stem: logo["held_out"][stem]["chosen"] if stem in logo["held_out"] else logo["chosen"] for stem in stems}
+    info = {"tuning_trials": tuning_trials, "grid": settings, "chosen_per_trial": chosen, "in_sample_best": logo["chosen"],
+            "in_sample_deg": logo["in_sample"], "cross_validated_deg": logo["cross_validated"]}
+    return chosen, info
+
+
 def bench_head_recorded(
     directory: str | Path | None = None, workers: int = 2, progress: Callable[[str], None] | None = None, trials: Sequence[str] = ()
 ) -> dict[str, Any]:
     """Every BROAD trial in ``directory`` as a head session through every method; the JSON of
     ``fusegraph bench head-recorded`` (see the module docstring). ``trials``: file-name prefixes to keep."""
     from ..cluster import completed
-    from ..tuning import leave_one_group_out
 
     paths = [p for p in trial_paths(directory or DEFAULT_DIR) if not trials or any(p.stem.startswith(t) for t in trials)]
     if len(paths) < 2:
-        raise ValueError(f"{directory or DEFAULT_DIR}: need at least two BROAD trials (Method II is tuned leaving one out), found {len(paths)}")
+        raise ValueError(f"{directory or DEFAULT_DIR}: need at least two BROAD trials (settings are chosen leaving one out), found {len(paths)}")
     runs: dict[str, TrialRuns] = {}
     for n, (path, future) in enumerate(completed(run_trial, paths, workers, None)):
         runs[Path(path).stem] = future.result()
         if progress is not None:
             progress(f"{Path(path).stem} done ({n + 1}/{len(paths)})")
     stems = [p.stem for p in paths]
-    # Method II is tuned on the trials where every grid point stayed inside its Euler domain: elsewhere its
-    # figures are the singularity's, and choosing by them picked settings 2x worse on the trials inside it
-    inside = [stem for stem in stems if all(r.invalid is None for r in runs[stem].ekf_grid.values())]
-    tuning_trials = inside if len(inside) >= 2 else stems
-    # a setting that returned nothing finite on a trial scores as far off (it must not win by failing)
-    scores = {
-        ekf_setting_name(s): {stem: float(np.nan_to_num(np.mean(runs[stem].ekf_grid_rms_deg[ekf_setting_name(s)]), nan=1e3)) for stem in tuning_trials}
-        for s in EKF_GRID
-    }
-    logo = leave_one_group_out(scores)
-    chosen = {stem: logo["held_out"][stem]["chosen"] if stem in logo["held_out"] else logo["chosen"] for stem in stems}
+    choices = {m: _choose(runs, m, stems) for m in TUNED_METHODS}
     result: dict[str, Any] = {"trials": {}, "excluded": {}, "scored_fraction": {}, "runtime_s": {m: 0.0 for m in MEAN_METHODS}}
     valid_rms: dict[str, list[FloatArray]] = {m: [] for m in MEAN_METHODS}
     total_s = 0.0
     for stem in stems:
         run = runs[stem]
-        per = {**run.methods, "method2": run.ekf_grid[chosen[stem]]}
+        per = {**run.methods, **{m: run.grids[m][choices[m][0][stem]] for m in TUNED_METHODS}}
         result["trials"][stem] = {m: {"rms_deg": _rms_json(per[m].rms_deg)} for m in MEAN_METHODS}
         result["scored_fraction"][stem] = run.scored_fraction
         total_s += run.duration_s
@@ -283,18 +302,10 @@ def bench_head_recorded(
         m: {"rms_deg": _rms_json(np.mean([list(result["trials"][s][m]["rms_deg"].values()) for s in stems], axis=0))} for m in everywhere
     }
     result["x_realtime"] = {m: total_s / max(result["runtime_s"][m], 1e-9) for m in MEAN_METHODS}
-    result["method2_tuning"] = {
-        "rule": "leave-one-trial-out over the trials where every grid point stayed inside the Euler domain: for each such trial, "
-        "the grid point with the lowest mean of the azimuth/elevation/roll RMS (deg) on the other ones; for the rest, "
-        "the best on all of them",
-        "tuning_trials": tuning_trials,
-        "grid": [ekf_setting_name(s) for s in EKF_GRID],
-        "tracker_sigma_rad": HeadEkfConfig().tracker_sigma_rad,
-        "chosen_per_trial": chosen,
-        "in_sample_best": logo["chosen"],
-        "in_sample_deg": logo["in_sample"],
-        "cross_validated_deg": logo["cross_validated"],
-    }
+    result["tuning"] = {m: {"rule": "leave-one-trial-out over the trials where every grid point is valid (an Euler filter inside its "
+                                "domain): for each, the grid point with the lowest mean of the azimuth/elevation/roll RMS (deg) on the "
+                                "other ones; for the rest, the best on all of them", **choices[m][1]} for m in TUNED_METHODS}
+    result["tuning"]["method2"]["tracker_sigma_rad"] = HeadEkfConfig().tracker_sigma_rad
     result["paper_values"] = ekf_setting_name((1.0, HeadEkfConfig().gyro_sigma_rad_s))
     result["scoring"] = (
         f"RMS of ZYX Euler-angle errors against the optical attitude at the gyro rate, over samples in movement with "
@@ -340,12 +351,12 @@ def format_head_recorded(result: dict[str, Any]) -> str:
     if result["excluded"]:
         lines.append("excluded from the mean:")
         lines += [f"    {stem}: {reason}" for stem, reason in result["excluded"].items()]
-    tuning = result["method2_tuning"]
-    trials = ", ".join(t.split("_")[0] for t in tuning["tuning_trials"])
-    lines.append(
-        f"Method II tuning ({tuning['rule']}; trials {trials}): in-sample best {tuning['in_sample_best']} ({tuning['in_sample_deg']:.3f} deg), "
-        f"leave-one-trial-out {tuning['cross_validated_deg']:.3f} deg; paper's values {result['paper_values']}"
-    )
+    lines.append(f"settings chosen by leave-one-trial-out ({result['tuning']['method2']['rule']}):")
+    for m, tuning in result["tuning"].items():
+        trials = ", ".join(t.split("_")[0] for t in tuning["tuning_trials"])
+        lines.append(f"    {LABELS[m]:<{width}} on trials {trials}: in-sample best {tuning['in_sample_best']} ({tuning['in_sample_deg']:.3f} deg), "
+                     f"leave-one-trial-out {tuning['cross_validated_deg']:.3f} deg")
+    lines.append(f"    Method II, paper's noise: {result['paper_values']}")
     lines.append("speed, x real time: " + ", ".join(f"{LABELS[m]} {x:.0f}" for m, x in result["x_realtime"].items()))
     return "\n".join(lines)
 

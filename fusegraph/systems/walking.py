@@ -32,20 +32,19 @@ from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingSession, sim
 from ..session import Session, SessionError
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig
+from ..tuned import value
 
 STEP_NOISE = OdometryNoise(distance_frac=0.08, lateral_frac=0.05, floor_m=0.02, yaw_rad=math.radians(0.5), yaw_frac=0.03, vertical_m=0.03)
 """A detected step: 8 % of its length along, 5 % across, 0.5 deg heading, 3 cm height."""
 RIDE_NOISE = OdometryNoise(floor_m=0.2, yaw_rad=math.radians(1.0), vertical_m=0.1)
 """An elevator ride: the person stands (20 cm shuffle), floors are whole."""
-FIX_NOISE = FixNoise(position_m=0.5, heading_rad=math.radians(5.0), height_m=0.3, kernel="cauchy", kernel_width=5.0)
-"""An image-match fix, Cauchy-robust (a fifth of them are wrong by metres). The kernel is wide (5 sigma):
-after 20 s of steps a correct fix is often 3 m from the prediction, and a 1-sigma kernel threw those
-away too. Checked with ``python -m fusegraph.tuning walking_fixes --seeds 100 109`` (tuning seeds): batch RMSE
-1.024 m with width 5 and rejection at 5 sigma, 1.74 m with width 1; the best cell (width 8, 3 sigma: 1.016 m)
-is within the seed-to-seed noise, so the values stayed."""
-REJECT_SIGMAS = 5.0
+FIX_NOISE = FixNoise(position_m=0.5, heading_rad=math.radians(5.0), height_m=0.3, kernel="cauchy", kernel_width=float(value("walking_fixes", "kernel_width")))
+"""An image-match fix, Cauchy-robust (a fifth of them are wrong by metres). The kernel is wide (after 20 s of steps a
+correct fix is often 3 m from the prediction, and a 1-sigma kernel threw those away too): its width is chosen with the
+rejection threshold by ``fusegraph tune walking_fixes`` on tuning seeds (``tuned.toml``)."""
+REJECT_SIGMAS = float(value("walking_fixes", "reject_sigmas"))
 """Batch: a fix further than this many position sigmas from the robust solution is dropped and the graph solved
-again (3, 5 and 8 sigma scored 1.023, 1.024 and 1.091 m with width 5 on the tuning seeds)."""
+again (the same study)."""
 ELEVATOR_SIGMAS_M = np.array([0.7, 0.7, 50.0])
 """A ride starts and ends in the elevator car (position known to 0.7 m; the height is left to the ride)."""
 START_SIGMAS = np.array([1e-3, 1e-3, math.radians(2.0), 0.2, 0.2, 0.05])
