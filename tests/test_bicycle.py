@@ -48,3 +48,16 @@ def test_stand_ride_has_no_translation() -> None:
     assert abs(np.linalg.norm(s.frame_accel, axis=1).mean() - 9.80665) < 0.05
     with pytest.raises(ValueError, match="unknown ride"):
         simulate_bicycle(0, BicycleScenarioConfig(ride="track"))
+
+
+def test_report_rows_tell_every_method_its_sigmas_halved_and_doubled() -> None:
+    runners = bicycle._report_runners(noise_rows=True)
+    methods = ("no_removal", "paper_pipeline", "online", "batch")
+    assert set(runners) == set(methods) | {f"{m}_noise_x{k:g}" for m in methods for k in (0.5, 2.0)}
+    doubled = bicycle.PAPER_EKF.with_noise_scaled(2.0)
+    assert doubled.gyro_sigma_rad_s == 2.0 * bicycle.PAPER_EKF.gyro_sigma_rad_s
+    assert doubled.accel_sigma_m_s2 == 2.0 * bicycle.PAPER_EKF.accel_sigma_m_s2
+    model = bicycle.BicycleModel().thigh
+    halved = model.with_noise_scaled(0.5)
+    assert halved.imu.accel_noise_m_s2_sqrt_hz == 0.5 * model.imu.accel_noise_m_s2_sqrt_hz
+    assert halved.gravity is not None and model.gravity is not None and halved.gravity.sigma_deg == 0.5 * model.gravity.sigma_deg

@@ -16,7 +16,7 @@ attitude (``heading_factors``).
 from __future__ import annotations
 
 import bisect
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -93,6 +93,16 @@ class Attitude9Model:
     the motion priors alone carry the tilt)."""
     initial_attitude_sigma_deg: float = 5.0
     """Sigma of the start-up attitude from the first accelerometer and magnetometer samples."""
+
+    def with_noise_scaled(self, factor: float) -> Attitude9Model:
+        """The model told every sensor sigma ``factor`` times what it declares (gyro and accelerometer densities and
+        bias walks, gravity direction, magnetometer heading): what a wrong declaration costs, for the reports."""
+        imu = replace(self.imu, gyro_noise_rad_s_sqrt_hz=factor * self.imu.gyro_noise_rad_s_sqrt_hz,
+                      accel_noise_m_s2_sqrt_hz=factor * self.imu.accel_noise_m_s2_sqrt_hz,
+                      gyro_bias_walk_rad_s_sqrt_s=factor * self.imu.gyro_bias_walk_rad_s_sqrt_s,
+                      accel_bias_walk_m_s2_sqrt_s=factor * self.imu.accel_bias_walk_m_s2_sqrt_s)
+        gravity = None if self.gravity is None else replace(self.gravity, sigma_deg=factor * self.gravity.sigma_deg)
+        return replace(self, imu=imu, gravity=gravity, mag=replace(self.mag, heading_sigma_deg=factor * self.mag.heading_sigma_deg))
 
 
 def initial_attitude(accel_body: FloatArray, mag_body: FloatArray | None) -> gtsam.Rot3:

@@ -10,7 +10,7 @@ form throughout. Euler angles are the papers' choice; they are singular at pitch
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -38,6 +38,11 @@ class Ekf9Config:
     """Per-axis gain G of the calibration M = G m + B."""
     mag_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Offset B of the calibration, in the magnetometer's unit."""
+
+    def with_noise_scaled(self, factor: float) -> Ekf9Config:
+        """The filter told every sensor sigma ``factor`` times its figure (gyro, accelerometer, magnetometer yaw)."""
+        return replace(self, gyro_sigma_rad_s=factor * self.gyro_sigma_rad_s, accel_sigma_m_s2=factor * self.accel_sigma_m_s2,
+                       mag_yaw_sigma_rad=factor * self.mag_yaw_sigma_rad)
 
 
 def _tilt_compensated_yaw(angles: FloatArray, mag: FloatArray) -> float:

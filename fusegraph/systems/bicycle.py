@@ -15,6 +15,8 @@ of the braking from both baselines alike.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -119,20 +121,45 @@ def braking_rms_deg(quat: FloatArray, s: BicycleSession) -> dict[str, float]:
 
 RUNNERS = {"no_removal": run_no_removal, "paper_pipeline": run_pipeline, "online": run_online, "batch": run_batch}
 
+NOISE_FACTORS = (0.5, 2.0)
+"""The report's wrong-declaration rows: every sensor sigma told x0.5 and x2 (``<method>_noise_x0.5``, ``_x2``)."""
 
-def bicycle_report(seeds: tuple[int, ...] = (0, 1, 2), plot: str | None = None) -> dict[str, object]:
-    """``fusegraph report bicycle``: braking-phase thigh pitch/roll RMS per method (RMS over seeds), speed; the stand ride too."""
+
+def _noisy_runner(method: str, factor: float) -> Callable[[BicycleSession], FloatArray]:
+    """A method told every sensor sigma ``factor`` times its figure (the EKFs' tuned figures, the graph's declarations)."""
+
+    def run(s: BicycleSession) -> FloatArray:
+        if method in ("no_removal", "paper_pipeline"):
+            return RUNNERS[method](s, PAPER_EKF.with_noise_scaled(factor))  # type: ignore[operator]
+        model = BicycleModel()
+        scaled = replace(model, frame=model.frame.with_noise_scaled(factor), thigh=model.thigh.with_noise_scaled(factor))
+        return RUNNERS[method](s, scaled)  # type: ignore[operator]
+
+    return run
+
+
+def _report_runners(noise_rows: bool) -> dict[str, Callable[[BicycleSession], FloatArray]]:
+    runners: dict[str, Callable[[BicycleSession], FloatArray]] = dict(RUNNERS)  # type: ignore[arg-type]
+    if noise_rows:
+        runners.update({f"{m}_noise_x{k:g}": _noisy_runner(m, k) for m in METHODS for k in NOISE_FACTORS})
+    return runners
+
+
+def bicycle_report(seeds: tuple[int, ...] = (0, 1, 2), plot: str | None = None, noise_rows: bool = True) -> dict[str, object]:
+    """``fusegraph report bicycle``: braking-phase thigh pitch/roll RMS per method (RMS over seeds), speed; the stand ride too.
+    With ``noise_rows`` also every method told its sensor sigmas x0.5 and x2 (``NOISE_FACTORS``), on the downhill ride."""
     out: dict[str, object] = {}
     for ride in ("downhill", "stand"):
-        sq: dict[str, list[float]] = {m: [0.0, 0.0, 0.0, 0.0] for m in METHODS}
+        runners = _report_runners(noise_rows and ride == "downhill")
+        sq: dict[str, list[float]] = {m: [0.0, 0.0, 0.0, 0.0] for m in runners}
         first: dict[str, FloatArray] = {}
         session0 = None
         for seed in seeds:
             s = simulate_bicycle(seed, BicycleScenarioConfig(ride=ride))
             session0 = session0 or s
-            for name, run in RUNNERS.items():
+            for name, run in runners.items():
                 start = time.perf_counter()
-                q = run(s)  # type: ignore[operator]
+                q = run(s)
                 seconds = time.perf_counter() - start
                 if seed == seeds[0]:
                     first[name] = q
@@ -146,7 +173,7 @@ def bicycle_report(seeds: tuple[int, ...] = (0, 1, 2), plot: str | None = None) 
         if ride == "downhill":
             out["methods"] = methods
             if plot is not None and session0 is not None:
-                plot_bicycle(session0, first, plot)
+                plot_bicycle(session0, {m: first[m] for m in METHODS}, plot)
         else:
             out["stand"] = {"methods": methods, "note": "same phase (30-35 s): the rider stops pedalling and holds the thigh; no translation"}
     out["seeds"] = list(seeds)
@@ -176,10 +203,9 @@ def format_bicycle_table(report: dict[str, object]) -> str:
     for title, block in (("downhill, braking phase", report["methods"]), ("stand (indoor trainer), same phase", report["stand"]["methods"])):  # type: ignore[index]
         assert isinstance(block, dict)
         lines.append(f"{title}")
-        lines.append(f"{'method':16s}{'pitch deg':>10s}{'roll deg':>10s}{'x real time':>13s}")
-        for m in METHODS:
-            r = block[m]
-            lines.append(f"{m:16s}{r['rms']['pitch_deg']:10.2f}{r['rms']['roll_deg']:10.2f}{r['x_realtime']:13.0f}")
+        lines.append(f"{'method':28s}{'pitch deg':>10s}{'roll deg':>10s}{'x real time':>13s}")
+        for m, r in block.items():
+            lines.append(f"{m:28s}{r['rms']['pitch_deg']:10.2f}{r['rms']['roll_deg']:10.2f}{r['x_realtime']:13.0f}")
         p = block["paper_pipeline"]["rms"]
         for m in ("online", "batch"):
             r = block[m]["rms"]
