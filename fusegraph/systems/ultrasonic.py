@@ -398,11 +398,17 @@ def bench_ultrasonic(
     show_progress: bool = True,
     uwb_dir: str | None = "default",
     plot: str | Path | None = None,
+    peer_s: float = 2.0,
+    peers: tuple[str, ...] = ("gnn", "jpda"),
 ) -> dict[str, object]:
     """Simulation (both methods and the oracle per N), crossings; the JSON of ``fusegraph bench ultrasonic``.
-    ``plot``: a PNG of fusegraph's run at the largest N and the first seed (``plot_ultrasonic``)."""
+    ``plot``: a PNG of fusegraph's run at the largest N and the first seed (``plot_ultrasonic``).
+    ``peers``: Stone Soup's trackers (``stonesoup_gnn``, ``stonesoup_jpda``, with their tuned settings) on the first
+    ``peer_s`` seconds (Stone Soup needs ~1 s per epoch at N = 12), beside ``fusegraph_peer_window``: fusegraph's causal
+    run scored on the same epochs."""
     from ..progress import progress
     from ..scenarios.ultrasonic import simulate_ultrasonic
+    from ..solvers.stonesoup_peer import run_stonesoup, tuned_config
 
     sim: dict[str, dict[str, dict[str, float]]] = {}
     jobs = [(n, seed) for n in transmitter_counts for seed in seeds]
@@ -414,7 +420,12 @@ def bench_ultrasonic(
         ours = run_fusegraph(epochs, n)
         if plot is not None and n == max(transmitter_counts) and seed == seeds[0]:
             plot_ultrasonic(epochs, ours, plot)
-        for method, run, scored in (("fusegraph", ours, epochs), ("combinatorial", run_combinatorial(short, n), short)):
+        window = _head(epochs, peer_s)
+        compared: list[tuple[str, TrackingRun, RangeEpochs]] = [("fusegraph", ours, epochs), ("combinatorial", run_combinatorial(short, n), short)]
+        if peers:
+            compared.append(("fusegraph_peer_window", _first_epochs(ours, len(window.t)), window))
+            compared += [(f"stonesoup_{p}", run_stonesoup(window, n, p, tuned_config(p)), window) for p in peers]
+        for method, run, scored in compared:
             score = score_run(scored, run.labels, run.positions)
             oracle_here = oracle if scored is epochs else score_run(scored, oracle_labels(scored), None)
             rows.setdefault((n, method), []).append({
@@ -465,6 +476,11 @@ def bench_ultrasonic(
                 "assoc_expected_geometry": found.assoc_expected,
             }
     return {"sim": sim, "crossing": {"runs": runs_done, "swaps": swaps}, "uwb": uwb, "uwb_status": uwb_status}
+
+
+def _first_epochs(run: TrackingRun, count: int) -> TrackingRun:
+    """A causal run's output over its first epochs (what it gave there, whatever came later)."""
+    return TrackingRun(run.positions[:count], run.labels[:count], run.ms_per_epoch[:count], dict(run.extras))
 
 
 def _head(epochs: RangeEpochs, seconds: float) -> RangeEpochs:
@@ -519,12 +535,12 @@ def plot_ultrasonic(epochs: RangeEpochs, run: TrackingRun, path: str | Path) -> 
 def format_ultrasonic_table(result: dict[str, object]) -> str:
     sim = result["sim"]
     assert isinstance(sim, dict)
-    header = f"{'N':>3} {'method':<14}{'assoc':>8}{'unamb.':>8}{'oracle':>8}{'or.unamb':>9}{'rmse mm':>9}{'all mm':>8}{'lost %':>8}{'swaps':>7}"
+    header = f"{'N':>3} {'method':<22}{'assoc':>8}{'unamb.':>8}{'oracle':>8}{'or.unamb':>9}{'rmse mm':>9}{'all mm':>8}{'lost %':>8}{'swaps':>7}"
     lines = [header + f"{'ms/ep':>8}{'p99 ms':>8}{'s':>6}{'capped':>8}"]
     for n, methods in sim.items():
         for method, r in methods.items():
             lines.append(
-                f"{n:>3} {method:<14}{r['assoc_acc']:>8.4f}{r['assoc_acc_unambiguous']:>8.4f}{r['oracle_acc']:>8.4f}{r['oracle_acc_unambiguous']:>9.4f}"
+                f"{n:>3} {method:<22}{r['assoc_acc']:>8.4f}{r['assoc_acc_unambiguous']:>8.4f}{r['oracle_acc']:>8.4f}{r['oracle_acc_unambiguous']:>9.4f}"
                 f"{1e3 * r['rmse_m']:>9.1f}{1e3 * r['rmse_all_m']:>8.0f}{100 * r['lost_frac']:>8.2f}{r['identity_swaps']:>7.1f}"
                 f"{r['ms_per_epoch']:>8.2f}{r['ms_p99']:>8.2f}{r['seconds_scored']:>6.0f}{r['capped_epochs']:>8.0f}"
             )
@@ -534,7 +550,8 @@ def format_ultrasonic_table(result: dict[str, object]) -> str:
                  f"in {crossing['runs']} runs")
     lines.append("means over seeds (p99: the worst seed); accuracies as fractions; rmse over tracked transmitter-epochs (within 5 cm), "
                  "all = every epoch with an estimate;")
-    lines.append("the combinatorial search runs on the first s seconds (capped = epochs where its time cap stopped the search)")
+    lines.append("the combinatorial search runs on the first s seconds (capped = epochs where its time cap stopped the search); "
+                 "Stone Soup's GNN and JPDA (tuned settings) on the first s seconds too, beside fusegraph's run scored there (peer window)")
     uwb = result.get("uwb")
     if isinstance(uwb, dict):
         lines.append(
