@@ -45,6 +45,7 @@ def _seeds_arg(text: str) -> list[int]:
 
 def build_parser() -> argparse.ArgumentParser:
     from .systems.presets import PRESETS
+    from .tuning import STUDIES
 
     parser = argparse.ArgumentParser(
         prog="fusegraph",
@@ -177,9 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "the same rule: the grid printed here, scored on TUNING seeds 100-119 (reports score 0-9), or on real data by "
                          "leave-one-trial-out with the cross-validated figure beside the in-sample one. With --write the chosen values go "
                          "to fusegraph/tuned.toml (with the seeds or trials and the score), which the reports and benches read. "
-                         "Studies: gaze_ekf, bicycle_ekf, head_ekf, head_ekf_method1, head_ekf_kalman, "
-                         "walking_fixes, head_no_gyro (simulated); "
-                         "broad_ekf, broad_mag (BROAD trials).",
+                         f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag (BROAD trials).",
                          epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune head_ekf --write\n  fusegraph tune broad_mag --solver batch --write",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     tun.add_argument("study", help="the study's name (see above)")
@@ -496,10 +495,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "gaze-recorded":
         from .systems import gaze_recorded
 
-        found = gaze_recorded.bench_gaze_recorded(args.directory, use_mag=args.use_mag)
+        recorded = gaze_recorded.analyse_gaze_recording(args.directory, use_mag=args.use_mag)
+        found = gaze_recorded.gaze_recorded_json(recorded)
         print(json.dumps(found, indent=2) if args.json else gaze_recorded.format_gaze_recorded(found))
         if args.plot:
-            print(f"wrote {gaze_recorded.plot_gaze_recorded(args.directory, found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
+            print(f"wrote {gaze_recorded.plot_gaze_recorded(recorded, args.plot)}", file=sys.stderr if args.json else sys.stdout)
         return 0
     if args.system == "walking":
         from .datasets import steps_oxford

@@ -87,6 +87,12 @@ BROAD_MAG_GRID: Mapping[str, Sequence[float]] = {"heading_sigma_deg": (3.0, 5.0,
 """Our magnetometer settings tried by ``broad_mag`` (the norm and dip gains move together)."""
 
 
+def grid_settings(grid: Mapping[str, Sequence[float]]) -> dict[str, dict[str, float]]:
+    """Every point of a grid by its name (``key=value key=value``), the name ``tune --write`` reads back."""
+    points = (dict(zip(grid, values, strict=True)) for values in itertools.product(*grid.values()))
+    return {" ".join(f"{k}={v}" for k, v in point.items()): point for point in points}
+
+
 def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     """The 9-axis EKF's open settings (gyro noise; the accelerometer-noise inflation with | |a| - g |, which no
     paper has) chosen by leave-one-trial-out on the BROAD trials: total RMSE, degrees."""
@@ -94,16 +100,16 @@ def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     from .solvers.ekf9 import Ekf9Config, run_ekf9
     from .systems.attitude9 import imu9, model_for
 
-    grid = list(itertools.product(*BROAD_EKF_GRID.values()))
-    scores: dict[str, dict[str, float]] = {f"gyro_sigma_rad_s={g} accel_inflation={a}": {} for g, a in grid}
+    grid = grid_settings(BROAD_EKF_GRID)
+    scores: dict[str, dict[str, float]] = {name: {} for name in grid}
     for path in trial_paths(directory or DEFAULT_DIR):
         session = load_broad(path)
         data, cal = imu9(session), model_for(session).mag_calibration
         movement = session.stream("movement").values[:, 0]
-        for g, a in grid:
-            config = Ekf9Config(gyro_sigma_rad_s=g, accel_inflation=a, mag_gain=cal.gain, mag_offset=cal.offset)
+        for name, point in grid.items():
+            config = Ekf9Config(**point, mag_gain=cal.gain, mag_offset=cal.offset)  # type: ignore[arg-type]
             quats = run_ekf9(data.t, data.gyro, data.accel, data.mag, config)  # type: ignore[arg-type]
-            scores[f"gyro_sigma_rad_s={g} accel_inflation={a}"][path.stem] = broad_errors(quats, session.truth.values, movement).total  # type: ignore[union-attr]
+            scores[name][path.stem] = broad_errors(quats, session.truth.values, movement).total  # type: ignore[union-attr]
     return leave_one_group_out(scores)
 
 
@@ -117,16 +123,16 @@ def broad_mag_logo(directory: str | None = None, solver: str = "online") -> dict
     from .systems import attitude9
 
     base = Attitude9Model()
-    grid = list(itertools.product(*BROAD_MAG_GRID.values()))
+    grid = grid_settings(BROAD_MAG_GRID)
     run = attitude9.run_online if solver == "online" else attitude9.run_batch
-    scores: dict[str, dict[str, float]] = {f"heading_sigma_deg={h} gains={g} cauchy_k={k}": {} for h, g, k in grid}
+    scores: dict[str, dict[str, float]] = {name: {} for name in grid}
     for path in trial_paths(directory or DEFAULT_DIR):
         session = load_broad(path)
         movement = session.stream("movement").values[:, 0]
-        for h, g, k in grid:
-            model = replace(base, mag=replace(base.mag, heading_sigma_deg=h, norm_gain=g, dip_gain=g, cauchy_k=k))
-            estimate = run(session, model)
-            scores[f"heading_sigma_deg={h} gains={g} cauchy_k={k}"][path.stem] = broad_errors(estimate.quat_wxyz, session.truth.values, movement).total  # type: ignore[union-attr]
+        for name, p in grid.items():
+            mag = replace(base.mag, heading_sigma_deg=p["heading_sigma_deg"], norm_gain=p["gains"], dip_gain=p["gains"], cauchy_k=p["cauchy_k"])
+            estimate = run(session, replace(base, mag=mag))
+            scores[name][path.stem] = broad_errors(estimate.quat_wxyz, session.truth.values, movement).total  # type: ignore[union-attr]
     return leave_one_group_out(scores)
 
 
@@ -282,7 +288,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"  held out {trial:<40} chosen {held['chosen']:<40} {held['score']:7.2f} deg")
         if args.write:
             name = "broad_mag_batch" if args.study == "broad_mag" and args.solver == "batch" else args.study
-            chosen = {key: float(v) for key, v in (part.split("=") for part in result["chosen"].split())}
+            chosen = grid_settings(BROAD_EKF_GRID if args.study == "broad_ekf" else BROAD_MAG_GRID)[result["chosen"]]
             unit = "deg, mean total RMSE" + (f" of the {args.solver} estimate" if args.study == "broad_mag" else "") + " (leave-one-trial-out)"
             entries = {**chosen, "trials": sorted(result["held_out"]), "in_sample": round(result["in_sample"], 4),
                        "cross_validated": round(result["cross_validated"], 4), "unit": unit}

@@ -22,6 +22,7 @@ clutter density) are chosen by ``fusegraph tune stonesoup_gnn`` / ``stonesoup_jp
 from __future__ import annotations
 
 import datetime
+import functools
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -60,6 +61,7 @@ def tuned_config(method: str) -> StoneSoupConfig:
     return StoneSoupConfig(**{k: float(v) for k, v in chosen.items() if k in fields})
 
 
+@functools.cache
 def _stonesoup() -> Any:
     """Stone Soup's classes (imported on first use: the package is large)."""
     from stonesoup.base import Property
@@ -107,7 +109,6 @@ def run_stonesoup(epochs: RangeEpochs, transmitters: int, method: str = "gnn", c
     from stonesoup.types.detection import Detection
     from stonesoup.types.state import GaussianState
     from stonesoup.types.track import Track
-    from stonesoup.types.update import GaussianStateUpdate
     from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
     from ..systems.ultrasonic import TrackingRun
@@ -140,7 +141,6 @@ def run_stonesoup(epochs: RangeEpochs, transmitters: int, method: str = "gnn", c
     for n in range(transmitters):
         p = found[n].position_m if n < len(found) else np.mean(epochs.receivers, axis=0) - [0.0, 0.0, 1.5]  # unfound: below the board
         tracks.append(Track([GaussianState(np.array([[p[0]], [0.0], [p[1]], [0.0], [p[2]], [0.0]]), covar, timestamp=stamp(epochs.t[0]))]))
-    index = {id(track): n for n, track in enumerate(tracks)}
     positions = np.full((len(epochs.t), transmitters, 3), np.nan)
     labels: list[list[np.ndarray]] = []
     times = []
@@ -150,39 +150,40 @@ def run_stonesoup(epochs: RangeEpochs, transmitters: int, method: str = "gnn", c
         epoch_labels = []
         for r, heard in enumerate(epochs.ranges[k]):
             detections = [Detection(np.array([[d]]), timestamp=when, measurement_model=models[r]) for d in heard]
-            label = np.full(len(heard), -1)
             order = {id(det): i for i, det in enumerate(detections)}
             hypotheses = associator.associate(tracks, set(detections), when)
-            for track in tracks:
-                chosen = hypotheses[track]
-                if method == "gnn":
-                    if chosen:
-                        track.append(updater.update(chosen))
-                        label[order[id(chosen.measurement)]] = index[id(track)]
-                    else:
-                        track.append(chosen.prediction)
-                    continue
-                states, weights = [], []
-                for hypothesis in chosen:
-                    states.append(updater.update(hypothesis) if hypothesis else hypothesis.prediction)
-                    weights.append(float(hypothesis.probability))
-                means = np.hstack([np.asarray(s.state_vector, dtype=float) for s in states])
-                mean, cov = _reduce(means, np.stack([np.asarray(s.covar, dtype=float) for s in states]), np.asarray(weights))
-                track.append(GaussianStateUpdate(mean, cov, chosen, when))
-            if method == "jpda":  # the most probable assignment of each distance, over the tracks that claim it
-                best = np.full(len(heard), -np.inf)
-                for track in tracks:
-                    for hypothesis in hypotheses[track]:
-                        if hypothesis:
-                            i = order[id(hypothesis.measurement)]
-                            if float(hypothesis.probability) > best[i]:
-                                best[i] = float(hypothesis.probability)
-                                label[i] = index[id(track)]
+            # each distance labelled with its most probable track (GNN: the one track that took it)
+            label = np.full(len(heard), -1)
+            best = np.full(len(heard), -np.inf)
+            for n, track in enumerate(tracks):
+                for hypothesis, probability in _posterior(track, hypotheses[track], updater, method == "jpda"):
+                    i = order[id(hypothesis.measurement)]
+                    if probability > best[i]:
+                        best[i], label[i] = probability, n
             epoch_labels.append(label)
         labels.append(epoch_labels)
         positions[k] = [np.asarray(track.state_vector, dtype=float)[[0, 2, 4], 0] for track in tracks]
         times.append(1e3 * (time.perf_counter() - start) + (first_ms if k == 0 else 0.0))
     return TrackingRun(positions, labels, np.asarray(times), {})
+
+
+def _posterior(track: Any, chosen: Any, updater: Any, soft: bool) -> list[tuple[Any, float]]:
+    """Append the track's posterior for its hypotheses; return those with a distance and their probabilities.
+
+    GNN (``soft`` false): one hypothesis, updated or carried as the prediction. JPDA: every hypothesis updated and
+    the mixture reduced to one Gaussian by its weights.
+    """
+    from stonesoup.types.update import GaussianStateUpdate
+
+    if not soft:
+        track.append(updater.update(chosen) if chosen else chosen.prediction)
+        return [(chosen, 1.0)] if chosen else []
+    states = [updater.update(h) if h else h.prediction for h in chosen]
+    means = np.hstack([np.asarray(s.state_vector, dtype=float) for s in states])
+    covs = np.stack([np.asarray(s.covar, dtype=float) for s in states])
+    mean, cov = _reduce(means, covs, np.array([float(h.probability) for h in chosen]))
+    track.append(GaussianStateUpdate(mean, cov, chosen, states[0].timestamp))
+    return [(h, float(h.probability)) for h in chosen if h]
 
 
 def _reduce(means: FloatArray, covs: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:

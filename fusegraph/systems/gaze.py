@@ -151,13 +151,17 @@ class GazeGraph:
         self.sample_keyframe[j] = k
         self.keyframe_R_sample[j] = keyframe_R_sample.matrix()
 
-    def sample_attitudes(self, keyframe_attitude: Callable[[int], gtsam.Rot3], samples: Iterable[int]) -> FloatArray:
-        """world_R_head (quaternions w, x, y, z) at the given gaze samples: their keyframe's attitude carried by the gyro."""
-        rows = [j for j in samples if self.sample_keyframe[j] >= 0]
-        out = np.full((len(self.session.tracker_t), 4), np.nan)
-        for j in rows:
-            out[j] = quat_wxyz_from_rot3(keyframe_attitude(int(self.sample_keyframe[j])).compose(gtsam.Rot3(self.keyframe_R_sample[j])))
-        return out
+    def sample_attitudes(self, keyframe_attitude: Callable[[int], gtsam.Rot3], samples: Iterable[int], out: FloatArray) -> None:
+        """Fill ``out`` (M, 4) at the given gaze samples with world_R_head (w, x, y, z): their keyframe's attitude
+        (read once per keyframe) carried by the gyro; samples without a keyframe stay as they are."""
+        rotations: dict[int, gtsam.Rot3] = {}
+        for j in samples:
+            k = int(self.sample_keyframe[j])
+            if k < 0:
+                continue
+            if k not in rotations:
+                rotations[k] = keyframe_attitude(k)
+            out[j] = quat_wxyz_from_rot3(rotations[k].compose(gtsam.Rot3(self.keyframe_R_sample[j])))
 
 
 def from_session(session: Session) -> GazeSession:
@@ -230,8 +234,7 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEsti
             kj = graph.sample_keyframe[j]
             if kj >= 0:  # a sample before the first keyframe has no factor and no estimate
                 out[j] = (point if kj == k else solver.isam.calculateEstimatePoint3(G(kj)))[1:]
-        now = graph.sample_attitudes(lambda kj: solver.isam.calculateEstimatePose3(X(kj)).rotation(), added)
-        attitude[list(added)] = now[list(added)]
+        graph.sample_attitudes(lambda kj: solver.isam.calculateEstimatePose3(X(kj)).rotation(), added, attitude)
     return GazeEstimate(out, attitude, time.perf_counter() - start)
 
 
@@ -267,7 +270,8 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstim
     out = np.full((len(session.tracker_t), 2), np.nan)
     attached = graph.sample_keyframe >= 0
     out[attached] = points[graph.sample_keyframe[attached]][:, 1:]
-    at_samples = graph.sample_attitudes(lambda k: values.atPose3(X(k)).rotation(), range(len(session.tracker_t)))
+    at_samples = np.full((len(session.tracker_t), 4), np.nan)
+    graph.sample_attitudes(lambda k: values.atPose3(X(k)).rotation(), range(len(session.tracker_t)), at_samples)
     return GazeEstimate(out, at_samples, time.perf_counter() - start)
 
 

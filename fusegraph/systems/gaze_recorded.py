@@ -86,29 +86,17 @@ def _gyro_at(session: GazeSession, times: FloatArray) -> FloatArray:
     return np.stack([np.interp(times, session.t, session.gyro_rad_s[:, c]) for c in range(3)], axis=1)
 
 
-def world_gaze_speed(session: GazeSession, offset_s: float) -> tuple[FloatArray, FloatArray, BoolArray]:
+def world_gaze_speed(session: GazeSession, offset_s: float,
+                     smoothed: tuple[FloatArray, FloatArray, BoolArray] | None = None) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Per gaze sample: world-frame gaze speed (deg/s, from the gyro alone), head speed (deg/s), defined mask;
-    the gaze taken ``offset_s`` late (its sample at stamp - offset)."""
-    camera = session.config.camera
-    rays = camera.ray(session.gaze_px)
-    ray, rate, ok = _ray_and_rate(session.tracker_t, rays)
+    the gaze taken ``offset_s`` late (its sample at stamp - offset). ``smoothed``: ``_ray_and_rate`` of the session's
+    gaze when the caller already has it (it does not depend on the offset)."""
+    ray, rate, ok = smoothed or _ray_and_rate(session.tracker_t, session.config.camera.ray(session.gaze_px))
     omega = _gyro_at(session, session.tracker_t - offset_s)
     world = rate + np.cross(omega, ray)
     speed = np.rad2deg(np.linalg.norm(world, axis=1))
     head = np.rad2deg(np.linalg.norm(omega, axis=1))
     return speed, head, ok & (session.tracker_t - offset_s >= session.t[0]) & (session.tracker_t - offset_s <= session.t[-1])
-
-
-def _offset_cost(session: GazeSession, rows: FloatArray | None = None) -> FloatArray:
-    costs = []
-    for offset in OFFSET_GRID_S:
-        speed, head, ok = world_gaze_speed(session, float(offset))
-        use = ok & (head > HEAD_MIN_DEG_S)
-        if rows is not None:
-            use = use[rows]
-            speed = speed[rows]
-        costs.append(float(np.mean(np.minimum(speed[use], FIXATION_MAX_DEG_S) ** 2)) if use.any() else np.inf)
-    return np.asarray(costs)
 
 
 def _argmin_refined(costs: FloatArray) -> float:
@@ -123,7 +111,8 @@ def _argmin_refined(costs: FloatArray) -> float:
 
 def gaze_time_offset(session: GazeSession, bootstrap: int = 100, block_s: float = 2.0, seed: int = 0) -> tuple[float, float]:
     """The gaze stream's delay behind the IMU (seconds, positive: gaze stamped late) and its bootstrap sigma."""
-    per_offset = [world_gaze_speed(session, float(o)) for o in OFFSET_GRID_S]
+    smoothed = _ray_and_rate(session.tracker_t, session.config.camera.ray(session.gaze_px))
+    per_offset = [world_gaze_speed(session, float(o), smoothed) for o in OFFSET_GRID_S]
     t = session.tracker_t
     blocks = np.floor((t - t[0]) / block_s).astype(int)
     n_blocks = int(blocks.max()) + 1
@@ -174,23 +163,26 @@ def fixations(session: GazeSession, offset_s: float) -> list[Fixation]:
     return out
 
 
+def fixation_angles(world_R_head: FloatArray | None, rays: FloatArray, fixation: Fixation) -> FloatArray:
+    """Angles (rad) of a fixation's world-frame gaze directions to their mean direction; NaN where the method has no
+    attitude. ``world_R_head`` (quaternions at the gaze samples) None: the head frame (no attitude at all)."""
+    d = rays[fixation.rows]
+    if world_R_head is not None:
+        q = world_R_head[fixation.rows]
+        if not np.all(np.isfinite(q)):
+            return np.full(len(d), np.nan)
+        d = np.einsum("nij,nj->ni", matrix_from_quat(q), d)
+    mean = d.sum(0) / np.linalg.norm(d.sum(0))
+    return np.arccos(np.clip(d @ mean, -1.0, 1.0))
+
+
 def dispersion_deg(world_R_head: FloatArray | None, session: GazeSession, found: list[Fixation]) -> float:
     """RMS angle of the world-frame gaze directions to their fixation's mean direction, over every fixation sample, degrees.
-    ``world_R_head`` (quaternions at the gaze samples) None: the head frame (no attitude at all)."""
+    ``world_R_head`` (quaternions at the gaze samples) None: the head frame. A method without an attitude on a fixation
+    sample fails (NaN): it does not escape its hard samples."""
     rays = session.config.camera.ray(session.gaze_px)
-    squared, n = 0.0, 0
-    for fixation in found:
-        d = rays[fixation.rows]
-        if world_R_head is not None:
-            q = world_R_head[fixation.rows]
-            if not np.all(np.isfinite(q)):
-                return float("nan")  # a method without an attitude on a fixation sample fails there
-            d = np.einsum("nij,nj->ni", matrix_from_quat(q), d)
-        mean = d.sum(0) / np.linalg.norm(d.sum(0))
-        angles = np.arccos(np.clip(d @ mean, -1.0, 1.0))
-        squared += float(np.sum(angles**2))
-        n += len(angles)
-    return float(np.rad2deg(np.sqrt(squared / n))) if n else float("nan")
+    angles = [fixation_angles(world_R_head, rays, fixation) for fixation in found]
+    return float(np.rad2deg(np.sqrt(np.mean(np.concatenate(angles) ** 2)))) if angles else float("nan")
 
 
 def gyro_attitude(session: GazeSession) -> FloatArray:
@@ -203,8 +195,32 @@ def gyro_attitude(session: GazeSession) -> FloatArray:
     return quat_multiply(quat[i], quat_from_rotvec(step))
 
 
-def bench_gaze_recorded(directory: str | Path | None = None, use_mag: bool = False) -> dict[str, Any]:
-    """``fusegraph bench gaze-recorded``: the JSON (see the module docstring)."""
+@dataclass(frozen=True)
+class RecordedGaze:
+    """One recording analysed: what the bench's JSON and its figure are made from."""
+
+    session: GazeSession
+    """The recording as the gaze system reads it (gaze stamps as recorded)."""
+    aligned: GazeSession
+    """The same with the gaze stamps corrected by the offset found (what every method ran on)."""
+    offset_s: float
+    """Gaze-to-IMU time offset found, seconds."""
+    offset_sigma_s: float
+    """Its block-bootstrap sigma, seconds."""
+    fixations: list[Fixation]
+    """Fixations with head motion."""
+    attitudes: dict[str, FloatArray | None]
+    """world_R_head at the gaze samples per row (``head_frame``: None), in the table's order."""
+    runtime_s: dict[str, float]
+    """Run time of each estimator, seconds."""
+    untracked: int
+    """Gaze lines without a measurement."""
+    use_mag: bool
+    """Whether the estimators used the magnetometer."""
+
+
+def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = False) -> RecordedGaze:
+    """Offset, fixations and every method's head attitude on the eye-tracker recording in ``directory``."""
     from ..datasets.tobii import DEFAULT_DIR, load_tobii
     from ..solvers.ekf_gaze import GazeEkfConfig
     from . import gaze
@@ -213,7 +229,6 @@ def bench_gaze_recorded(directory: str | Path | None = None, use_mag: bool = Fal
     session = gaze.from_session(recording)
     offset, sigma = gaze_time_offset(session)
     aligned = replace(session, tracker_t=session.tracker_t - offset)
-    found = fixations(session, offset)
     model = gaze.GazeModel()
     model = replace(model, head=replace(model.head, use_mag=use_mag))
     estimates = {
@@ -221,24 +236,36 @@ def bench_gaze_recorded(directory: str | Path | None = None, use_mag: bool = Fal
         "online": gaze.run_online(aligned, model),
         "batch": gaze.run_batch(aligned, model),
     }
-    dispersion = {"head_frame": dispersion_deg(None, aligned, found), "gyro": dispersion_deg(gyro_attitude(aligned), aligned, found)}
-    dispersion.update({name: dispersion_deg(e.world_R_head, aligned, found) for name, e in estimates.items()})
+    attitudes: dict[str, FloatArray | None] = {"head_frame": None, "gyro": gyro_attitude(aligned)}
+    attitudes.update({name: e.world_R_head for name, e in estimates.items()})
+    return RecordedGaze(session, aligned, offset, sigma, fixations(session, offset), attitudes, {name: e.runtime_s for name, e in estimates.items()},
+                        int(recording.meta["session"].get("gaze_untracked", 0)), use_mag)
+
+
+def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
+    """The JSON of ``fusegraph bench gaze-recorded`` (see the module docstring)."""
+    found, session = run.fixations, run.session
     duration = float(session.t[-1] - session.t[0])
     turns = [f.head_turn_deg for f in found]
     return {
-        "dispersion_deg": dispersion,
-        "time_offset_s": offset,
-        "time_offset_sigma_s": sigma,
+        "dispersion_deg": {name: dispersion_deg(quat, run.aligned, found) for name, quat in run.attitudes.items()},
+        "time_offset_s": run.offset_s,
+        "time_offset_sigma_s": run.offset_sigma_s,
         "fixations": len(found),
         "fixation_samples": int(sum(len(f.rows) for f in found)),
         "fixation_head_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
         "gaze_samples": len(session.tracker_t),
-        "gaze_untracked": int(recording.meta["session"].get("gaze_untracked", 0)),
+        "gaze_untracked": run.untracked,
         "duration_s": duration,
-        "use_mag": use_mag,
-        "x_realtime": {name: duration / max(e.runtime_s, 1e-9) for name, e in estimates.items()},
+        "use_mag": run.use_mag,
+        "x_realtime": {name: duration / max(seconds, 1e-9) for name, seconds in run.runtime_s.items()},
         "camera": {"focal_px": session.config.camera.focal_px, "pixel_sigma": session.config.camera.pixel_sigma},
     }
+
+
+def bench_gaze_recorded(directory: str | Path | None = None, use_mag: bool = False) -> dict[str, Any]:
+    """``fusegraph bench gaze-recorded``: the JSON (see the module docstring)."""
+    return gaze_recorded_json(analyse_gaze_recording(directory, use_mag))
 
 
 def format_gaze_recorded(result: dict[str, Any]) -> str:
@@ -268,43 +295,31 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def plot_gaze_recorded(directory: str | Path | None, result: dict[str, Any], path: str | Path) -> Path:
+def plot_gaze_recorded(run: RecordedGaze, path: str | Path) -> Path:
     """Head speed and gyro-compensated gaze speed with the fixations shaded; per method, each fixation sample's
     world gaze angle from its fixation's mean direction. PNG."""
     import matplotlib.pyplot as plt
 
-    from ..datasets.tobii import DEFAULT_DIR, load_tobii
     from ..plots import save_figure
-    from . import gaze
 
-    session = gaze.from_session(load_tobii(directory or DEFAULT_DIR))
-    offset = float(result["time_offset_s"])
-    speed, head, ok = world_gaze_speed(session, offset)
-    found = fixations(session, offset)
-    aligned = replace(session, tracker_t=session.tracker_t - offset)
+    speed, head, ok = world_gaze_speed(run.session, run.offset_s)
+    found = run.fixations
     fig, axes = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
-    t = aligned.tracker_t
+    t = run.aligned.tracker_t
     axes[0].plot(t[ok], head[ok], lw=0.7, label="head speed (gyro)")
     axes[0].plot(t[ok], speed[ok], lw=0.7, label="world gaze speed (gyro-compensated)")
     axes[0].axhline(FIXATION_MAX_DEG_S, color="k", lw=0.5, ls="--", label="fixation threshold")
     for f in found:
         for ax in axes:
             ax.axvspan(t[f.rows[0]], t[f.rows[-1]], color="g", alpha=0.15)
-    axes[0].set(ylabel="deg/s", ylim=(0, 150), title=f"fixations with head motion (shaded, {len(found)}); gaze taken {1000 * offset:.0f} ms late")
+    axes[0].set(ylabel="deg/s", ylim=(0, 150), title=f"fixations with head motion (shaded, {len(found)}); gaze taken {1000 * run.offset_s:.0f} ms late")
     axes[0].legend(fontsize=8, loc="upper right")
-    rays = session.config.camera.ray(session.gaze_px)
-    attitudes: dict[str, FloatArray | None] = {"head_frame": None, "gyro": gyro_attitude(aligned)}
-    for name, run in (("ekf", gaze.run_ekf), ("online", gaze.run_online), ("batch", gaze.run_batch)):
-        attitudes[name] = run(aligned).world_R_head  # type: ignore[operator]
-    for name, quat in attitudes.items():
-        times, angles = [], []
-        for f in found:
-            d = rays[f.rows] if quat is None else np.einsum("nij,nj->ni", matrix_from_quat(quat[f.rows]), rays[f.rows])
-            mean = d.sum(0) / np.linalg.norm(d.sum(0))
-            times.append(t[f.rows])
-            angles.append(np.rad2deg(np.arccos(np.clip(d @ mean, -1, 1))))
-        if times:
-            axes[1].plot(np.concatenate(times), np.concatenate(angles), ".", ms=2, label=f"{name} ({result['dispersion_deg'][name]:.2f} deg RMS)")
+    rays = run.session.config.camera.ray(run.session.gaze_px)
+    for name, quat in run.attitudes.items():
+        if found:
+            angles = np.rad2deg(np.concatenate([fixation_angles(quat, rays, f) for f in found]))
+            label = f"{name} ({dispersion_deg(quat, run.aligned, found):.2f} deg RMS)"
+            axes[1].plot(np.concatenate([t[f.rows] for f in found]), angles, ".", ms=2, label=label)
     axes[1].set(xlabel="time (s)", ylabel="angle from the fixation's mean (deg)", title="world gaze ray during fixations")
     axes[1].legend(fontsize=8, loc="upper right", markerscale=4)
     return save_figure(fig, path)

@@ -37,7 +37,7 @@ from ..solvers.ekf import HeadEkfConfig
 from . import head
 
 METHODS = ("tracker", "method2", "method2_paper_values", "isam2", "batch")
-"""Rows of the bench; the JSON's ``mean`` and the targets use ``tracker, method2, isam2, batch``."""
+"""Rows of the table and keys of the JSON, in order (the targets use ``tracker, method2, isam2, batch``)."""
 
 EULER_DOMAIN_DEG = 80.0
 """Elevation bound of the Euler-angle domain, degrees: 1/cos(80 deg) = 5.8 amplifies a rate error that much."""
@@ -155,6 +155,9 @@ class MethodResult:
     """Why the figures are not valid (the estimate not finite, an Euler filter outside its domain), or None."""
     runtime_s: float
     """Wall time of the run, seconds."""
+    raw_rms_deg: FloatArray
+    """The same RMS even where the figures are not valid (an Euler filter outside its domain: what the choice of its
+    settings compares); NaN where the run failed."""
 
 
 def _score(estimate: Estimate, session: Session, scored: FloatArray, euler_filter: bool = False) -> MethodResult:
@@ -175,7 +178,7 @@ def _score(estimate: Estimate, session: Session, scored: FloatArray, euler_filte
             )
     use = scored & finite
     rms = np.rad2deg(np.sqrt(np.mean(euler_errors(quat[use], session.truth.values[use]) ** 2, axis=0)))
-    return MethodResult(np.full(3, np.nan) if invalid else rms, invalid, estimate.runtime_s)
+    return MethodResult(np.full(3, np.nan) if invalid else rms, invalid, estimate.runtime_s, rms)
 
 
 GRAPH_GYRO_GRID: tuple[float, ...] = (0.0005, 0.0015, 0.005, 0.015)
@@ -201,8 +204,6 @@ class TrialRuns:
     """Results of the methods without a free setting (``tracker``, ``method2_paper_values``)."""
     grids: dict[str, dict[str, MethodResult]]
     """Per tuned method (``TUNED_METHODS``), its result at every grid point, for the leave-one-trial-out choice."""
-    grid_rms_deg: dict[str, dict[str, FloatArray]]
-    """The same RMS even where an Euler filter left its domain (what the choice compares), degrees."""
     scored_fraction: float
     """Scored samples over the samples in movement."""
     duration_s: float
@@ -217,30 +218,23 @@ def run_trial(path: str | Path) -> TrialRuns:
     paper = replace(head.run_ekf(session, "method2", HeadEkfConfig()), method="method2_paper_values")
     methods["method2_paper_values"] = _score(paper, session, scored, euler_filter=True)
     grids: dict[str, dict[str, MethodResult]] = {m: {} for m in TUNED_METHODS}
-    rms: dict[str, dict[str, FloatArray]] = {m: {} for m in TUNED_METHODS}
     for setting in EKF_GRID:
-        estimate = head.run_ekf(session, "method2", ekf_config(setting))
-        grids["method2"][ekf_setting_name(setting)] = _score(estimate, session, scored, euler_filter=True)
-        rms["method2"][ekf_setting_name(setting)] = _score(estimate, session, scored).rms_deg
-    for sigma in GRAPH_GYRO_GRID:
-        declared = head_session_from_broad(path, RecordedHeadConfig(gyro_noise_sigma_rad_s=sigma))
+        grids["method2"][ekf_setting_name(setting)] = _score(head.run_ekf(session, "method2", ekf_config(setting)), session, scored, euler_filter=True)
+    gyro = session.stream("gyro")
+    for sigma in GRAPH_GYRO_GRID:  # the same session, its gyro declaring another noise
+        declared = replace(session, streams={**session.streams, "gyro": replace(gyro, meta={**gyro.meta, "noise_sigma_rad_s": sigma})})
         for name, run in (("isam2", head.run_isam2), ("batch", head.run_batch)):
             try:
                 result = _score(run(declared), session, scored)
             except RuntimeError as exc:  # gtsam's indeterminate system: this declaration fails here, reported as such
                 first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-                result = MethodResult(np.full(3, np.nan), f"{name} with {graph_setting_name(sigma)}: gtsam: {first_line}", 0.0)
+                result = MethodResult(np.full(3, np.nan), f"{name} with {graph_setting_name(sigma)}: gtsam: {first_line}", 0.0, np.full(3, np.nan))
             grids[name][graph_setting_name(sigma)] = result
-            rms[name][graph_setting_name(sigma)] = result.rms_deg
     moving = session.stream("movement").values[:, 0] > 0
-    return TrialRuns(Path(path).stem, methods, grids, rms, float(scored.sum() / max(moving.sum(), 1)), session.duration_s)
+    return TrialRuns(Path(path).stem, methods, grids, float(scored.sum() / max(moving.sum(), 1)), session.duration_s)
 
 
 # ------------------------------------------------------------------------------------ bench
-
-MEAN_METHODS = ("tracker", "method2", "method2_paper_values", "isam2", "batch")
-"""Rows of the table and keys of the JSON, in order."""
-
 
 def _rms_json(rms_deg: FloatArray) -> dict[str, float | None]:
     return {axis: (float(v) if np.isfinite(v) else None) for axis, v in zip(AXES, rms_deg, strict=True)}
@@ -257,10 +251,10 @@ def _choose(runs: dict[str, TrialRuns], method: str, stems: list[str], scored_wi
 
     inside = [stem for stem in stems if method != "method2" or all(r.invalid is None for r in runs[stem].grids[method].values())]
     tuning_trials = inside if len(inside) >= 2 else stems
-    settings = list(runs[stems[0]].grid_rms_deg[method])
+    settings = list(runs[stems[0]].grids[method])
     # a setting that returned nothing finite on a trial scores as far off (it must not win by failing)
     together = scored_with or (method,)
-    scores = {s: {stem: float(np.mean([np.nan_to_num(np.mean(runs[stem].grid_rms_deg[m][s]), nan=1e3) for m in together])) for stem in tuning_trials}
+    scores = {s: {stem: float(np.mean([np.nan_to_num(np.mean(runs[stem].grids[m][s].raw_rms_deg), nan=1e3) for m in together])) for stem in tuning_trials}
               for s in settings}
     logo = leave_one_group_out(scores)
     chosen = {stem: logo["held_out"][stem]["chosen"] if stem in logo["held_out"] else logo["chosen"] for stem in stems}
@@ -287,37 +281,37 @@ def bench_head_recorded(
     stems = [p.stem for p in paths]
     graph = _choose(runs, "isam2", stems, scored_with=("isam2", "batch"))
     choices = {"method2": _choose(runs, "method2", stems), "isam2": graph, "batch": graph}
-    result: dict[str, Any] = {"trials": {}, "excluded": {}, "scored_fraction": {}, "runtime_s": {m: 0.0 for m in MEAN_METHODS}}
-    valid_rms: dict[str, list[FloatArray]] = {m: [] for m in MEAN_METHODS}
+    result: dict[str, Any] = {"trials": {}, "excluded": {}, "scored_fraction": {}, "runtime_s": {m: 0.0 for m in METHODS}}
+    valid_rms: dict[str, list[FloatArray]] = {m: [] for m in METHODS}
     total_s = 0.0
     for stem in stems:
         run = runs[stem]
         per = {**run.methods, **{m: run.grids[m][choices[m][0][stem]] for m in TUNED_METHODS}}
-        result["trials"][stem] = {m: {"rms_deg": _rms_json(per[m].rms_deg)} for m in MEAN_METHODS}
+        result["trials"][stem] = {m: {"rms_deg": _rms_json(per[m].rms_deg)} for m in METHODS}
         result["scored_fraction"][stem] = run.scored_fraction
         total_s += run.duration_s
-        for m in MEAN_METHODS:
+        for m in METHODS:
             result["runtime_s"][m] += per[m].runtime_s
-        reasons = [per[m].invalid for m in MEAN_METHODS if per[m].invalid]
+        reasons = [per[m].invalid for m in METHODS if per[m].invalid]
         if reasons:
             result["excluded"][stem] = "; ".join(str(r) for r in reasons)
             continue
-        for m in MEAN_METHODS:
+        for m in METHODS:
             valid_rms[m].append(per[m].rms_deg)
-    result["mean"] = {m: {"rms_deg": _rms_json(np.mean(valid_rms[m], axis=0) if valid_rms[m] else np.full(3, np.nan))} for m in MEAN_METHODS}
+    result["mean"] = {m: {"rms_deg": _rms_json(np.mean(valid_rms[m], axis=0) if valid_rms[m] else np.full(3, np.nan))} for m in METHODS}
     result["mean_trials"] = [s for s in stems if s not in result["excluded"]]
     # the methods that are valid everywhere, over every trial (what the exclusions leave out of the mean)
-    everywhere = [m for m in MEAN_METHODS if all(result["trials"][s][m]["rms_deg"]["azimuth"] is not None for s in stems)]
+    everywhere = [m for m in METHODS if all(result["trials"][s][m]["rms_deg"]["azimuth"] is not None for s in stems)]
     result["mean_all_trials"] = {
         m: {"rms_deg": _rms_json(np.mean([list(result["trials"][s][m]["rms_deg"].values()) for s in stems], axis=0))} for m in everywhere
     }
-    result["x_realtime"] = {m: total_s / max(result["runtime_s"][m], 1e-9) for m in MEAN_METHODS}
+    result["x_realtime"] = {m: total_s / max(result["runtime_s"][m], 1e-9) for m in METHODS}
     result["tuning"] = {m: {"rule": "leave-one-trial-out: for each trial, the grid point with the lowest mean of the azimuth/elevation/"
                                 "roll RMS (deg) on the other ones (Method II: over the trials where every grid point stayed inside the "
                                 "Euler domain, the rest get the best on all of those; the graph's one gyro declaration: the mean of "
                                 "iSAM2's and batch's, a failed run counting as 1000 deg)", **choices[m][1]} for m in TUNED_METHODS}
-    result["tuning"]["failed_grid_points"] = {stem: [r.invalid for m in ("isam2", "batch") for r in runs[stem].grids[m].values() if r.invalid]
-                                              for stem in stems if any(r.invalid for m in ("isam2", "batch") for r in runs[stem].grids[m].values())}
+    failed = {stem: [r.invalid for m in ("isam2", "batch") for r in runs[stem].grids[m].values() if r.invalid] for stem in stems}
+    result["tuning"]["failed_grid_points"] = {stem: reasons for stem, reasons in failed.items() if reasons}
     result["tuning"]["method2"]["tracker_sigma_rad"] = HeadEkfConfig().tracker_sigma_rad
     result["paper_values"] = ekf_setting_name((1.0, HeadEkfConfig().gyro_sigma_rad_s))
     result["scoring"] = (
@@ -387,10 +381,10 @@ def plot_head_recorded(result: dict[str, Any], path: str | Path) -> Path:
     labels = [t.split("_", 1)[0] for t in trials] + ["mean"]
     fig, axes = plt.subplots(3, 1, figsize=(max(8, 0.9 * len(trials) + 2), 8), sharex=True)
     for ax, axis in zip(axes, AXES, strict=True):
-        series = {LABELS[m]: [result["trials"][t][m]["rms_deg"][axis] for t in trials] + [result["mean"][m]["rms_deg"][axis]] for m in MEAN_METHODS}
+        series = {LABELS[m]: [result["trials"][t][m]["rms_deg"][axis] for t in trials] + [result["mean"][m]["rms_deg"][axis]] for m in METHODS}
         grouped_bars(ax, labels, series)
         ax.set_ylabel(f"{axis} RMS (deg)")
         ax.set_yscale("log")
-    axes[0].legend(ncol=len(MEAN_METHODS), fontsize=7)
+    axes[0].legend(ncol=len(METHODS), fontsize=7)
     fig.suptitle("head tracking on recorded BROAD motion: error per trial (missing bar: excluded)")
     return save_figure(fig, path)
