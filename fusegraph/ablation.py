@@ -291,19 +291,29 @@ def run_study(
     workers: int = 1,
     scheduler: str | None = None,
     on_row: Callable[[dict[str, Any]], None] | None = None,
+    retry_failed: bool = False,
+    force: bool = False,
 ) -> StudyResult:
-    """Run every run of ``study`` not yet in ``out_dir/runs.csv``; returns all rows in study order."""
+    """Run every run of ``study`` not yet in ``out_dir/runs.csv``; returns all rows in study order.
+
+    A run that failed before is kept as failed (a deterministic failure would only fail again) unless
+    ``retry_failed``. A folder holding another study is refused, or with ``force`` started afresh (its
+    rows kept aside as ``runs.replaced.csv``, its definition as ``study.replaced.json``).
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     described = json.dumps(asdict(study), indent=2)
     recorded = out / "study.json"
-    if recorded.exists() and recorded.read_text() != described and read_rows(out / "runs.csv"):
-        raise ValueError(f"{out} holds a study with other settings ({recorded}): its rows would mix with these; "
-                         "use another --out folder, or delete that one")
-    recorded.write_text(described)
     table_path = out / "runs.csv"
-    # finished runs are kept; failed ones are run again (their rows dropped), so a resume retries them
-    kept = [row for row in read_rows(table_path) if row["status"] == "ok"]
+    if recorded.exists() and recorded.read_text() != described and read_rows(table_path):
+        if not force:
+            raise ValueError(f"{out} holds a study with other settings ({recorded}): its rows would mix with these; "
+                             "use another --out folder, or --force to start this study there (the old rows are kept aside)")
+        recorded.replace(out / "study.replaced.json")
+        table_path.replace(out / "runs.replaced.csv")
+    recorded.write_text(described)
+    # finished runs are kept (and failed ones unless retried); a torn or damaged row is dropped and redone
+    kept = [row for row in read_rows(table_path) if row["status"] == "ok" or not retry_failed]
     done = {row["key"]: row for row in kept}
     _rewrite(table_path, kept)
     specs = study.runs()

@@ -147,6 +147,9 @@ def build_parser() -> argparse.ArgumentParser:
     abl.add_argument("--workers", type=int, default=None, help="parallel workers (default: all cores)")
     abl.add_argument("--scheduler", default=None, help="'local' starts a Dask LocalCluster; tcp://host:port uses an existing one")
     abl.add_argument("--out", type=Path, required=True, help="study directory (created; reused to resume)")
+    abl.add_argument("--retry-failed", action="store_true", help="on resume, run the runs that failed before again (default: keep them as failed)")
+    abl.add_argument("--force", action="store_true", help="--out holds a study with other settings: start this one there anyway "
+                     "(its rows are kept aside as runs.replaced.csv)")
 
     sen = sub.add_parser("sensors", help="the sensor catalogue: every stream kind's columns, units, keys, factors and checks",
                          description="Print the sensor catalogue (docs/sensors.md is this output), one kind's entry, "
@@ -611,7 +614,7 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
         changes["profile"] = args.profile
     study = replace(study, **changes)
     workers = args.workers or os.cpu_count() or 1
-    result = ablation.run_study(study, args.out, workers=workers, scheduler=args.scheduler)
+    result = ablation.run_study(study, args.out, workers=workers, scheduler=args.scheduler, retry_failed=args.retry_failed, force=args.force)
     summary = ablation.summarize(result.rows)
     print(ablation.summary_table(summary))
     files = ablation.write_summary(summary, args.out)

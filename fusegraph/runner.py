@@ -73,7 +73,7 @@ def describe(outcome: Outcome) -> str:
         lines.append(f"tracker latency estimated: {1000 * latency:.1f} ms" + (f" (sigma {1000 * sigma:.1f} ms)" if sigma else ""))
     if outcome.metrics:
         flat = flatten(outcome.metrics)
-        keys = [k for k in outcome.preset.metric_keys if k in flat] + [k for k in flat if k.startswith("gap_rms_deg.")]
+        keys = [k for k in outcome.preset.metric_keys if k in flat] + [k for k in flat if k.startswith("gap_")]
         lines.append("; ".join(f"{k} {flat[k]:.4g}" for k in keys))
     return "\n".join(line for line in lines if line)
 

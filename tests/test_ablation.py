@@ -46,19 +46,24 @@ def test_failed_runs_are_rows_and_a_killed_study_resumes_to_the_same_table(tmp_p
 
 def test_a_row_torn_by_a_kill_a_failed_run_and_other_settings_in_the_same_folder(tmp_path: Path) -> None:
     """Killed while writing a row: the torn row is dropped and its run done again (no crash in the summary);
-    a failed run is retried on resume; the same folder with other settings is refused, not mixed."""
+    a failed run is kept as failed on resume, and run again with retry_failed; the same folder with other
+    settings is refused, not mixed, and with force starts afresh with the old rows kept aside."""
     study = Study(system="head", seeds=(0, 1), solvers=("ekf",), duration_s=2.0, profile="ideal")
     first = run_study(study, tmp_path, workers=1)
     lines = (tmp_path / "runs.csv").read_text().splitlines()
     broken = lines[1].replace(",ok,", ",failed,", 1)
     (tmp_path / "runs.csv").write_text("\n".join([lines[0], broken, lines[2][: len(lines[2]) // 2]]))  # one failed, one torn
-    again = run_study(study, tmp_path, workers=1)
-    assert again.ran == 2 and again.skipped == 0
+    kept = run_study(study, tmp_path, workers=1)
+    assert kept.ran == 1 and kept.skipped == 1 and [r["status"] for r in kept.rows] == ["failed", "ok"]
+    again = run_study(study, tmp_path, workers=1, retry_failed=True)
+    assert again.ran == 1 and again.skipped == 1
     assert metrics(again.rows) == metrics(first.rows)
     assert len(read_rows(tmp_path / "runs.csv")) == 2
     summary_table(summarize(again.rows))
     with pytest.raises(ValueError, match="other settings"):
         run_study(Study(system="head", seeds=(0, 1, 2), solvers=("ekf",), duration_s=2.0, profile="ideal"), tmp_path, workers=1)
+    other = run_study(Study(system="head", seeds=(0,), solvers=("ekf",), duration_s=2.0, profile="ideal"), tmp_path, workers=1, force=True)
+    assert other.ran == 1 and len(read_rows(tmp_path / "runs.csv")) == 1 and len(read_rows(tmp_path / "runs.replaced.csv")) == 2
 
 
 def test_dask_local_cluster_with_two_workers_gives_the_same_results(tmp_path: Path) -> None:

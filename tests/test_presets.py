@@ -165,3 +165,25 @@ def test_import_plaza_runs_as_a_wheel_odometry_session(tmp_path: Path, capsys: p
     assert main(["run", str(tmp_path / "p1"), "--solver", "batch", "--json"]) == 0
     metrics = json.loads(capsys.readouterr().out)["metrics"]
     assert metrics["rmse_m"] < 1.2, metrics
+
+
+def test_gap_scores_measure_error_and_nees_inside_the_gap_only() -> None:
+    """A 2 deg yaw error inside the gap and none outside, covariance (1 deg)^2 per axis: the largest error
+    angle there is 2 deg and the NEES (2/1)^2 = 4; samples outside the gap do not count (exact figures:
+    the error is constructed)."""
+    from fusegraph.estimate import Estimate
+    from fusegraph.systems.presets import gap_scores
+
+    t = np.linspace(0.0, 10.0, 101)
+    truth = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+    half = np.deg2rad(2.0) / 2
+    estimate_q = truth.copy()
+    inside = (t > 3.0) & (t < 6.0)
+    estimate_q[inside] = [np.cos(half), 0.0, 0.0, np.sin(half)]
+    estimate_q[t > 8.0] = [np.cos(5 * half), 0.0, 0.0, np.sin(5 * half)]  # a larger error after the gap is not its
+    cov = np.tile(np.deg2rad(1.0) ** 2 * np.eye(3), (len(t), 1, 1))
+    scores = gap_scores(Estimate("x", t, estimate_q, cov), t, truth, [(3.0, 6.0)])
+    assert scores["gap_max_deg"] == pytest.approx(2.0, abs=1e-9)
+    assert scores["gap_nees"] == pytest.approx(4.0, rel=1e-9)
+    assert scores["gap_rms_deg"]["azimuth"] == pytest.approx(2.0, abs=1e-9)
+    assert gap_scores(Estimate("x", t, estimate_q, None), t, truth, [(3.0, 6.0)])["gap_nees"] is None

@@ -66,6 +66,14 @@ class OnlineConfig:
     """Refresh the bias marginal covariance every this many updates."""
 
 
+#: Sigma of the prior a rebuilt solver puts on every variable (tangent-space units: rad, rad/s, ...).
+RECOVERY_PRIOR_SIGMA = 1e3
+
+
+class SolverFailureError(RuntimeError):
+    """An online update that failed numerically even on a rebuilt solver."""
+
+
 class OnlineSmoother:
     """iSAM2 over a builder's factors; ``update()`` after each step, estimates of the newest keyframe."""
 
@@ -88,13 +96,15 @@ class OnlineSmoother:
         self.latest_bias = np.zeros(3)
         self.latest_cov = np.full((3, 3), np.nan)
         self.latest_bias_cov = np.full((3, 3), np.nan)
+        self.recoveries: list[str] = []
+        """One line per update that failed numerically and was redone from a rebuilt solver (what gtsam said)."""
 
-    def _new_isam(self) -> gtsam.ISAM2:
+    def _new_isam(self, factorization: str | None = None) -> gtsam.ISAM2:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.config.relinearize_threshold)
         params.relinearizeSkip = self.config.relinearize_skip
         params.enableRelinearization = self.config.relinearize
-        params.setFactorization(self.config.factorization)
+        params.setFactorization(factorization or self.config.factorization)
         gauss_newton = gtsam.ISAM2GaussNewtonParams()
         gauss_newton.setWildfireThreshold(self.config.wildfire_threshold)
         params.setOptimizationParams(gauss_newton)
@@ -107,8 +117,11 @@ class OnlineSmoother:
         increment = self.builder.take()
         if not increment:
             return False
-        self._isam.update(increment.graph(), increment.values, [], None, self._no_relin)
-        self._window.extend(increment.factors)
+        try:
+            self._isam.update(increment.graph(), increment.values, [], None, self._no_relin)
+            self._window.extend(increment.factors)
+        except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and kin
+            self._recover(increment, exc)
         k = self.builder.latest_keyframe
         new_keyframe = k != self._known_keyframe
         self._keyframes_since_anchor += k - self._known_keyframe
@@ -137,6 +150,38 @@ class OnlineSmoother:
         if self._keyframes_since_anchor >= self.config.reanchor_every:
             self._reanchor()
         return True
+
+    def _recover(self, increment: GraphIncrement, exc: RuntimeError) -> None:
+        """Redo a failed update on a rebuilt solver instead of leaving iSAM2 broken for every later update.
+
+        A failed ``update`` leaves gtsam's tree half-changed, so the solver is rebuilt from the factors it
+        held (the window) plus the new ones, at the linearisation point it had, with QR (which survives the
+        near-singular systems Cholesky calls indeterminate) and a negligible prior on every variable (sigma
+        1e3 in its tangent space: information 1e-6 against the sensors' 1e4 and more, yet it makes the
+        system positive definite, as Levenberg-Marquardt's damping does). The prior leaves with the next
+        re-anchoring, marginalised with the old keyframes. Only when that fails too is the error raised.
+        """
+        theta = gtsam.Values(self._isam.getLinearizationPoint())
+        theta.insert(_subset(increment.values, {k for k in increment.values.keys() if not theta.exists(k)}))
+        factors = self._window + increment.factors
+        zero = theta.zeroVectors()
+        weak: list[tuple[int, gtsam.NonlinearFactor]] = []
+        for key in theta.keys():
+            dim = len(zero.at(key))
+            jacobian = gtsam.JacobianFactor(key, np.eye(dim), np.zeros(dim), gtsam.noiseModel.Isotropic.Sigma(dim, RECOVERY_PRIOR_SIGMA))
+            weak.append((-1, gtsam.LinearContainerFactor(jacobian, theta)))  # keeps only its key's value
+        graph = gtsam.NonlinearFactorGraph()
+        for _, factor in factors + weak:
+            graph.add(factor)
+        rebuilt = self._new_isam("QR")
+        try:
+            rebuilt.update(graph, theta)
+        except RuntimeError as again:
+            raise SolverFailureError(f"iSAM2 update at keyframe {self.builder.latest_keyframe} failed ({exc}) and failed again on a "
+                                f"rebuilt solver ({again}): a variable no measurement constrains, or a sensor sigma far too small") from again
+        self._isam = rebuilt
+        self._window = factors + weak
+        self.recoveries.append(f"keyframe {self.builder.latest_keyframe}: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}")
 
     @property
     def isam(self) -> gtsam.ISAM2:

@@ -127,21 +127,29 @@ def _head_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     trackers = session.streams_of_kind("attitude")
     gaps = trackers[0].gaps() if trackers else []
     if gaps:
-        out["gap_rms_deg"] = gap_rms_deg(estimate, truth.t, truth.values, gaps)
+        out.update(gap_scores(estimate, truth.t, truth.values, gaps))
     return out
 
 
-def gap_rms_deg(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, gaps: list[tuple[float, float]]) -> dict[str, float]:
-    """RMS per axis (deg) over the truth samples strictly inside the tracker's gaps."""
-    from ..metrics import AXES, euler_errors
+def gap_scores(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, gaps: list[tuple[float, float]]) -> dict[str, Any]:
+    """Scores over the truth samples strictly inside the tracker's gaps: ``gap_rms_deg`` per axis, ``gap_max_deg``
+    (largest attitude error angle) and ``gap_nees`` (mean NEES there; None without covariances), so a long dropout
+    shows whether the error stays bounded and the covariance grows with it."""
+    from ..metrics import AXES, body_errors, euler_errors, nees
 
     inside = np.zeros(len(truth_t), dtype=bool)
     for a, b in gaps:
         inside |= (truth_t > a) & (truth_t < b)
+    if not inside.any():
+        return {"gap_rms_deg": dict.fromkeys(AXES, float("nan")), "gap_max_deg": float("nan"), "gap_nees": None}
     errors = np.rad2deg(euler_errors(estimate.quat_wxyz[inside], truth_quat[inside]))
     # a method with no estimate inside the gap fails there (NaN), it does not escape it
-    rms = np.sqrt(np.mean(errors**2, axis=0)) if inside.any() else np.full(3, np.nan)
-    return dict(zip(AXES, (float(v) for v in rms), strict=True))
+    rms = np.sqrt(np.mean(errors**2, axis=0))
+    angle = np.rad2deg(np.linalg.norm(body_errors(estimate.quat_wxyz[inside], truth_quat[inside]), axis=1))
+    gap_nees = None
+    if estimate.cov is not None:
+        gap_nees = float(np.nanmean(nees(estimate.quat_wxyz[inside], estimate.cov[inside], truth_quat[inside])))
+    return {"gap_rms_deg": dict(zip(AXES, (float(v) for v in rms), strict=True)), "gap_max_deg": float(np.max(angle)), "gap_nees": gap_nees}
 
 
 def _head_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
