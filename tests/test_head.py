@@ -140,7 +140,7 @@ def test_live_api_refuses_bad_samples_and_carries_on() -> None:
 def test_a_failed_online_update_is_redone_and_the_tracker_carries_on() -> None:
     """gtsam really fails (a variable only half constrained: "Indeterminate linear system"); the update is
     redone on a rebuilt solver and every later estimate equals the replay that never saw it, to 1e-9 (the
-    rebuilt solver's 1e3-sigma priors move the estimate by ~1e-11 here), through three re-anchorings."""
+    rebuilt solver's 1e3-sigma priors move the estimate by ~1e-11 here), through two re-anchorings."""
     from fusegraph.factors.linear import linear_factor
 
     session = simulate_head(0, profile="ideal", duration_s=6.0)
@@ -162,7 +162,7 @@ def test_a_failed_online_update_is_redone_and_the_tracker_carries_on() -> None:
             assert now is not None
             estimates.append(now.quat_wxyz)
     assert len(live.solver.recoveries) == 1 and "Indeterminate" in live.solver.recoveries[0]
-    assert live.solver.reanchors >= 3
+    assert live.solver.reanchors >= 2
     np.testing.assert_allclose(np.array(estimates), replay.quat_wxyz[150:], atol=1e-9)
 
 

@@ -114,6 +114,7 @@ class HeadGraphBuilder:
     def __init__(self, model: HeadModel | None = None):
         self.model = model or HeadModel()
         self._params = preintegration_params(self.model.gyro)
+        self._density_sq = self.model.gyro.density**2
         self._pending = GraphIncrement()
         self._gyro_buffer: list[tuple[float, FloatArray]] = []
         self._tracker_waiting: list[tuple[float, FloatArray]] = []
@@ -244,7 +245,7 @@ class HeadGraphBuilder:
         """
         assert self._interval is not None
         dt = self._interval.t_last - self.keyframe_t[self._solved_keyframe]
-        return cov_kf + dt * self.model.gyro.density**2 * _EYE3 + dt * dt * cov_bias
+        return cov_kf + (dt * self._density_sq) * _EYE3 + (dt * dt) * cov_bias
 
     @property
     def now_s(self) -> float:

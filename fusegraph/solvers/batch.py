@@ -17,8 +17,9 @@ class BatchConfig:
 
     max_iterations: int = 50
     """Levenberg-Marquardt iteration cap."""
-    relative_error_tol: float = 1e-7
-    """Stop when the error decreases by less than this fraction."""
+    relative_error_tol: float = 1e-5
+    """Stop when the error decreases by less than this fraction (1e-7 cost the 600 s head batch a fourth
+    iteration, 1.8 s, that lowered the cost by 6e-6 of 4.4e4)."""
     covariance: bool = True
     """Compute marginal covariances of the requested keys."""
     covariance_stride: int = 5
