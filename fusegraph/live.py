@@ -197,6 +197,7 @@ def run_live(
     outlet = pylsl.StreamOutlet(info)
     solver = SOLVERS[system](declared)
     stats = LiveStats(received=dict.fromkeys(inputs, 0))
+    due = {name: declared.streams[name].latency_s if name in declared.streams else 0.0 for name in inputs}
     recorded: dict[str, list[tuple[float, np.ndarray]]] = {name: [] for name in inputs}
     transit: dict[str, list[float]] = {name: [] for name in inputs}  # arrival - sample time, s
     start = time.perf_counter()
@@ -213,7 +214,11 @@ def run_live(
             if not got:
                 time.sleep(0.0002)
                 continue
-            got.sort(key=lambda item: (item[0], item[1] != "tracker"))  # in time order; a tracker sample before a gyro one at the same time
+            # samples that piled up (the solver was busy) go in the order they were due to arrive, sample time plus
+            # their stream's declared latency, a tracker sample before a gyro one due at the same instant: the
+            # replay's order. By sample time alone a late tracker sample jumped ahead of gyro samples and the
+            # estimate parted from the replay's for the rest of the run.
+            got.sort(key=lambda item: (item[0] + due[item[1]], item[1] != "tracker"))
             for t, name, values in got:
                 stats.received[name] += 1
                 if record is not None:
@@ -278,7 +283,7 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
     ``fusegraph live head`` (its own process), the estimates read back by an inlet.
 
     Latency is the time from a gyro sample's push to its estimate's arrival (LSL clock, one machine);
-    lost = gyro samples after the first tracker fix without an estimate. The RMS against the truth is
+    lost = gyro samples from the first estimate on without an estimate. The RMS against the truth is
     printed beside the replay's (``run --solver online`` on the same session).
     """
     import subprocess
@@ -351,17 +356,24 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
             process.wait(timeout=10)
     arrival = np.array([r[0] for r in received])
     stamp = np.array([r[1] for r in received])
-    sample = np.clip(np.searchsorted(gyro.t, stamp - t0 - 1e-6), 0, len(gyro.t) - 1)  # the gyro sample each estimate is for
+    # the gyro sample each estimate is for: the nearest in time (LSL's clock correction moves a stamp by
+    # microseconds either way; "the first at or after" then picked the next sample, 10 ms off, for some)
+    sample = _nearest_index(gyro.t, stamp - t0)
     latency_ms = 1e3 * (arrival - pushed_at[sample])
+    # lost: gyro samples from the first estimate on that got none (pushed, never answered). Before it, the
+    # gyro samples due after the first fix but before the live process had received it are counted apart
+    # (``before_first_fix``): the fix travels on its own connection and may arrive after them
     first_fix = float(tracker.t[0] + tracker.latency_s)
-    expected = int(np.sum(gyro.t >= first_fix))
+    first_estimate = int(sample.min()) if len(sample) else len(gyro.t)
+    expected = len(gyro.t) - first_estimate
+    before_first_fix = int(np.sum(gyro.t[:first_estimate] >= first_fix - 1e-9))
     t_session = stamp - t0
     quats = np.array([r[2][:4] for r in received]) if received else np.zeros((0, 4))
     from .estimate import Estimate
 
     replay = run_isam2(session)  # sampled at the gyro times, as the truth
     live_quat = np.full((len(replay.t), 4), np.nan)
-    index = np.clip(np.searchsorted(replay.t, t_session - 1e-6), 0, len(replay.t) - 1)
+    index = _nearest_index(replay.t, t_session)
     live_quat[index] = quats
     live = Estimate("live", replay.t, live_quat, None, 0.0)
     rms_live = score_attitude(live, truth.t, truth.values).rms_rad
@@ -371,7 +383,8 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
         "p50_ms": float(np.percentile(latency_ms, 50)) if len(latency_ms) else float("nan"),
         "p99_ms": float(np.percentile(latency_ms, 99)) if len(latency_ms) else float("nan"),
         "max_ms": float(latency_ms.max()) if len(latency_ms) else float("nan"),
-        "lost": int(max(expected - len(received), 0)),
+        "lost": int(max(expected - len(np.unique(sample)), 0)),
+        "before_first_fix": before_first_fix,
         "rms_deg": {a: float(np.rad2deg(v)) for a, v in zip(axes, rms_live, strict=True)},
         "replay_rms_deg": {a: float(np.rad2deg(v)) for a, v in zip(axes, rms_replay, strict=True)},
         "duration_s": duration_s,
@@ -380,13 +393,19 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
     }
 
 
+def _nearest_index(times: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """Index of the element of the increasing ``times`` nearest each ``query``."""
+    right = np.clip(np.searchsorted(times, query), 1, len(times) - 1)
+    return np.where(np.abs(times[right - 1] - query) <= np.abs(times[right] - query), right - 1, right)
+
+
 def format_bench_live(result: dict[str, Any]) -> str:
     """The bench as text."""
     r, p = result["rms_deg"], result["replay_rms_deg"]
     return "\n".join([
         f"live head over LSL loopback, {result['duration_s']:g} s (gyro 100 Hz, tracker 50 Hz 100 ms late), {result['estimates']} estimates",
         f"latency gyro push -> estimate arrival: p50 {result['p50_ms']:.2f} ms, p99 {result['p99_ms']:.2f} ms, max {result['max_ms']:.2f} ms; "
-        f"lost {result['lost']}",
+        f"lost {result['lost']} (and {result['before_first_fix']} gyro sample(s) due after the first fix that came before it)",
         f"RMS deg  live    az {r['azimuth']:.3f} el {r['elevation']:.3f} roll {r['roll']:.3f}",
         f"         replay  az {p['azimuth']:.3f} el {p['elevation']:.3f} roll {p['roll']:.3f}",
     ])
