@@ -181,6 +181,16 @@ def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
     return float(np.hypot(rms["x_mm"], rms["z_mm"]))
 
 
+def _gaze_fixation_score(setting: dict[str, Any], seed: int, solver: str = "online") -> float:
+    from .factors.gaze import FixationNoise
+    from .systems.gaze import GazeModel, rms_mm, run_batch, run_online
+
+    s = _simulated("gaze", seed)
+    fixation = FixationNoise(drift_m_per_sqrt_s=setting["drift_m_per_sqrt_s"], cauchy_k=setting["cauchy_k"])
+    rms = rms_mm((run_online if solver == "online" else run_batch)(s, GazeModel(fixation=fixation)).points_xz_m, s)
+    return float(np.hypot(rms["x_mm"], rms["z_mm"]))
+
+
 def _bicycle_ekf_score(setting: dict[str, Any], seed: int) -> float:
     from .solvers.ekf9 import Ekf9Config
     from .systems.bicycle import braking_rms_deg, run_pipeline
@@ -242,6 +252,11 @@ def _head_ekf_score(setting: dict[str, Any], seed: int, mode: str = "method2") -
 STUDIES: dict[str, Study] = {
     "gaze_ekf": Study("gaze_ekf", {"gyro_sigma_rad_s": (0.01, 0.03, 0.1, 0.3), "accel_inflation": (0.0, 20.0),
                                    "gaze_walk_m_per_sqrt_s": (0.05, 0.2)}, _gaze_ekf_score, "mm, hypot of X and Z RMS on the wall"),
+    "gaze_fixation": Study("gaze_fixation", {"drift_m_per_sqrt_s": (0.005, 0.01, 0.02, 0.04), "cauchy_k": (1.0, 2.0, 4.0, 8.0)},
+                           _gaze_fixation_score, "mm, hypot of X and Z RMS on the wall of fusegraph online (the graph's fixation model)"),
+    "gaze_fixation_batch": Study("gaze_fixation_batch", {"drift_m_per_sqrt_s": (0.005, 0.01, 0.02, 0.04), "cauchy_k": (1.0, 2.0, 4.0, 8.0)},
+                                 lambda s, seed: _gaze_fixation_score(s, seed, "batch"),
+                                 "mm, hypot of X and Z RMS on the wall of fusegraph batch (the graph's fixation model)"),
     "bicycle_ekf": Study("bicycle_ekf", {"gyro_sigma_rad_s": (0.003, 0.01, 0.03, 0.1), "accel_sigma_m_s2": (0.25, 0.5, 1.0, 2.0, 4.0)}, _bicycle_ekf_score,
                          "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),
     "walking_fixes": Study("walking_fixes", {"kernel_width": (1.0, 3.0, 5.0, 8.0), "reject_sigmas": (3.0, 5.0, 8.0)}, _walking_fixes_score,

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
+from ..tuned import value
 
 # gtsam's camera frame: z forward, x right, y down; ours (head): x forward, y left, z up
 HEAD_R_CAMERA = gtsam.Rot3(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]))
@@ -70,12 +71,18 @@ def gaze_factor(pose_key: int, point_key: int, uv: FloatArray, keyframe_R_sample
 class FixationNoise:
     """How the fixated world point moves: slowly, with saccades the robust kernel absorbs."""
 
-    drift_m_per_sqrt_s: float = 0.01
-    """Random walk of the point during a fixation, metres per sqrt(second)."""
-    cauchy_k: float = 1.0
-    """Cauchy kernel width in sigmas: a saccade (a jump of centimetres to metres) is absorbed."""
+    drift_m_per_sqrt_s: float = value("gaze_fixation", "drift_m_per_sqrt_s")
+    """Random walk of the point during a fixation, metres per sqrt(second) (``tune gaze_fixation``, seeds 100-119)."""
+    cauchy_k: float = value("gaze_fixation", "cauchy_k")
+    """Cauchy kernel width in sigmas: a saccade (a jump of centimetres to metres) is absorbed (``tune gaze_fixation``)."""
     plane_sigma_m: float = 0.002
     """How well the point is known to lie on the wall plane, metres."""
+
+
+def fixation_tuned(study: str = "gaze_fixation") -> FixationNoise:
+    """The fixation model chosen by ``fusegraph tune`` for one solver (``gaze_fixation``: online,
+    ``gaze_fixation_batch``: batch; each solver's RMS on seeds 100-119)."""
+    return FixationNoise(drift_m_per_sqrt_s=value(study, "drift_m_per_sqrt_s"), cauchy_k=value(study, "cauchy_k"))
 
 
 def fixation_walk(prev_key: int, next_key: int, dt_s: float, noise: FixationNoise) -> gtsam.BetweenFactorPoint3:
