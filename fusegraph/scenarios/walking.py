@@ -1,6 +1,9 @@
 """Scenario ``walking``: a person with a waist IMU walking through a 3-floor building, with image fixes.
 
-The walker's waist follows a gait model per step (phase 0 = heel strike): the forward speed surges
+Two gaits (``WalkingScenarioConfig.gait``). ``pendulum`` is the independent one of ``scenarios.gait`` (an
+inverted-pendulum pelvis with stride variability, heel strikes and a tilted belt IMU), on which the
+activity detector is scored. ``signature`` (the default, the positioning benches' walk) is the first
+generator: the walker's waist follows a gait model per step (phase 0 = heel strike): the forward speed surges
 (``v + B cos 2 pi phase``, so forward acceleration goes negative then positive), the waist rises and
 falls (lowest at heel strike: vertical acceleration positive then negative), sways sideways once
 per stride, and rolls. The activity signatures are the ones the walking-analysis paper detects:
@@ -31,6 +34,7 @@ from ..factors.imu import GRAVITY_M_S2
 from ..factors.ranging import BeaconRanges
 from ..geometry import FloatArray
 from ..session import KIND_COLUMNS, Session, Stream
+from .gait import PendulumGait, Walker
 
 ACTIVITIES = ("flat", "stairs_up", "stairs_down", "elevator")
 
@@ -79,6 +83,10 @@ class WalkingScenarioConfig:
     """How far off a wrong fix is, metres (uniform)."""
     elevator_rides: int = 6
     """Elevator rides in the tour (at least 6)."""
+    gait: str = "signature"
+    """How the waist moves: ``signature`` draws each activity with the signature the detector looks for (the
+    first generator); ``pendulum`` is the independent gait of ``scenarios.gait`` (an inverted-pendulum walker
+    drawn per seed, stride variability, heel-strike transients, a tilted belt IMU)."""
 
 
 @dataclass(frozen=True)
@@ -132,7 +140,9 @@ class WalkingSession:
 class _Tour:
     """Accumulates a smooth kinematic timeline, step by step."""
 
-    def __init__(self, rate_hz: float, start: tuple[float, float, float, float]) -> None:
+    def __init__(self, rate_hz: float, start: tuple[float, float, float, float], gait: PendulumGait | None = None) -> None:
+        self.gait = gait
+        self.step_speed: list[float] = []
         self.dt = 1.0 / rate_hz
         self.t = 0.0
         self.x, self.y, self.z, self.yaw = start
@@ -166,6 +176,12 @@ class _Tour:
         z0, yaw0 = self.z, self.yaw
         self.step_t.append(self.t)
         self.step_activity.append(kind)
+        self.step_speed.append(speed)
+        if self.gait is not None:
+            self.gait.begin_step(kind, speed, period, yaw0, dyaw, z0, rise, k, scale)
+            self._emit(period, self.gait.sample)
+            self._finish_step(z0 + rise, yaw0, dyaw, speed, period)
+            return
 
         def sample(p: float) -> tuple[float, ...]:
             s = p - math.sin(2 * math.pi * p) / (2 * math.pi)
@@ -180,7 +196,10 @@ class _Tour:
             )
 
         self._emit(period, sample)
-        self.z = z0 + rise
+        self._finish_step(z0 + rise, yaw0, dyaw, speed, period)
+
+    def _finish_step(self, z: float, yaw0: float, dyaw: float, speed: float, period: float) -> None:
+        self.z = z
         self.yaw = yaw0 + dyaw
         self.x += speed * period * math.cos(yaw0 + dyaw / 2)
         self.y += speed * period * math.sin(yaw0 + dyaw / 2)
@@ -192,6 +211,8 @@ class _Tour:
         period = 1.0 / (1.0 + 0.65 * speed)
         first = True
         while True:
+            if self.gait is not None:
+                period = self.gait.period("flat", speed)
             dx, dy = target[0] - self.x, target[1] - self.y
             remaining = math.hypot(dx, dy)
             stride = speed * period
@@ -215,6 +236,8 @@ class _Tour:
         t0 = self.t
         period = 1.0 / (1.4 if kind == "stairs_up" else 1.8)
         for _ in range(steps):
+            if self.gait is not None:
+                period = self.gait.period(kind, 0.0)
             self.step(kind, tread / period, period, 0.0)
         self.walking.append((t0, self.t))
 
@@ -281,6 +304,11 @@ def _imu(tour: _Tour, rng: np.random.Generator, config: WalkingScenarioConfig) -
     accel = np.einsum("nji,nj->ni", R, specific)
     droll, dpitch, dyaw = (np.gradient(a, dt) for a in (roll, pitch, yaw))
     gyro = np.stack([droll - dyaw * sp, dpitch * cr + dyaw * sr * cp, -dpitch * sr + dyaw * cr * cp], axis=1)
+    if tour.gait is not None:
+        # heel-strike transients shake the sensor along the body's vertical; the IMU sits tilted on the belt
+        accel[:, 2] += tour.gait.impacts(t, np.array(tour.step_t), tuple(tour.step_activity), np.array(tour.step_speed))
+        imu_R_body = tour.gait.walker.imu_R_body
+        accel, gyro = accel @ imu_R_body.T, gyro @ imu_R_body.T
     bias = rng.normal(0.0, math.radians(config.gyro_bias_sigma_deg_s), 3)
     gyro_meas = gyro + bias + rng.normal(0.0, config.gyro_sigma_rad_s, gyro.shape)
     accel_meas = accel + rng.normal(0.0, config.accel_sigma_m_s2, accel.shape)
@@ -312,13 +340,24 @@ def _fixes(rng: np.random.Generator, t: FloatArray, pos: FloatArray, yaw: FloatA
     return Fixes(t=ft, pose=measured, correct_pose=correct, wrong=wrong)
 
 
+def _gait(seed: int, config: WalkingScenarioConfig, stream: int) -> PendulumGait | None:
+    """The seed's walker (the same for its tour and its calibration walk; own random streams, so the
+    signature gait's draws are unchanged); None for the signature gait."""
+    if config.gait == "signature":
+        return None
+    if config.gait != "pendulum":
+        raise ValueError(f"walking gait {config.gait!r}: use 'signature' or 'pendulum'")
+    walker = Walker.draw(np.random.default_rng([seed, 7]))
+    return PendulumGait(walker, np.random.default_rng([seed, 8, stream]))
+
+
 def simulate_walking(seed: int = 0, config: WalkingScenarioConfig | None = None) -> WalkingSession:
     """The seeded tour: floor 0 -> elevator and stairs between floors -> back to the start."""
     config = config or WalkingScenarioConfig()
     b = config.building
     rng = np.random.default_rng(seed)
     start = (0.0, 0.0, 0.0, 0.0)
-    tour = _Tour(config.rate_hz, start)
+    tour = _Tour(config.rate_hz, start, _gait(seed, config, 0))
     tour.stand(3.0)
     ex, ey = b.elevator_xy_m
     fx, fy = b.stairs_foot_xy_m
@@ -386,7 +425,7 @@ def simulate_calibration_walk(seed: int = 0, speeds_m_s: tuple[float, ...] = (0.
     """Straight legs of ``leg_m`` at known speeds, turning back between them: data to fit the speed model."""
     config = config or WalkingScenarioConfig()
     rng = np.random.default_rng(seed + 10_000)
-    tour = _Tour(config.rate_hz, (0.0, 0.0, 0.0, 0.0))
+    tour = _Tour(config.rate_hz, (0.0, 0.0, 0.0, 0.0), _gait(seed, config, 1))
     tour.stand(2.0)
     bouts = []
     for i, v in enumerate(speeds_m_s):
