@@ -50,6 +50,7 @@ from ..factors.latency import (
 from ..geometry import FloatArray, rot3_from_quat_wxyz
 from ..session import Session
 from .increment import GraphIncrement
+from .ordering import nested_dissection
 
 _EYE3 = np.eye(3)
 
@@ -427,17 +428,10 @@ class HeadGraphBuilder:
 _RANK = {"t": 0, "e": 1, "b": 2, "x": 3}
 
 
-def time_ordering(keys: Iterable[int], leaf_keyframes: int = 8) -> list[int]:
-    """Elimination order for a whole head graph: nested dissection over keyframes, session-wide keys last.
-
-    COLAMD treats the calibration key (in every bias factor) as a dense column and took super-linear
-    time here (60 s of data: 0.08 s, 240 s: 1.1 s). Keyframe by keyframe is banded but makes the Bayes
-    tree a chain as deep as the session, and gtsam's elimination and marginals grow faster than the
-    length along it (600 s: 3.2 s per elimination, 1.4 s per marginal covariance). Cutting the session
-    at its middle keyframe, recursively, eliminates each half first and the cut last: a tree of depth
-    log n with the same small separators (600 s: 1.1 s and 0.09 s). A factor that spans a cut (a tracker
-    error chain across a dropout) only adds its variables to that separator.
-    """
+def time_ordering(keys: Iterable[int]) -> list[int]:
+    """Elimination order for a whole head graph: nested dissection over keyframes (``graphs.ordering``),
+    session-wide keys last. COLAMD treats the calibration key (in every bias factor) as a dense column and
+    took super-linear time here (60 s of data: 0.08 s, 240 s: 1.1 s)."""
     by_keyframe: dict[int, list[tuple[int, int]]] = {}
     shared: list[tuple[int, int, int]] = []
     for key in keys:
@@ -447,21 +441,8 @@ def time_ordering(keys: Iterable[int], leaf_keyframes: int = 8) -> list[int]:
             by_keyframe.setdefault(symbol.index(), []).append((_RANK[tag], key))
         else:
             shared.append((symbol.index(), _RANK.get(tag, 9), key))
-    steps = sorted(by_keyframe)
-    order: list[int] = []
-
-    def dissect(lo: int, hi: int) -> None:
-        if hi - lo <= leaf_keyframes:
-            for i in steps[lo:hi]:
-                order.extend(key for _, key in sorted(by_keyframe[i]))
-            return
-        mid = (lo + hi) // 2
-        dissect(lo, mid)
-        dissect(mid + 1, hi)
-        order.extend(key for _, key in sorted(by_keyframe[steps[mid]]))
-
-    dissect(0, len(steps))
-    return order + [key for *_, key in sorted(shared)]
+    steps = [[key for _, key in sorted(by_keyframe[i])] for i in sorted(by_keyframe)]
+    return nested_dissection(steps, [key for *_, key in sorted(shared)])
 
 
 def head_model_for(session: Session, model: HeadModel | None = None) -> HeadModel:
