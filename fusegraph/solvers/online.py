@@ -98,6 +98,9 @@ class OnlineSmoother:
         self.latest_bias_cov = np.full((3, 3), np.nan)
         self.recoveries: list[str] = []
         """One line per update that failed numerically and was redone from a rebuilt solver (what gtsam said)."""
+        self.defer_reanchor = False
+        """Leave a due re-anchoring to ``maintain()`` (called after the estimate is read), for at most one update."""
+        self._reanchor_due = False
 
     def _new_isam(self, factorization: str | None = None) -> gtsam.ISAM2:
         params = gtsam.ISAM2Params()
@@ -148,8 +151,19 @@ class OnlineSmoother:
         if feedback is not None:
             feedback(self._isam.calculateEstimateVector)
         if self._keyframes_since_anchor >= self.config.reanchor_every:
-            self._reanchor()
+            # deferred once when the caller maintains the solver itself after reading the estimate (a live
+            # loop publishes first, so the re-anchoring's pause is not in that sample's latency); run here
+            # when it was already due at the previous update
+            if self.defer_reanchor and not self._reanchor_due:
+                self._reanchor_due = True
+            else:
+                self._reanchor()
         return True
+
+    def maintain(self) -> None:
+        """Run a re-anchoring that ``update`` deferred (``defer_reanchor``); nothing when none is due."""
+        if self._reanchor_due:
+            self._reanchor()
 
     def _recover(self, increment: GraphIncrement, exc: RuntimeError) -> None:
         """Redo a failed update on a rebuilt solver instead of leaving iSAM2 broken for every later update.
@@ -193,6 +207,7 @@ class OnlineSmoother:
         return self._isam.calculateEstimate()
 
     def _reanchor(self) -> None:
+        self._reanchor_due = False
         times = self.builder.keyframe_t
         cutoff_t = times[-1] - self.config.window_s
         anchor = int(np.searchsorted(times, cutoff_t))
