@@ -305,15 +305,17 @@ def run_study(
     described = json.dumps(asdict(study), indent=2)
     recorded = out / "study.json"
     table_path = out / "runs.csv"
-    if recorded.exists() and recorded.read_text() != described and read_rows(table_path):
+    rows = read_rows(table_path)
+    if recorded.exists() and recorded.read_text() != described and rows:
         if not force:
             raise ValueError(f"{out} holds a study with other settings ({recorded}): its rows would mix with these; "
                              "use another --out folder, or --force to start this study there (the old rows are kept aside)")
         recorded.replace(out / "study.replaced.json")
         table_path.replace(out / "runs.replaced.csv")
+        rows = []
     recorded.write_text(described)
     # finished runs are kept (and failed ones unless retried); a torn or damaged row is dropped and redone
-    kept = [row for row in read_rows(table_path) if row["status"] == "ok" or not retry_failed]
+    kept = [row for row in rows if row["status"] == "ok" or not retry_failed]
     done = {row["key"]: row for row in kept}
     _rewrite(table_path, kept)
     specs = study.runs()

@@ -159,13 +159,11 @@ def _simulated(scenario: str, seed: int) -> Any:
         from .scenarios.head import simulate_head
 
         return simulate_head(seed, duration_s=10.0)
-    from .frontends.pdr import detect_cycles, fit_speed_model
-    from .scenarios.walking import simulate_calibration_walk, simulate_walking
+    from .scenarios.walking import simulate_walking
     from .systems import walking
 
-    walk, cal = simulate_walking(seed), simulate_calibration_walk(seed)
-    speed = fit_speed_model(detect_cycles(cal.t, cal.accel_m_s2, cal.gyro_rad_s), cal.bouts)
-    return walk, walking.analyse(walk, speed)[2]
+    walk = simulate_walking(seed)
+    return walk, walking.analyse(walk, walking.calibrated_speed_model(seed))[2]
 
 
 def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
@@ -189,6 +187,10 @@ def _gaze_fixation_score(setting: dict[str, Any], seed: int, solver: str = "onli
     fixation = FixationNoise(drift_m_per_sqrt_s=setting["drift_m_per_sqrt_s"], cauchy_k=setting["cauchy_k"])
     rms = rms_mm((run_online if solver == "online" else run_batch)(s, GazeModel(fixation=fixation)).points_xz_m, s)
     return float(np.hypot(rms["x_mm"], rms["z_mm"]))
+
+
+GAZE_FIXATION_GRID = {"drift_m_per_sqrt_s": (0.005, 0.01, 0.02, 0.04), "cauchy_k": (1.0, 2.0, 4.0, 8.0)}
+"""The gaze graph's fixation model, one grid for each solver's study."""
 
 
 def _bicycle_ekf_score(setting: dict[str, Any], seed: int) -> float:
@@ -252,10 +254,9 @@ def _head_ekf_score(setting: dict[str, Any], seed: int, mode: str = "method2") -
 STUDIES: dict[str, Study] = {
     "gaze_ekf": Study("gaze_ekf", {"gyro_sigma_rad_s": (0.01, 0.03, 0.1, 0.3), "accel_inflation": (0.0, 20.0),
                                    "gaze_walk_m_per_sqrt_s": (0.05, 0.2)}, _gaze_ekf_score, "mm, hypot of X and Z RMS on the wall"),
-    "gaze_fixation": Study("gaze_fixation", {"drift_m_per_sqrt_s": (0.005, 0.01, 0.02, 0.04), "cauchy_k": (1.0, 2.0, 4.0, 8.0)},
-                           _gaze_fixation_score, "mm, hypot of X and Z RMS on the wall of fusegraph online (the graph's fixation model)"),
-    "gaze_fixation_batch": Study("gaze_fixation_batch", {"drift_m_per_sqrt_s": (0.005, 0.01, 0.02, 0.04), "cauchy_k": (1.0, 2.0, 4.0, 8.0)},
-                                 lambda s, seed: _gaze_fixation_score(s, seed, "batch"),
+    "gaze_fixation": Study("gaze_fixation", GAZE_FIXATION_GRID, _gaze_fixation_score,
+                           "mm, hypot of X and Z RMS on the wall of fusegraph online (the graph's fixation model)"),
+    "gaze_fixation_batch": Study("gaze_fixation_batch", GAZE_FIXATION_GRID, lambda s, seed: _gaze_fixation_score(s, seed, "batch"),
                                  "mm, hypot of X and Z RMS on the wall of fusegraph batch (the graph's fixation model)"),
     "bicycle_ekf": Study("bicycle_ekf", {"gyro_sigma_rad_s": (0.003, 0.01, 0.03, 0.1), "accel_sigma_m_s2": (0.25, 0.5, 1.0, 2.0, 4.0)}, _bicycle_ekf_score,
                          "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),

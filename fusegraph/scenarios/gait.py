@@ -28,10 +28,12 @@ walker, as a person calibrates their own gait.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx
 
 
@@ -113,52 +115,42 @@ class PendulumGait:
         hz = {"flat": w.cadence_gain * max(speed_m_s, 0.3) ** w.cadence_power, "stairs_up": w.stairs_up_hz, "stairs_down": w.stairs_down_hz}[kind]
         return (1.0 + self._vary()) / hz
 
-    def begin_step(self, kind: str, speed: float, period: float, yaw0: float, dyaw: float, z0: float, rise: float, k: int,
-                   scale: float) -> None:
-        """Start step ``k``; ``sample(p)`` then gives its rows."""
-        self._kind, self._speed, self._period, self._yaw0, self._dyaw, self._z0, self._rise, self._k, self._scale = (
-            kind, speed, period, yaw0, dyaw, z0, rise, k, scale)
-        length = speed * period
-        theta = math.asin(min(0.95, 0.5 * length / self.walker.leg_m))
-        self._bounce = self.walker.arc_fraction * self.walker.leg_m * (1.0 - math.cos(theta)) * scale
+    def step(self, kind: str, speed: float, period: float, yaw0: float, dyaw: float, z0: float, rise: float, k: int,
+             scale: float) -> Callable[[float], tuple[float, ...]]:
+        """Step ``k``: its rows (forward speed, yaw, z, lateral, roll, pitch, vertical elevator speed) at phase p
+        (0 = heel strike), the same tuple as the tour's other motions."""
+        w = self.walker
+        theta = math.asin(min(0.95, 0.5 * speed * period / w.leg_m))
+        bounce = w.arc_fraction * w.leg_m * (1.0 - math.cos(theta)) * scale
+        lean = 0.0 if kind == "flat" else w.stair_lean_deg
 
-    def _height(self, p: float) -> float:
-        """Pelvis height above the step's start level at phase p (0 = heel strike)."""
-        kind, rise = self._kind, self._rise
-        if kind == "flat":
-            # inverted pendulum: lowest at heel strike (double support), highest at mid-stance; the
-            # arcs of consecutive steps join smoothly through the short double-support phase
-            return self._bounce * math.sin(math.pi * p) ** 2
-        if kind == "stairs_up":
-            # lifted by the stance leg in the first 60 % of the step, a small settle after
-            lift = _smoothstep(min(p / 0.6, 1.0))
-            return rise * lift + 0.008 * self._scale * math.sin(math.pi * p) ** 2
-        # stairs down: lowered onto the landing leg in the first 40 % (braked), then carried level
-        lower = _smoothstep(min(p / 0.4, 1.0))
-        return rise * lower + 0.012 * self._scale * math.sin(math.pi * min(p / 0.4, 1.0))
+        def height(p: float) -> float:
+            """Pelvis height above the step's start level."""
+            if kind == "flat":
+                # inverted pendulum: lowest at heel strike (double support), highest at mid-stance; the
+                # arcs of consecutive steps join smoothly through the short double-support phase
+                return bounce * math.sin(math.pi * p) ** 2
+            if kind == "stairs_up":
+                # lifted by the stance leg in the first 60 % of the step, a small settle after
+                return rise * _smoothstep(min(p / 0.6, 1.0)) + 0.008 * scale * math.sin(math.pi * p) ** 2
+            # stairs down: lowered onto the landing leg in the first 40 % (braked), then carried level
+            return rise * _smoothstep(min(p / 0.4, 1.0)) + 0.012 * scale * math.sin(math.pi * min(p / 0.4, 1.0))
 
-    def sample(self, p: float) -> tuple[float, ...]:
-        """(forward speed, yaw, z, lateral, roll, pitch, vertical elevator speed) at phase p of the step."""
-        w, k = self.walker, self._k
-        stride_phase = math.pi * (k + p)  # once per stride = half a turn per step
-        s = p - math.sin(2 * math.pi * p) / (2 * math.pi)
-        z = self._z0 + self._height(p)
-        if self._kind == "flat":
+        def forward(p: float) -> float:
+            if kind != "flat":
+                return speed * (1.0 + 0.15 * math.cos(2 * math.pi * p))
             # energy exchange: speed lowest where the pelvis is highest (v^2 + 2 g h constant), mean = speed
-            g = 9.81
-            v_mean = self._speed
-            v_sq = v_mean**2 + g * self._bounce - 2.0 * g * self._bounce * math.sin(math.pi * p) ** 2
-            forward = math.sqrt(max(v_sq, 0.01 * v_mean**2))
-            lean = 0.0
-        else:
-            forward = self._speed * (1.0 + 0.15 * math.cos(2 * math.pi * p))
-            lean = w.stair_lean_deg
-        scale = self._scale
-        yaw = self._yaw0 + self._dyaw * s + math.radians(w.rotation_deg * scale) * math.sin(stride_phase)
-        roll = math.radians(w.obliquity_deg * scale) * math.sin(stride_phase + 0.4)
-        pitch = math.radians(lean + w.tilt_deg * scale * math.sin(2 * math.pi * p + 0.8))
-        lateral = w.sway_m * scale * math.sin(stride_phase)
-        return (forward, yaw, z, lateral, roll, pitch, 0.0)
+            v_sq = speed**2 + GRAVITY_M_S2 * bounce - 2.0 * GRAVITY_M_S2 * bounce * math.sin(math.pi * p) ** 2
+            return math.sqrt(max(v_sq, 0.01 * speed**2))
+
+        def sample(p: float) -> tuple[float, ...]:
+            stride_phase = math.pi * (k + p)  # once per stride = half a turn per step
+            yaw = yaw0 + dyaw * turn_progress(p) + math.radians(w.rotation_deg * scale) * math.sin(stride_phase)
+            roll = math.radians(w.obliquity_deg * scale) * math.sin(stride_phase + 0.4)
+            pitch = math.radians(lean + w.tilt_deg * scale * math.sin(2 * math.pi * p + 0.8))
+            return (forward(p), yaw, z0 + height(p), w.sway_m * scale * math.sin(stride_phase), roll, pitch, 0.0)
+
+        return sample
 
     def impacts(self, t: FloatArray, step_t: FloatArray, kinds: tuple[str, ...], speeds: FloatArray) -> FloatArray:
         """Heel-strike transients (m/s^2 along the body's vertical) at every step time, shape (N,)."""
@@ -175,3 +167,8 @@ class PendulumGait:
 
 def _smoothstep(x: float) -> float:
     return x * x * (3.0 - 2.0 * x)
+
+
+def turn_progress(p: float) -> float:
+    """Share of a turn (or rise) done at phase p of a step: zero rate at both ends, so steps join smoothly."""
+    return p - math.sin(2 * math.pi * p) / (2 * math.pi)

@@ -34,7 +34,7 @@ from ..factors.imu import GRAVITY_M_S2
 from ..factors.ranging import BeaconRanges
 from ..geometry import FloatArray
 from ..session import KIND_COLUMNS, Session, Stream
-from .gait import PendulumGait, Walker
+from .gait import PendulumGait, Walker, turn_progress
 
 ACTIVITIES = ("flat", "stairs_up", "stairs_down", "elevator")
 
@@ -178,13 +178,12 @@ class _Tour:
         self.step_activity.append(kind)
         self.step_speed.append(speed)
         if self.gait is not None:
-            self.gait.begin_step(kind, speed, period, yaw0, dyaw, z0, rise, k, scale)
-            self._emit(period, self.gait.sample)
+            self._emit(period, self.gait.step(kind, speed, period, yaw0, dyaw, z0, rise, k, scale))
             self._finish_step(z0 + rise, yaw0, dyaw, speed, period)
             return
 
         def sample(p: float) -> tuple[float, ...]:
-            s = p - math.sin(2 * math.pi * p) / (2 * math.pi)
+            s = turn_progress(p)
             return (
                 speed + amp_f * math.cos(2 * math.pi * p),
                 yaw0 + dyaw * s,
@@ -229,7 +228,7 @@ class _Tour:
         """Turn in place (two slow shuffling steps' time, no gait signal)."""
         yaw0, dyaw = self.yaw, math.remainder(yaw - self.yaw, 2 * math.pi)
         z = self.z
-        self._emit(1.5, lambda p: (0.0, yaw0 + dyaw * (p - math.sin(2 * math.pi * p) / (2 * math.pi)), z, 0.0, 0.0, 0.0, 0.0))
+        self._emit(1.5, lambda p: (0.0, yaw0 + dyaw * turn_progress(p), z, 0.0, 0.0, 0.0, 0.0))
         self.yaw = yaw0 + dyaw
 
     def stairs(self, kind: str, steps: int, tread: float) -> None:

@@ -122,9 +122,10 @@ class OnlineSmoother:
             return False
         try:
             self._isam.update(increment.graph(), increment.values, [], None, self._no_relin)
-            self._window.extend(increment.factors)
         except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and kin
             self._recover(increment, exc)
+        else:
+            self._window.extend(increment.factors)
         k = self.builder.latest_keyframe
         new_keyframe = k != self._known_keyframe
         self._keyframes_since_anchor += k - self._known_keyframe
@@ -195,7 +196,8 @@ class OnlineSmoother:
                                 f"rebuilt solver ({again}): a variable no measurement constrains, or a sensor sigma far too small") from again
         self._isam = rebuilt
         self._window = factors + weak
-        self.recoveries.append(f"keyframe {self.builder.latest_keyframe}: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}")
+        said = str(exc).strip()
+        self.recoveries.append(f"keyframe {self.builder.latest_keyframe}: {said.splitlines()[0] if said else type(exc).__name__}")
 
     @property
     def isam(self) -> gtsam.ISAM2:
