@@ -188,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     tun.add_argument("--seeds", type=_seeds_arg, help="tuning seeds (default 100-119; test seeds 0-9 are refused)")
     tun.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag: the estimate the settings are chosen for")
     tun.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml, which the reports and benches read")
+    tun.add_argument("--workers", type=int, default=1, help="processes scoring a simulated study's grid (one per core; default 1)")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
                          description="Read each declared input from an LSL stream (sample times from LSL's clock, time-corrected), feed the "
@@ -392,14 +393,16 @@ def _cmd_import(args: argparse.Namespace) -> int:
     return 0
 
 
-def _seeds_block(seeds: Any) -> dict[str, list[int]]:
-    """The seeds a report scores and the tuning seeds no setting was chosen outside of (a warning when they meet)."""
+def _seeds_block(seeds: Any, system: str) -> dict[str, Any]:
+    """The seeds a report scores, the tuning seeds no setting was chosen outside of (a warning when they meet) and the
+    settings every method of the system runs with (``tuned.toml``: values, the seeds they were chosen on, the score)."""
+    from .tuned import settings_of
     from .tuning import TUNING_SEEDS
 
     chosen = [int(x) for x in seeds]
     if set(chosen) & set(TUNING_SEEDS):
         print(f"warning: seeds {sorted(set(chosen) & set(TUNING_SEEDS))} are tuning seeds: settings were chosen on them", file=sys.stderr)
-    return {"seeds": chosen, "tuning_seeds": list(TUNING_SEEDS)}
+    return {"seeds": chosen, "tuning_seeds": list(TUNING_SEEDS), "settings": settings_of(system)}
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -411,7 +414,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         make, table = {"bicycle": (bicycle.bicycle_report, bicycle.format_bicycle_table), "gaze": (gaze.gaze_report, gaze.format_gaze_table)}[args.system]
         seeds = tuple(args.seeds)
         found = make(seeds, plot=str(args.plot) if args.plot else None)
-        found.update(_seeds_block(seeds))
+        found.update(_seeds_block(seeds, args.system))
         print(json.dumps(found, indent=2) if args.json else table(found))
         if args.plot:
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
@@ -424,7 +427,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         chosen = args.seeds
         found = generic_report(args.system, chosen, args.duration)
         found.pop("per_seed")
-        found.update(_seeds_block(chosen))
+        found.update(_seeds_block(chosen, args.system))
         print(json.dumps(found, indent=2) if args.json else format_generic_report(found))
         if args.plot:
             from .runner import solve_session
@@ -443,7 +446,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     duration = 10.0 if args.duration is None else args.duration
     report = head.head_report(args.seeds, args.profile, duration, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed)
     if args.json:
-        print(json.dumps({**report.as_json(), **_seeds_block(args.seeds)}, indent=2))
+        print(json.dumps({**report.as_json(), **_seeds_block(args.seeds, "head")}, indent=2))
     else:
         print(report.table())
     if args.plot:
@@ -567,7 +570,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def _cmd_tune(args: argparse.Namespace) -> int:
     from .tuning import main as tune_main
 
-    argv = [args.study, "--solver", args.solver] + (["--write"] if args.write else [])
+    argv = [args.study, "--solver", args.solver, "--workers", str(args.workers)] + (["--write"] if args.write else [])
     if args.seeds:
         argv += ["--seeds", str(min(args.seeds)), str(max(args.seeds))]
     return tune_main(argv)

@@ -43,6 +43,22 @@ def tuned(study: str) -> dict[str, Any]:
     return dict(table[study])
 
 
+SYSTEM_STUDIES: dict[str, tuple[str, ...]] = {
+    "head": ("head_ekf", "head_ekf_method1", "head_ekf_kalman", "head_no_gyro"),
+    "attitude9": ("broad_ekf", "broad_mag", "broad_mag_batch"),
+    "gaze": ("gaze_ekf", "gaze_fixation", "gaze_fixation_batch"),
+    "bicycle": ("bicycle_ekf", "bicycle_no_removal"),
+    "walking": ("walking_fixes",),
+    "ultrasonic": ("stonesoup_gnn", "stonesoup_jpda"),
+}
+"""The studies whose chosen values each system's methods (its baselines and its graphs) run with."""
+
+
+def settings_of(system: str) -> dict[str, dict[str, Any]]:
+    """Every study a system's methods read, as written in ``tuned.toml`` (values and provenance); {} for a system without."""
+    return {study: tuned(study) for study in SYSTEM_STUDIES.get(system, ())}
+
+
 def value(study: str, name: str) -> Any:
     """One chosen value of a study."""
     chosen = tuned(study)

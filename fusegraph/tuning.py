@@ -14,6 +14,7 @@ import functools
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -40,15 +41,27 @@ class Study:
     """Unit of the score, for the table."""
 
 
-def run_study(study: Study, seeds: Sequence[int] = TUNING_SEEDS) -> list[tuple[dict[str, Any], float]]:
-    """Every setting of the grid scored as the mean over ``seeds``, best first."""
+def _score_one(name: str, setting: dict[str, Any], seed: int) -> float:
+    """One study's score of one setting on one seed, looked up by name (a pool worker gets names, not lambdas)."""
+    return STUDIES[name].score(setting, seed)
+
+
+def run_study(study: Study, seeds: Sequence[int] = TUNING_SEEDS, workers: int = 1) -> list[tuple[dict[str, Any], float]]:
+    """Every setting of the grid scored as the mean over ``seeds``, best first (``workers`` processes when > 1)."""
     if set(seeds) & set(TEST_SEEDS):
         raise ValueError(f"tuning seeds {sorted(set(seeds) & set(TEST_SEEDS))} are test seeds: choose on {TUNING_SEEDS[0]}-{TUNING_SEEDS[-1]}")
     names = list(study.grid)
-    rows = []
-    for values in itertools.product(*(study.grid[n] for n in names)):
-        setting = dict(zip(names, values, strict=True))
-        rows.append((setting, float(np.mean([study.score(setting, seed) for seed in seeds]))))
+    settings = [dict(zip(names, values, strict=True)) for values in itertools.product(*(study.grid[n] for n in names))]
+    jobs = [(setting, seed) for setting in settings for seed in seeds]
+    if workers > 1 and STUDIES.get(study.name) is study:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            scores = list(pool.map(_score_one, [study.name] * len(jobs), [j[0] for j in jobs], [j[1] for j in jobs]))
+    else:
+        scores = [study.score(setting, seed) for setting, seed in jobs]
+    per_setting = np.reshape(scores, (len(settings), len(seeds)))
+    rows = [(setting, float(np.mean(row))) for setting, row in zip(settings, per_setting, strict=True)]
     return sorted(rows, key=lambda row: row[1])
 
 
@@ -113,27 +126,66 @@ def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     return leave_one_group_out(scores)
 
 
-def broad_mag_logo(directory: str | None = None, solver: str = "online") -> dict[str, Any]:
-    """Our magnetometer settings (heading sigma, disturbance gains, Cauchy width) chosen by leave-one-trial-out
-    on the BROAD trials for ``solver`` (online or batch): total RMSE, degrees."""
+BROAD_IMU_GRID: Mapping[str, Sequence[float]] = {"gyro_noise_rad_s_sqrt_hz": (1.75e-3, 3.5e-3, 7e-3), "gyro_scale_sigma": (0.0, 0.02),
+                                                  "gravity_sigma_deg": (1.5, 3.0, 6.0), "gravity_inflation_deg_per_m_s2": (7.5, 15.0, 30.0)}
+"""Our gyro and gravity settings tried by ``broad_imu`` (the magnetometer's as ``broad_mag`` chose)."""
+
+
+def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
+    """The 9-axis model with one grid point of a BROAD study applied to the solver's tuned model."""
     from dataclasses import replace
 
-    from .datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
-    from .graphs.attitude9 import Attitude9Model
+    from .systems.attitude9 import broad_model
+
+    base = broad_model(solver)
+    if study == "broad_mag":
+        mag = replace(base.mag, heading_sigma_deg=point["heading_sigma_deg"], norm_gain=point["gains"], dip_gain=point["gains"],
+                      cauchy_k=point["cauchy_k"])
+        return replace(base, mag=mag)
+    imu = replace(base.imu, gyro_noise_rad_s_sqrt_hz=point["gyro_noise_rad_s_sqrt_hz"], gyro_scale_sigma=point["gyro_scale_sigma"])
+    assert base.gravity is not None
+    gravity = replace(base.gravity, sigma_deg=point["gravity_sigma_deg"], inflation_deg_per_m_s2=point["gravity_inflation_deg_per_m_s2"])
+    return replace(base, imu=imu, gravity=gravity)
+
+
+def _broad_trial_scores(path: str, study: str, solver: str) -> dict[str, float]:
+    """Every grid point of a BROAD study on one trial: total RMSE, degrees (one pool job)."""
+    from .datasets.broad import broad_errors, load_broad
     from .systems import attitude9
 
-    base = Attitude9Model()
-    grid = grid_settings(BROAD_MAG_GRID)
+    session = load_broad(Path(path))
+    movement = session.stream("movement").values[:, 0]
     run = attitude9.run_online if solver == "online" else attitude9.run_batch
-    scores: dict[str, dict[str, float]] = {name: {} for name in grid}
-    for path in trial_paths(directory or DEFAULT_DIR):
-        session = load_broad(path)
-        movement = session.stream("movement").values[:, 0]
-        for name, p in grid.items():
-            mag = replace(base.mag, heading_sigma_deg=p["heading_sigma_deg"], norm_gain=p["gains"], dip_gain=p["gains"], cauchy_k=p["cauchy_k"])
-            estimate = run(session, replace(base, mag=mag))
-            scores[name][path.stem] = broad_errors(estimate.quat_wxyz, session.truth.values, movement).total  # type: ignore[union-attr]
+    out = {}
+    for name, point in grid_settings(BROAD_GRIDS[study]).items():
+        estimate = run(session, _broad_model(study, point, solver))
+        out[name] = broad_errors(estimate.quat_wxyz, session.truth.values, movement).total  # type: ignore[union-attr]
+    return out
+
+
+def broad_graph_logo(study: str, directory: str | None = None, solver: str = "online", workers: int = 1) -> dict[str, Any]:
+    """Our graph's settings of one BROAD study (``broad_mag``: heading sigma, disturbance gains, Cauchy width;
+    ``broad_imu``: gyro noise and scale error, gravity sigma and its inflation) chosen by leave-one-trial-out on the
+    BROAD trials for ``solver`` (online or batch), the other study's settings as tuned: total RMSE, degrees."""
+    from .datasets.broad import DEFAULT_DIR, trial_paths
+
+    paths = [str(p) for p in trial_paths(directory or DEFAULT_DIR)]
+    if workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            per_trial = list(pool.map(_broad_trial_scores, paths, [study] * len(paths), [solver] * len(paths)))
+    else:
+        per_trial = [_broad_trial_scores(p, study, solver) for p in paths]
+    scores: dict[str, dict[str, float]] = {name: {} for name in grid_settings(BROAD_GRIDS[study])}
+    for path, trial in zip(paths, per_trial, strict=True):
+        for name, score in trial.items():
+            scores[name][Path(path).stem] = score
     return leave_one_group_out(scores)
+
+
+BROAD_GRIDS: dict[str, Mapping[str, Sequence[float]]] = {"broad_ekf": BROAD_EKF_GRID, "broad_mag": BROAD_MAG_GRID, "broad_imu": BROAD_IMU_GRID}
+"""The BROAD studies' grids by name."""
 
 
 # ------------------------------------------------------------------------------------- studies
@@ -203,6 +255,20 @@ def _bicycle_ekf_score(setting: dict[str, Any], seed: int) -> float:
     return float(np.hypot(rms["pitch_deg"], rms["roll_deg"]))
 
 
+def _bicycle_no_removal_score(setting: dict[str, Any], seed: int) -> float:
+    from .solvers.ekf9 import Ekf9Config
+    from .systems.bicycle import braking_rms_deg, run_no_removal
+
+    s = _simulated("bicycle", seed)
+    config = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_sigma_m_s2=setting["accel_sigma_m_s2"], accel_inflation=0.0)
+    rms = braking_rms_deg(run_no_removal(s, config), s)
+    return float(np.hypot(rms["pitch_deg"], rms["roll_deg"]))
+
+
+BICYCLE_EKF_GRID = {"gyro_sigma_rad_s": (0.001, 0.003, 0.01, 0.03, 0.1), "accel_sigma_m_s2": (0.25, 0.5, 1.0, 2.0, 4.0)}
+"""The 9-axis EKF's noise figures on the thigh, one grid for each baseline (pipeline, no removal)."""
+
+
 def _walking_fixes_score(setting: dict[str, Any], seed: int) -> float:
     from dataclasses import replace
 
@@ -258,8 +324,9 @@ STUDIES: dict[str, Study] = {
                            "mm, hypot of X and Z RMS on the wall of fusegraph online (the graph's fixation model)"),
     "gaze_fixation_batch": Study("gaze_fixation_batch", GAZE_FIXATION_GRID, lambda s, seed: _gaze_fixation_score(s, seed, "batch"),
                                  "mm, hypot of X and Z RMS on the wall of fusegraph batch (the graph's fixation model)"),
-    "bicycle_ekf": Study("bicycle_ekf", {"gyro_sigma_rad_s": (0.003, 0.01, 0.03, 0.1), "accel_sigma_m_s2": (0.25, 0.5, 1.0, 2.0, 4.0)}, _bicycle_ekf_score,
-                         "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),
+    "bicycle_ekf": Study("bicycle_ekf", BICYCLE_EKF_GRID, _bicycle_ekf_score, "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),
+    "bicycle_no_removal": Study("bicycle_no_removal", BICYCLE_EKF_GRID, _bicycle_no_removal_score,
+                                "deg, hypot of pitch and roll RMS while braking (the thigh's EKF alone, no removal)"),
     "walking_fixes": Study("walking_fixes", {"kernel_width": (1.0, 3.0, 5.0, 8.0), "reject_sigmas": (3.0, 5.0, 8.0)}, _walking_fixes_score,
                            "m, batch position RMSE with 20 % wrong image fixes"),
     "head_ekf": Study("head_ekf", {"process_scale": (0.03125, 0.0625, 0.125, 0.25, 0.5, 1.0), "gyro_sigma_rad_s": (0.15, 0.45, 1.35, 4.05),
@@ -288,31 +355,32 @@ STUDIES: dict[str, Study] = {
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.tuning", description=__doc__)
     parser.add_argument("study",
-                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag (leave-one-trial-out on BROAD)")
-    parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag: the estimate the settings are chosen for")
+                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_imu (leave-one-trial-out on BROAD)")
+    parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_imu: the estimate the settings are chosen for")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     parser.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml (what the reports read)")
+    parser.add_argument("--workers", type=int, default=1, help="processes scoring the grid (simulated studies)")
     args = parser.parse_args(argv)
-    if args.study not in (*STUDIES, "broad_ekf", "broad_mag"):
-        raise ValueError(f"unknown study {args.study!r} (have: {', '.join([*STUDIES, 'broad_ekf', 'broad_mag'])})")
-    if args.study in ("broad_ekf", "broad_mag"):
-        result = broad_ekf_logo() if args.study == "broad_ekf" else broad_mag_logo(solver=args.solver)
+    if args.study not in (*STUDIES, *BROAD_GRIDS):
+        raise ValueError(f"unknown study {args.study!r} (have: {', '.join([*STUDIES, *BROAD_GRIDS])})")
+    if args.study in BROAD_GRIDS:
+        result = broad_ekf_logo() if args.study == "broad_ekf" else broad_graph_logo(args.study, solver=args.solver, workers=args.workers)
         for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
             print(f"{setting:<44} in-sample mean total RMSE {score:7.2f} deg")
         print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.2f} deg, leave-one-trial-out {result['cross_validated']:.2f} deg")
         for trial, held in result["held_out"].items():
             print(f"  held out {trial:<40} chosen {held['chosen']:<40} {held['score']:7.2f} deg")
         if args.write:
-            name = "broad_mag_batch" if args.study == "broad_mag" and args.solver == "batch" else args.study
-            chosen = grid_settings(BROAD_EKF_GRID if args.study == "broad_ekf" else BROAD_MAG_GRID)[result["chosen"]]
-            unit = "deg, mean total RMSE" + (f" of the {args.solver} estimate" if args.study == "broad_mag" else "") + " (leave-one-trial-out)"
+            name = f"{args.study}_batch" if args.study != "broad_ekf" and args.solver == "batch" else args.study
+            chosen = grid_settings(BROAD_GRIDS[args.study])[result["chosen"]]
+            unit = "deg, mean total RMSE" + (f" of the {args.solver} estimate" if args.study != "broad_ekf" else "") + " (leave-one-trial-out)"
             entries = {**chosen, "trials": sorted(result["held_out"]), "in_sample": round(result["in_sample"], 4),
                        "cross_validated": round(result["cross_validated"], 4), "unit": unit}
             print(f"wrote {write_tuned(name, entries)}")
         return 0
     seeds = tuple(range(args.seeds[0], args.seeds[1] + 1))
     study = STUDIES[args.study]
-    rows = run_study(study, seeds)
+    rows = run_study(study, seeds, workers=args.workers)
     print(format_study(study, rows, seeds))
     if args.write:
         best, score = rows[0]

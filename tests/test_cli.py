@@ -33,6 +33,8 @@ def test_report_json_has_the_issue_shape(capsys: pytest.CaptureFixture[str]) -> 
     wrong_noise = {f"{m}_noise_x{k}" for m in ("method2", "isam2", "batch") for k in ("0.5", "2")}
     assert set(report["methods"]) == paper_and_ours | wrong_noise | {"method1_paper_values", "method2_paper_values"}  # method1/2 are tuned
     assert report["tuning_seeds"] == list(range(100, 120)) and report["seeds"] == [0]
+    # every baseline's (and graph's) chosen settings with where they were chosen
+    assert report["settings"]["head_ekf"]["seeds"] == [100, 119] and "process_scale" in report["settings"]["head_ekf"]
     for name, row in report["methods"].items():
         assert set(row) == {"rms_rad", "ms_per_40ms", "nees"}
         assert (row["nees"] is None) == (name in ("tracker", "gyro"))

@@ -59,6 +59,23 @@ def test_every_chosen_value_in_tuned_toml_is_a_point_of_its_study_grid() -> None
         assert ("seeds" in chosen and not set(range(chosen["seeds"][0], chosen["seeds"][1] + 1)) & set(TEST_SEEDS)) or "trials" in chosen
 
 
+def test_every_study_in_tuned_toml_belongs_to_a_system_whose_reports_print_it() -> None:
+    from fusegraph.tuned import SYSTEM_STUDIES, _table
+
+    claimed = [study for studies in SYSTEM_STUDIES.values() for study in studies]
+    assert sorted(claimed) == sorted(_table())
+
+
+def test_a_study_scored_by_two_processes_ranks_as_in_one() -> None:
+    # the pool's workers look the study up by name (a lambda does not cross a process boundary)
+    toy = Study("_two_workers", {"a": (1.0, 2.0, 3.0)}, lambda s, seed: (s["a"] - 2.0) ** 2 + 0.001 * seed, "-")
+    STUDIES[toy.name] = toy
+    try:
+        assert run_study(toy, (100, 101), workers=2) == run_study(toy, (100, 101))
+    finally:
+        del STUDIES[toy.name]
+
+
 def test_write_tuned_replaces_one_study_and_keeps_the_others(tmp_path) -> None:  # type: ignore[no-untyped-def]
     import tomllib
 

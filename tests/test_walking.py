@@ -164,6 +164,20 @@ def test_oxford_step_counts_within_three_percent() -> None:
         rec = steps_oxford.load_recording(directory, name, stats)
         counted = walking.count_steps(rec.t, rec.accel_m_s2)
         assert abs(counted - rec.true_steps) <= 0.03 * rec.true_steps, (name, counted, rec.true_steps)
+        # the insoles are the dataset's reference instrument: their heel contacts are the manual count
+        assert rec.foot_switch_steps == rec.true_steps, (name, rec.foot_switch_steps, rec.true_steps)
+
+
+def test_foot_switch_steps_are_heel_contacts_of_both_feet(tmp_path: object) -> None:
+    from pathlib import Path
+
+    path = Path(str(tmp_path)) / "stepcounter.csv"
+    # right: 0 1 1 0 1 (two contacts), left: 1 0 0 1 0 (one contact; starting pressed is not a new step)
+    path.write_text("0,0,1\n1,1,0\n2,1,0\n3,0,1\n4,1,0\n")
+    assert steps_oxford.count_foot_switch_steps(path) == 3
+    path.write_text("0,0,1\n1,2,0\n")
+    with pytest.raises(ValueError, match="row 2"):
+        steps_oxford.count_foot_switch_steps(path)
 
 
 def test_oxford_stats_errors_name_the_row(tmp_path: object) -> None:

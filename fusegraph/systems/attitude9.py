@@ -23,6 +23,7 @@ import gtsam
 import numpy as np
 
 from ..estimate import Estimate
+from ..factors.accel import GravityNoise
 from ..factors.attitude import AttitudeTrack
 from ..factors.mag import MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
@@ -30,6 +31,7 @@ from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, 
 from ..progress import progress
 from ..session import Session, SessionError, SessionWarning
 from ..solvers.online import OnlineConfig, OnlineSmoother
+from ..tuned import TunedError, tuned
 
 #: Online solver settings for this graph: 1 s of keyframes stays live, re-anchored every 2 s (20 s made each
 #: update 2x slower for the same accuracy); covariances are not needed per sample.
@@ -73,7 +75,7 @@ def attitude_tracker(session: Session) -> AttitudeTrack | None:
 def model_for(session: Session, model: Attitude9Model | None = None) -> Attitude9Model:
     """The model with the session's magnetometer calibration: declared in the ``mag`` stream's metadata
     (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording."""
-    model = model or Attitude9Model()
+    model = model or broad_model("online")
     if "mag" not in session.streams:
         return model
     meta = session.stream("mag").meta
@@ -124,10 +126,21 @@ def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: 
     return gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
 
 
-#: The batch's magnetometer settings, chosen for the batch by leave-one-trial-out over the eleven BROAD trials
-#: (``fusegraph tune broad_mag --solver batch --write``, ``tuned.toml`` [broad_mag_batch]: 5 deg, gains 20, Cauchy 1 sigma;
-#: 2.12 deg in-sample, 2.31 cross-validated); the online estimate's own choice (3 deg, Cauchy 2) scored 2.69 in-sample here.
-BATCH_MAG = mag_noise_tuned("broad_mag_batch")
+def broad_model(solver: str = "online") -> Attitude9Model:
+    """The 9-axis model each solver runs with: its settings chosen for it by leave-one-trial-out over the BROAD trials
+    (``fusegraph tune broad_mag|broad_imu [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_imu] and
+    their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's).
+    A study not yet run leaves the model's declared defaults (the first run of ``broad_imu`` starts from them)."""
+    suffix = "" if solver == "online" else "_batch"
+    model = Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}"))
+    try:
+        chosen = tuned(f"broad_imu{suffix}")
+    except TunedError:
+        return model
+    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(chosen["gyro_noise_rad_s_sqrt_hz"]), gyro_scale_sigma=float(chosen["gyro_scale_sigma"]))
+    gravity = GravityNoise(sigma_deg=float(chosen["gravity_sigma_deg"]), inflation_deg_per_m_s2=float(chosen["gravity_inflation_deg_per_m_s2"]))
+    return replace(model, imu=imu, gravity=gravity)
+
 
 #: Median heading residual (angle between the levelled field and north) above which a batch solution is
 #: taken as diverged, degrees: a converged batch on BROAD stays within a few degrees, a slid one near 180.
@@ -153,7 +166,7 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     """
     data = imu9(session)
     start = time.perf_counter()
-    model = model or Attitude9Model(mag=BATCH_MAG)
+    model = model or broad_model("batch")
     builder, keyframes, kq, kb, residual = _solve_batch(session, data, model, max_iterations, None)
     check = "ok"
     if np.isfinite(residual) and residual > DIVERGED_HEADING_DEG:

@@ -406,12 +406,15 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
                            "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
                            "wrong_fixes": int(session.fixes.wrong.sum())}
-    oxford: dict[str, dict[str, int]] = {}
+    # `phone`: the phone's own step counter, which these recordings do not hold (stepcounter.csv is the foot
+    # switches, see datasets.steps_oxford); null rather than a guess. `foot_switches`: the insoles' count.
+    oxford: dict[str, dict[str, int | str | None]] = {}
     if oxford_dir is not None and Path(oxford_dir).is_dir():
         stats = steps_oxford.read_stats(Path(oxford_dir))
         for name in steps_oxford.recordings(Path(oxford_dir)):
             rec = steps_oxford.load_recording(Path(oxford_dir), name, stats)
-            oxford[name] = {"true": rec.true_steps, "counted": count_steps(rec.t, rec.accel_m_s2)}
+            oxford[name] = {"true": rec.true_steps, "counted": count_steps(rec.t, rec.accel_m_s2), "phone": None,
+                            "foot_switches": rec.foot_switch_steps, "position": rec.position}
     out["oxford"] = oxford
     if plaza:
         out["plaza"] = plaza_system.bench_plaza()
@@ -467,9 +470,13 @@ def format_walking_table(result: dict[str, object]) -> str:
     assert isinstance(oxford, dict)
     if oxford:
         lines.append("")
-        lines.append(f"{'oxford recording':40s}{'true':>8s}{'counted':>9s}{'error':>8s}")
+        lines.append(f"{'oxford recording':40s}{'true':>8s}{'counted':>9s}{'error':>8s}{'foot switches':>15s}{'phone':>7s}")
         for name, r in oxford.items():
-            lines.append(f"{name:40s}{r['true']:8d}{r['counted']:9d}{100 * (r['counted'] - r['true']) / r['true']:7.1f}%")
+            switches = "-" if r.get("foot_switches") is None else str(r["foot_switches"])
+            phone = "-" if r.get("phone") is None else str(r["phone"])
+            lines.append(f"{name:40s}{r['true']:8d}{r['counted']:9d}{100 * (r['counted'] - r['true']) / r['true']:7.1f}%{switches:>15s}{phone:>7s}")
+        lines.append("true: counted by hand (stats.csv); foot switches: the dataset's insoles (stepcounter.csv, heel contacts);"
+                     " phone: the phone's own step counter, not in these recordings")
     plaza = result.get("plaza") or {}
     assert isinstance(plaza, dict)
     if plaza:
