@@ -100,6 +100,40 @@ def test_builder_names_the_sample_whose_time_goes_back() -> None:
         builder.add_samples(np.array([0.005]), np.zeros((1, 3)), np.array([[0, 0, 9.81]]), FIELD[None])
 
 
+def test_the_graph_does_not_depend_on_how_samples_are_blocked() -> None:
+    """A recording pushed at once or in blocks of 7 (keyframes closing inside blocks, rests carried across them)
+    gives the same keyframes, factors and initial values: the block handling is vectorised, not the model."""
+    session = simulate_attitude9(4, duration_s=6.0)
+    data = attitude9.imu9(session)
+    assert data.mag is not None
+    builders = [Attitude9Builder(deferred_mag=True), Attitude9Builder(deferred_mag=True)]
+    builders[0].add_samples(data.t, data.gyro, data.accel, data.mag)
+    for i in range(0, len(data.t), 7):
+        builders[1].add_samples(data.t[i : i + 7], data.gyro[i : i + 7], data.accel[i : i + 7], data.mag[i : i + 7])
+    whole, blocked = (b.take() for b in builders)
+    assert builders[0].keyframe_index == builders[1].keyframe_index and len(builders[0].keyframe_index) > 20
+    assert len(whole.factors) == len(blocked.factors)
+    assert [type(f) for _, f in whole.factors] == [type(f) for _, f in blocked.factors]
+    assert whole.graph().error(whole.values) == pytest.approx(blocked.graph().error(whole.values), rel=1e-12)
+    assert whole.values.equals(blocked.values, 1e-12)
+
+
+def test_the_recording_declares_its_motion_and_the_default_is_chosen_on_broad() -> None:
+    from dataclasses import replace
+
+    from fusegraph.tuned import tuned
+
+    session = simulate_attitude9(4, duration_s=2.0)
+    assert attitude9.model_for(session).motion.velocity_sigma_m_s == tuned("broad_motion")["velocity_sigma_m_s"]
+    assert attitude9.model_for(session, solver="batch").motion.velocity_sigma_m_s == tuned("broad_motion_batch")["velocity_sigma_m_s"]
+    accel = session.stream("accel")
+    walking = replace(session, streams={**session.streams, "accel": replace(accel, meta={**accel.meta, "velocity_sigma_m_s": 2.0, "sigma_deg": 3.0})})
+    model = attitude9.model_for(walking)
+    assert model.motion.velocity_sigma_m_s == 2.0 and model.gravity is not None and model.gravity.sigma_deg == 3.0
+    # an explicit model is taken as given
+    assert attitude9.model_for(walking, attitude9.broad_model()).motion.velocity_sigma_m_s == tuned("broad_motion")["velocity_sigma_m_s"]
+
+
 def _score(estimate, session, mask=None):  # type: ignore[no-untyped-def]
     mask = np.ones(len(session.truth.t)) if mask is None else mask
     return broad_errors(estimate.quat_wxyz, session.truth.values, mask)

@@ -65,8 +65,11 @@ CATALOGUE = (
         factors="gravity direction (Rot3/Pose3 AttitudeFactor) per keyframe, sigma widened as |a| departs from g, Cauchy kernel; "
         "attitude9/gaze/bicycle: also the IMU factor's specific force",
         keys=(
-            KeySpec("sigma_deg", 3.0, "head: gravity direction sigma at rest, degrees"),
-            KeySpec("inflation_deg_per_m_s2", 15.0, "head: extra sigma per m/s^2 that |a| departs from g, degrees"),
+            KeySpec("sigma_deg", 3.0, "head, attitude9: gravity direction sigma at rest, degrees (attitude9 default: chosen on BROAD)"),
+            KeySpec("inflation_deg_per_m_s2", 15.0, "head, attitude9: extra sigma per m/s^2 that |a| departs from g, degrees"),
+            KeySpec("velocity_sigma_m_s", None, "attitude9: zero-mean velocity prior per keyframe, m/s (default: chosen on BROAD's "
+                    "hand-held trials, 0.18 online; a sensor that travels, e.g. on a walker's belt, needs ~2); with sigma_deg and "
+                    "inflation_deg_per_m_s2 it replaces the 9-axis system's gravity settings too"),
         ),
         magnitude=(Magnitude("median", 4.0, 20.0, "the median |a| should be near g = 9.81 m/s^2: in g? set units = 'g' or convert"),),
         unit_conversions={"m/s^2": 1.0, "g": 9.80665},

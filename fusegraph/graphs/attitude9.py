@@ -34,7 +34,7 @@ from ..factors.imu import (
     velocity_prior_factor,
 )
 from ..factors.mag import FieldReference, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
-from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
+from ..geometry import FloatArray, cross3, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
 from ..tuned import tuned
 from .increment import GraphIncrement
 
@@ -107,13 +107,14 @@ class Attitude9Model:
 
 def initial_attitude(accel_body: FloatArray, mag_body: FloatArray | None) -> gtsam.Rot3:
     """world_R_body (ENU) from one gravity and one field reading (TRIAD); heading 0 without a field."""
-    up = np.asarray(accel_body, dtype=float) / np.linalg.norm(accel_body)
+    up = np.asarray(accel_body, dtype=float)
+    up = up / np.sqrt(up @ up)
     reference = np.asarray(mag_body, dtype=float) if mag_body is not None else np.array([0.0, 1.0, 0.0])
-    east = np.cross(reference, up)
-    if np.linalg.norm(east) < 1e-9:  # field (or the default) along gravity: any horizontal axis
-        east = np.cross(np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0]), up)
-    east /= np.linalg.norm(east)
-    north = np.cross(up, east)
+    east = cross3(reference, up)
+    if np.sqrt(east @ east) < 1e-9:  # field (or the default) along gravity: any horizontal axis
+        east = cross3(np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0]), up)
+    east /= np.sqrt(east @ east)
+    north = cross3(up, east)
     return gtsam.Rot3(np.stack([east, north, up], axis=0))  # rows: world axes in the body frame
 
 
@@ -141,9 +142,10 @@ class Attitude9Builder:
         self._reference_samples: list[tuple[float, float]] = []
         self._nav = gtsam.NavState()
         self._bias = gtsam.imuBias.ConstantBias()
-        self._interval: list[tuple[FloatArray, FloatArray, float]] = []  # (accel, gyro, dt) since the last keyframe
+        self._interval: list[tuple[FloatArray, FloatArray, FloatArray]] = []  # blocks of (accel, gyro, dt) rows since the last keyframe
         self._last_t = np.nan
         self._count = 0
+        self._params: gtsam.PreintegrationParams | None = None
         self._still_run = 0  # consecutive still samples
         self._solved = False
         self._keyframe_guess: list[gtsam.Rot3] = []  # each keyframe's attitude as first predicted
@@ -221,28 +223,53 @@ class Attitude9Builder:
     # ------------------------------------------------------------------ measurements
 
     def add_samples(self, t: FloatArray, gyro_rad_s: FloatArray, accel_m_s2: FloatArray, mag_raw: FloatArray | None) -> None:
-        """Push synchronous samples (rows) in time order; keyframes close as their time comes."""
+        """Push synchronous samples (rows) in time order; keyframes close as their time comes.
+
+        The block is handled in numpy (times, rests, where keyframes close); Python runs once per keyframe. A time
+        that does not increase raises before any sample of the block is taken."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         gyro = np.atleast_2d(np.asarray(gyro_rad_s, dtype=float))
         accel = np.atleast_2d(np.asarray(accel_m_s2, dtype=float))
         mag = None if mag_raw is None or not self.model.use_mag else self.model.mag_calibration.apply(np.atleast_2d(mag_raw))
+        if len(t) == 0:
+            return
         still = still_samples(gyro, accel, self.model.motion, self.model.imu.gravity_m_s2)
+        first = 0
+        if not self.started:
+            self._still_run = self._still_run + 1 if still[0] else 0
+            self._start(float(t[0]), accel[0], None if mag is None else mag[0])
+            first = 1
+        if first >= len(t):
+            return
+        t, gyro, accel, still = t[first:], gyro[first:], accel[first:], still[first:]
+        mag = None if mag is None else mag[first:]
+        dt = np.diff(t, prepend=self._last_t)
+        bad = np.flatnonzero(~(dt > 0))
+        if bad.size:
+            i = int(bad[0])
+            previous = self._last_t if i == 0 else t[i - 1]
+            raise ValueError(f"sample {self._count + i}: time {t[i]:.6f} s does not increase (previous {previous:.6f} s)")
+        # consecutive still samples up to each sample (the run carried in from the previous block)
+        position = np.arange(len(t))
+        last_moving = np.maximum.accumulate(np.where(still, -1, position))
+        still_run = np.where(last_moving < 0, position + 1 + self._still_run, position - last_moving)
+        count0 = self._count
+        self._recent_t.extend(t.tolist())
+        self._recent_gyro.extend(gyro)
         period = self.model.keyframe_period_s
-        for i in range(len(t)):
-            self._still_run = self._still_run + 1 if still[i] else 0
-            if not self.started:
-                self._start(float(t[i]), accel[i], None if mag is None else mag[i])
-                continue
-            dt = float(t[i]) - self._last_t
-            if dt <= 0:
-                raise ValueError(f"sample {self._count}: time {t[i]:.6f} s does not increase (previous {self._last_t:.6f} s)")
-            self._interval.append((accel[i], gyro[i], dt))
-            self._recent_t.append(float(t[i]))
-            self._recent_gyro.append(gyro[i])
-            self._last_t = float(t[i])
-            if self._last_t - self.keyframe_t[-1] >= period - 0.5 * dt:
-                self._close_keyframe(accel[i], None if mag is None else mag[i])
-            self._count += 1
+        start = 0
+        while start < len(t):
+            due = t[start:] - self.keyframe_t[-1] >= period - 0.5 * dt[start:]
+            if not due.any():
+                break
+            j = start + int(np.argmax(due))
+            self._interval.append((accel[start : j + 1], gyro[start : j + 1], dt[start : j + 1]))
+            self._last_t, self._count, self._still_run = float(t[j]), count0 + j, int(still_run[j])
+            self._close_keyframe(accel[j], None if mag is None else mag[j])
+            start = j + 1
+        if start < len(t):
+            self._interval.append((accel[start:], gyro[start:], dt[start:]))
+        self._last_t, self._count, self._still_run = float(t[-1]), count0 + len(t), int(still_run[-1])
 
     def _start(self, t: float, accel: FloatArray, mag: FloatArray | None) -> None:
         rot = initial_attitude(accel, mag)
@@ -266,18 +293,26 @@ class Attitude9Builder:
 
     def _preintegrate(self) -> gtsam.PreintegratedImuMeasurements:
         """The interval's samples, with a gyro noise that grows with the rotation rate (scale errors)."""
-        gyro = np.array([g for _, g, _ in self._interval])
-        rate = float(np.sqrt(np.mean(np.einsum("ij,ij->i", gyro, gyro))))
-        pim = gtsam.PreintegratedImuMeasurements(preintegration_params(self.model.imu, rate, sum(dt for _, _, dt in self._interval)), self._bias)
-        for accel, omega, dt in self._interval:
-            pim.integrateMeasurement(accel, omega, dt)
+        accel = np.concatenate([a for a, _, _ in self._interval])
+        gyro = np.concatenate([g for _, g, _ in self._interval])
+        dt = np.concatenate([d for _, _, d in self._interval])
+        if self.model.imu.gyro_scale_sigma > 0:
+            params = preintegration_params(self.model.imu, float(np.sqrt(np.mean(np.einsum("ij,ij->i", gyro, gyro)))), float(dt.sum()))
+        else:  # no rate-dependent term: one set of parameters serves every interval
+            if self._params is None:
+                self._params = preintegration_params(self.model.imu)
+            params = self._params
+        pim = gtsam.PreintegratedImuMeasurements(params, self._bias)
+        integrate = pim.integrateMeasurement
+        for a, w, d in zip(accel, gyro, dt.tolist(), strict=True):
+            integrate(a, w, d)
         self._interval = []
         return pim
 
     def _close_keyframe(self, accel: FloatArray, mag: FloatArray | None) -> None:
         k = len(self.keyframe_t)
         model = self.model
-        self._keyframe_accel.append(np.mean([a for a, _, _ in self._interval], axis=0))
+        self._keyframe_accel.append(np.concatenate([a for a, _, _ in self._interval]).mean(axis=0))
         pim = self._preintegrate()
         predicted = pim.predict(self._nav, self._bias)
         if not self._solved:

@@ -72,10 +72,26 @@ def attitude_tracker(session: Session) -> AttitudeTrack | None:
     return AttitudeTrack(tracker.t, tracker.latency_s, tracker.values, float(np.deg2rad(sigma_deg)))
 
 
-def model_for(session: Session, model: Attitude9Model | None = None) -> Attitude9Model:
+#: Keys of the accelerometer stream's session.toml entry that replace the motion and gravity settings (when no model is given).
+DECLARED_MOTION_KEYS = ("velocity_sigma_m_s", "sigma_deg", "inflation_deg_per_m_s2")
+
+
+def model_for(session: Session, model: Attitude9Model | None = None, solver: str = "online") -> Attitude9Model:
     """The model with the session's magnetometer calibration: declared in the ``mag`` stream's metadata
-    (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording."""
-    model = model or broad_model("online")
+    (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording.
+
+    Without an explicit ``model``: the solver's BROAD-chosen model (``broad_model``), with what the ``accel`` stream
+    declares replacing its motion and gravity settings (``DECLARED_MOTION_KEYS``): BROAD is hand-held motion, and
+    a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior (e.g. 2 m/s)."""
+    if model is None:
+        model = broad_model(solver)
+        meta = session.stream("accel").meta if "accel" in session.streams else {}
+        if "velocity_sigma_m_s" in meta:
+            model = replace(model, motion=replace(model.motion, velocity_sigma_m_s=float(meta["velocity_sigma_m_s"])))
+        if model.gravity is not None and ("sigma_deg" in meta or "inflation_deg_per_m_s2" in meta):
+            gravity = replace(model.gravity, sigma_deg=float(meta.get("sigma_deg", model.gravity.sigma_deg)),
+                              inflation_deg_per_m_s2=float(meta.get("inflation_deg_per_m_s2", model.gravity.inflation_deg_per_m_s2)))
+            model = replace(model, gravity=gravity)
     if "mag" not in session.streams:
         return model
     meta = session.stream("mag").meta
@@ -128,18 +144,19 @@ def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: 
 
 def broad_model(solver: str = "online") -> Attitude9Model:
     """The 9-axis model each solver runs with: its settings chosen for it by leave-one-trial-out over the BROAD trials
-    (``fusegraph tune broad_mag|broad_imu [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_imu] and
+    (``fusegraph tune broad_mag|broad_motion [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion] and
     their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's).
-    A study not yet run leaves the model's declared defaults (the first run of ``broad_imu`` starts from them)."""
+    A study not yet run leaves the model's declared defaults (the first run of ``broad_motion`` starts from them)."""
     suffix = "" if solver == "online" else "_batch"
     model = Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}"))
     try:
-        chosen = tuned(f"broad_imu{suffix}")
+        chosen = tuned(f"broad_motion{suffix}")
     except TunedError:
         return model
-    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(chosen["gyro_noise_rad_s_sqrt_hz"]), gyro_scale_sigma=float(chosen["gyro_scale_sigma"]))
+    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(chosen["gyro_noise_rad_s_sqrt_hz"]))
     gravity = GravityNoise(sigma_deg=float(chosen["gravity_sigma_deg"]), inflation_deg_per_m_s2=float(chosen["gravity_inflation_deg_per_m_s2"]))
-    return replace(model, imu=imu, gravity=gravity)
+    motion = replace(model.motion, velocity_sigma_m_s=float(chosen["velocity_sigma_m_s"]))
+    return replace(model, imu=imu, gravity=gravity, motion=motion)
 
 
 #: Median heading residual (angle between the levelled field and north) above which a batch solution is
@@ -166,7 +183,7 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     """
     data = imu9(session)
     start = time.perf_counter()
-    model = model or broad_model("batch")
+    model = model_for(session, model, "batch")
     builder, keyframes, kq, kb, residual = _solve_batch(session, data, model, max_iterations, None)
     check = "ok"
     if np.isfinite(residual) and residual > DIVERGED_HEADING_DEG:
@@ -175,7 +192,8 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
         builder, keyframes, kq, kb, again = _solve_batch(session, data, model, max_iterations, seed)
         check = "repaired" if again <= DIVERGED_HEADING_DEG else "suspect"
         if check == "suspect":
-            where = session.path or session.meta.get("session", {}).get("trial", "session")
+            trial = session.meta.get("session", {}).get("trial")  # a dataset folder holds many trials: name the one
+            where = f"{session.path}, trial {trial}" if session.path and trial else (session.path or trial or "session")
             warnings.warn(f"{where}: the 9-axis batch did not converge (median heading residual {again:.0f} deg, also from the online "
                           "estimate): its result is suspect", SessionWarning, stacklevel=2)
         residual = again
