@@ -126,13 +126,16 @@ def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     return leave_one_group_out(scores)
 
 
-BROAD_MOTION_GRID: Mapping[str, Sequence[float]] = {"velocity_sigma_m_s": (0.125, 0.18, 0.25, 0.35, 0.5, 1.0, 2.0), "gyro_noise_rad_s_sqrt_hz": (3.5e-3,),
-                                                     "gravity_sigma_deg": (0.75, 1.5, 3.0, 6.0), "gravity_inflation_deg_per_m_s2": (15.0, 30.0)}
+BROAD_MOTION_GRID: Mapping[str, Sequence[float]] = {"velocity_sigma_m_s": (0.18, 0.25, 0.35), "gyro_noise_rad_s_sqrt_hz": (3.5e-3,),
+                                                     "accel_noise_m_s2_sqrt_hz": (0.005, 0.01, 0.02), "gravity_sigma_deg": (0.5, 0.75, 1.5),
+                                                     "gravity_inflation_deg_per_m_s2": (7.5, 15.0)}
 """Our motion and IMU settings tried by ``broad_motion`` (the magnetometer's as ``broad_mag`` chose): the zero-mean velocity
-prior (what a hand-held sensor's speed is), the gyro noise density, the gravity direction's sigma and its inflation. Earlier
-grids, online: with the velocity prior at 2 m/s, a gyro scale-error term (0.02) was 0.9 deg worse everywhere and a gyro
-density of 1.75e-3 0.3 deg worse than 3.5e-3; with the prior in 0.25-2 m/s, 7e-3 was worse than 3.5e-3 at every point (both
-left out); the best prior and gravity sigma sat on the grid's lower edges twice, hence these values."""
+prior (what a hand-held sensor's speed is), the gyro and accelerometer noise densities, the gravity direction's sigma and its
+inflation. This grid is the last of a coordinate descent whose earlier grids, all by leave-one-trial-out on total RMSE, online:
+with the velocity prior at 2 m/s, a gyro scale-error term (0.02) was 0.9 deg worse everywhere and a gyro density of 1.75e-3
+0.3 deg worse than 3.5e-3; over priors 0.125-2 m/s (gravity 0.75-6 deg, inflation 15-30, gyro 3.5e-3 / 7e-3) 7e-3 lost at
+every point and the choices were 0.18 m/s online and 0.35 m/s batch, 0.125 and 0.5-2 m/s clearly worse (then the magnetometer
+was re-chosen); this one adds the accelerometer density around them."""
 
 
 def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
@@ -146,7 +149,7 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
         mag = replace(base.mag, heading_sigma_deg=point["heading_sigma_deg"], norm_gain=point["gains"], dip_gain=point["gains"],
                       cauchy_k=point["cauchy_k"])
         return replace(base, mag=mag)
-    imu = replace(base.imu, gyro_noise_rad_s_sqrt_hz=point["gyro_noise_rad_s_sqrt_hz"])
+    imu = replace(base.imu, gyro_noise_rad_s_sqrt_hz=point["gyro_noise_rad_s_sqrt_hz"], accel_noise_m_s2_sqrt_hz=point["accel_noise_m_s2_sqrt_hz"])
     assert base.gravity is not None
     gravity = replace(base.gravity, sigma_deg=point["gravity_sigma_deg"], inflation_deg_per_m_s2=point["gravity_inflation_deg_per_m_s2"])
     return replace(base, imu=imu, gravity=gravity, motion=replace(base.motion, velocity_sigma_m_s=point["velocity_sigma_m_s"]))
@@ -169,7 +172,7 @@ def _broad_trial_scores(path: str, study: str, solver: str) -> dict[str, float]:
 
 def broad_graph_logo(study: str, directory: str | None = None, solver: str = "online", workers: int = 1) -> dict[str, Any]:
     """Our graph's settings of one BROAD study (``broad_mag``: heading sigma, disturbance gains, Cauchy width;
-    ``broad_motion``: the velocity prior, gyro noise, gravity sigma and its inflation) chosen by leave-one-trial-out on the
+    ``broad_motion``: the velocity prior, gyro and accelerometer noise, gravity sigma and its inflation) chosen by leave-one-trial-out on the
     BROAD trials for ``solver`` (online or batch), the other study's settings as tuned: total RMSE, degrees."""
     from .datasets.broad import DEFAULT_DIR, trial_paths
 

@@ -153,7 +153,8 @@ def broad_model(solver: str = "online") -> Attitude9Model:
         chosen = tuned(f"broad_motion{suffix}")
     except TunedError:
         return model
-    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(chosen["gyro_noise_rad_s_sqrt_hz"]))
+    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(chosen["gyro_noise_rad_s_sqrt_hz"]),
+                  accel_noise_m_s2_sqrt_hz=float(chosen["accel_noise_m_s2_sqrt_hz"]))
     gravity = GravityNoise(sigma_deg=float(chosen["gravity_sigma_deg"]), inflation_deg_per_m_s2=float(chosen["gravity_inflation_deg_per_m_s2"]))
     motion = replace(model.motion, velocity_sigma_m_s=float(chosen["velocity_sigma_m_s"]))
     return replace(model, imu=imu, gravity=gravity, motion=motion)
