@@ -252,23 +252,14 @@ GAZE_FIXATION_GRID = {"drift_m_per_sqrt_s": (0.005, 0.01, 0.02, 0.04), "cauchy_k
 """The gaze graph's fixation model, one grid for each solver's study."""
 
 
-def _bicycle_ekf_score(setting: dict[str, Any], seed: int) -> float:
+def _bicycle_ekf_score(setting: dict[str, Any], seed: int, method: str = "paper_pipeline") -> float:
+    """Hypot of the braking pitch and roll RMS of one EKF baseline (``paper_pipeline`` or ``no_removal``) with these sigmas."""
     from .solvers.ekf9 import Ekf9Config
-    from .systems.bicycle import braking_rms_deg, run_pipeline
+    from .systems.bicycle import RUNNERS, braking_rms_deg
 
     s = _simulated("bicycle", seed)
     config = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_sigma_m_s2=setting["accel_sigma_m_s2"], accel_inflation=0.0)
-    rms = braking_rms_deg(run_pipeline(s, config), s)
-    return float(np.hypot(rms["pitch_deg"], rms["roll_deg"]))
-
-
-def _bicycle_no_removal_score(setting: dict[str, Any], seed: int) -> float:
-    from .solvers.ekf9 import Ekf9Config
-    from .systems.bicycle import braking_rms_deg, run_no_removal
-
-    s = _simulated("bicycle", seed)
-    config = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_sigma_m_s2=setting["accel_sigma_m_s2"], accel_inflation=0.0)
-    rms = braking_rms_deg(run_no_removal(s, config), s)
+    rms = braking_rms_deg(RUNNERS[method](s, config), s)  # type: ignore[operator]
     return float(np.hypot(rms["pitch_deg"], rms["roll_deg"]))
 
 
@@ -332,7 +323,7 @@ STUDIES: dict[str, Study] = {
     "gaze_fixation_batch": Study("gaze_fixation_batch", GAZE_FIXATION_GRID, lambda s, seed: _gaze_fixation_score(s, seed, "batch"),
                                  "mm, hypot of X and Z RMS on the wall of fusegraph batch (the graph's fixation model)"),
     "bicycle_ekf": Study("bicycle_ekf", BICYCLE_EKF_GRID, _bicycle_ekf_score, "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),
-    "bicycle_no_removal": Study("bicycle_no_removal", BICYCLE_EKF_GRID, _bicycle_no_removal_score,
+    "bicycle_no_removal": Study("bicycle_no_removal", BICYCLE_EKF_GRID, lambda s, seed: _bicycle_ekf_score(s, seed, "no_removal"),
                                 "deg, hypot of pitch and roll RMS while braking (the thigh's EKF alone, no removal)"),
     "walking_fixes": Study("walking_fixes", {"kernel_width": (1.0, 3.0, 5.0, 8.0), "reject_sigmas": (3.0, 5.0, 8.0)}, _walking_fixes_score,
                            "m, batch position RMSE with 20 % wrong image fixes"),

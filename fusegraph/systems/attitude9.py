@@ -31,7 +31,7 @@ from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, 
 from ..progress import progress
 from ..session import Session, SessionError, SessionWarning
 from ..solvers.online import OnlineConfig, OnlineSmoother
-from ..tuned import TunedError, tuned
+from ..tuned import tuned
 
 #: Online solver settings for this graph: 1 s of keyframes stays live, re-anchored every 2 s (20 s made each
 #: update 2x slower for the same accuracy); covariances are not needed per sample.
@@ -72,17 +72,14 @@ def attitude_tracker(session: Session) -> AttitudeTrack | None:
     return AttitudeTrack(tracker.t, tracker.latency_s, tracker.values, float(np.deg2rad(sigma_deg)))
 
 
-#: Keys of the accelerometer stream's session.toml entry that replace the motion and gravity settings (when no model is given).
-DECLARED_MOTION_KEYS = ("velocity_sigma_m_s", "sigma_deg", "inflation_deg_per_m_s2")
-
-
 def model_for(session: Session, model: Attitude9Model | None = None, solver: str = "online") -> Attitude9Model:
     """The model with the session's magnetometer calibration: declared in the ``mag`` stream's metadata
     (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording.
 
     Without an explicit ``model``: the solver's BROAD-chosen model (``broad_model``), with what the ``accel`` stream
-    declares replacing its motion and gravity settings (``DECLARED_MOTION_KEYS``): BROAD is hand-held motion, and
-    a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior (e.g. 2 m/s)."""
+    declares replacing its motion and gravity settings (``velocity_sigma_m_s``, ``sigma_deg``, ``inflation_deg_per_m_s2``):
+    BROAD is hand-held motion, and a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior
+    (e.g. 2 m/s)."""
     if model is None:
         model = broad_model(solver)
         meta = session.stream("accel").meta if "accel" in session.streams else {}
@@ -145,14 +142,10 @@ def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: 
 def broad_model(solver: str = "online") -> Attitude9Model:
     """The 9-axis model each solver runs with: its settings chosen for it by leave-one-trial-out over the BROAD trials
     (``fusegraph tune broad_mag|broad_motion [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion] and
-    their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's).
-    A study not yet run leaves the model's declared defaults (the first run of ``broad_motion`` starts from them)."""
+    their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's)."""
     suffix = "" if solver == "online" else "_batch"
     model = Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}"))
-    try:
-        chosen = tuned(f"broad_motion{suffix}")
-    except TunedError:
-        return model
+    chosen = tuned(f"broad_motion{suffix}")
     imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(chosen["gyro_noise_rad_s_sqrt_hz"]),
                   accel_noise_m_s2_sqrt_hz=float(chosen["accel_noise_m_s2_sqrt_hz"]))
     gravity = GravityNoise(sigma_deg=float(chosen["gravity_sigma_deg"]), inflation_deg_per_m_s2=float(chosen["gravity_inflation_deg_per_m_s2"]))
