@@ -127,9 +127,11 @@ def test_the_recording_declares_its_motion_and_the_default_is_chosen_on_broad() 
     assert attitude9.model_for(session).motion.velocity_sigma_m_s == tuned("broad_motion")["velocity_sigma_m_s"]
     assert attitude9.model_for(session, solver="batch").motion.velocity_sigma_m_s == tuned("broad_motion_batch")["velocity_sigma_m_s"]
     accel = session.stream("accel")
-    walking = replace(session, streams={**session.streams, "accel": replace(accel, meta={**accel.meta, "velocity_sigma_m_s": 2.0, "sigma_deg": 3.0})})
+    declared = {**accel.meta, "velocity_sigma_m_s": 2.0, "noise_m_s2_sqrt_hz": 0.02, "sigma_deg": 3.0}
+    walking = replace(session, streams={**session.streams, "accel": replace(accel, meta=declared)})
     model = attitude9.model_for(walking)
     assert model.motion.velocity_sigma_m_s == 2.0 and model.gravity is not None and model.gravity.sigma_deg == 3.0
+    assert model.imu.accel_noise_m_s2_sqrt_hz == 0.02
     # an explicit model is taken as given
     assert attitude9.model_for(walking, attitude9.broad_model()).motion.velocity_sigma_m_s == tuned("broad_motion")["velocity_sigma_m_s"]
 

@@ -77,7 +77,8 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
     (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording.
 
     Without an explicit ``model``: the solver's BROAD-chosen model (``broad_model``), with what the ``accel`` stream
-    declares replacing its motion and gravity settings (``velocity_sigma_m_s``, ``sigma_deg``, ``inflation_deg_per_m_s2``):
+    declares replacing its motion, noise and gravity settings (``velocity_sigma_m_s``, ``noise_m_s2_sqrt_hz``, ``sigma_deg``,
+    ``inflation_deg_per_m_s2``):
     BROAD is hand-held motion, and a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior
     (e.g. 2 m/s)."""
     if model is None:
@@ -85,6 +86,8 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
         meta = session.stream("accel").meta if "accel" in session.streams else {}
         if "velocity_sigma_m_s" in meta:
             model = replace(model, motion=replace(model.motion, velocity_sigma_m_s=float(meta["velocity_sigma_m_s"])))
+        if "noise_m_s2_sqrt_hz" in meta:
+            model = replace(model, imu=replace(model.imu, accel_noise_m_s2_sqrt_hz=float(meta["noise_m_s2_sqrt_hz"])))
         if model.gravity is not None and ("sigma_deg" in meta or "inflation_deg_per_m_s2" in meta):
             gravity = replace(model.gravity, sigma_deg=float(meta.get("sigma_deg", model.gravity.sigma_deg)),
                               inflation_deg_per_m_s2=float(meta.get("inflation_deg_per_m_s2", model.gravity.inflation_deg_per_m_s2)))
