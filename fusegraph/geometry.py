@@ -21,13 +21,6 @@ def skew(v: FloatArray) -> FloatArray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
-    """a x b of two 3-vectors (np.cross's axis handling costs ~20x more per call on one pair)."""
-    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
-    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
-    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
-
-
 def rot3_from_quat_wxyz(quat_wxyz: FloatArray) -> gtsam.Rot3:
     """One unit quaternion (w, x, y, z) as a gtsam rotation."""
     w, x, y, z = (float(v) for v in quat_wxyz)

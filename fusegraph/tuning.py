@@ -41,8 +41,20 @@ class Study:
     """Unit of the score, for the table."""
 
 
-def _score_one(name: str, setting: dict[str, Any], seed: int) -> float:
-    """One study's score of one setting on one seed, looked up by name (a pool worker gets names, not lambdas)."""
+def _in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int) -> list[Any]:
+    """``fn`` over ``items`` through the project's executor (``cluster.completed``: here, or a process pool), in item order."""
+    from .cluster import completed
+
+    position = {id(item): i for i, item in enumerate(items)}  # completed() hands back the very item objects
+    results: list[Any] = [None] * len(items)
+    for item, future in completed(fn, items, workers, None):
+        results[position[id(item)]] = future.result()
+    return results
+
+
+def _score_job(job: tuple[str, dict[str, Any], int]) -> float:
+    """One study's score of one setting on one seed, the study looked up by name (a pool worker gets names, not lambdas)."""
+    name, setting, seed = job
     return STUDIES[name].score(setting, seed)
 
 
@@ -52,14 +64,11 @@ def run_study(study: Study, seeds: Sequence[int] = TUNING_SEEDS, workers: int = 
         raise ValueError(f"tuning seeds {sorted(set(seeds) & set(TEST_SEEDS))} are test seeds: choose on {TUNING_SEEDS[0]}-{TUNING_SEEDS[-1]}")
     names = list(study.grid)
     settings = [dict(zip(names, values, strict=True)) for values in itertools.product(*(study.grid[n] for n in names))]
-    jobs = [(setting, seed) for setting in settings for seed in seeds]
+    jobs = [(study.name, setting, seed) for setting in settings for seed in seeds]
     if workers > 1 and STUDIES.get(study.name) is study:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            scores = list(pool.map(_score_one, [study.name] * len(jobs), [j[0] for j in jobs], [j[1] for j in jobs]))
-    else:
-        scores = [study.score(setting, seed) for setting, seed in jobs]
+        scores = _in_order(_score_job, jobs, workers)
+    else:  # a study not in STUDIES cannot be looked up by a worker
+        scores = [study.score(setting, seed) for _, setting, seed in jobs]
     per_setting = np.reshape(scores, (len(settings), len(seeds)))
     rows = [(setting, float(np.mean(row))) for setting, row in zip(settings, per_setting, strict=True)]
     return sorted(rows, key=lambda row: row[1])
@@ -155,10 +164,12 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     return replace(base, imu=imu, gravity=gravity, motion=replace(base.motion, velocity_sigma_m_s=point["velocity_sigma_m_s"]))
 
 
-def _broad_trial_scores(path: str, study: str, solver: str) -> dict[str, float]:
-    """Every grid point of a BROAD study on one trial: total RMSE, degrees (one pool job)."""
+def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
+    """Every grid point of a BROAD study on one trial (``job``: path, study, solver): total RMSE, degrees."""
     from .datasets.broad import broad_errors, load_broad
     from .systems import attitude9
+
+    path, study, solver = job
 
     session = load_broad(Path(path))
     movement = session.stream("movement").values[:, 0]
@@ -177,13 +188,7 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     from .datasets.broad import DEFAULT_DIR, trial_paths
 
     paths = [str(p) for p in trial_paths(directory or DEFAULT_DIR)]
-    if workers > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            per_trial = list(pool.map(_broad_trial_scores, paths, [study] * len(paths), [solver] * len(paths)))
-    else:
-        per_trial = [_broad_trial_scores(p, study, solver) for p in paths]
+    per_trial = _in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers)
     scores: dict[str, dict[str, float]] = {name: {} for name in grid_settings(BROAD_GRIDS[study])}
     for path, trial in zip(paths, per_trial, strict=True):
         for name, score in trial.items():

@@ -8,7 +8,9 @@ only slowly, this pins it at every keyframe when the body does not accelerate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -30,6 +32,12 @@ class GravityNoise:
     """Extra sigma per m/s^2 that |a| departs from g, degrees."""
     cauchy_k: float = 2.0
     """Cauchy kernel width in sigmas; 0 = Gaussian."""
+
+
+def declared_gravity(meta: Mapping[str, Any], noise: GravityNoise) -> GravityNoise:
+    """``noise`` with what an accelerometer stream's session.toml entry declares (``sigma_deg``, ``inflation_deg_per_m_s2``)."""
+    return replace(noise, sigma_deg=float(meta.get("sigma_deg", noise.sigma_deg)),
+                   inflation_deg_per_m_s2=float(meta.get("inflation_deg_per_m_s2", noise.inflation_deg_per_m_s2)))
 
 
 def gravity_sigma_rad(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_m_s2: float = GRAVITY_M_S2) -> float:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
-from ..factors.accel import GravityNoise, gravity_factor_rot3
+from ..factors.accel import GravityNoise, declared_gravity, gravity_factor_rot3
 from ..factors.attitude import (
     AttitudeNoise,
     attitude_prior_factor,
@@ -476,8 +476,7 @@ def head_model_for(session: Session, model: HeadModel | None = None) -> HeadMode
     calibration = None if gyro_meta.get("calibrated", False) else model.gyro_calibration
     gravity = model.gravity
     for accel in session.streams_of_kind("accel")[:1]:
-        gravity = replace(gravity, sigma_deg=float(accel.meta.get("sigma_deg", gravity.sigma_deg)),
-                          inflation_deg_per_m_s2=float(accel.meta.get("inflation_deg_per_m_s2", gravity.inflation_deg_per_m_s2)))
+        gravity = declared_gravity(accel.meta, gravity)
     latency = None
     if trackers and "latency_sigma_s" in trackers[0].meta:
         latency = LatencyPrior(

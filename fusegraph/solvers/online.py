@@ -178,17 +178,13 @@ class OnlineSmoother:
         """
         theta = gtsam.Values(self._isam.getLinearizationPoint())
         theta.insert(_subset(increment.values, {k for k in increment.values.keys() if not theta.exists(k)}))
-        try:
-            self._isam, self._window = self._rebuilt(self._window + increment.factors, theta)
-        except RuntimeError as again:
-            raise SolverFailureError(f"iSAM2 update at keyframe {self.builder.latest_keyframe} failed ({exc}) and failed again on a "
-                                f"rebuilt solver ({again}): a variable no measurement constrains, or a sensor sigma far too small") from again
-        said = str(exc).strip()
-        self.recoveries.append(f"keyframe {self.builder.latest_keyframe}: {said.splitlines()[0] if said else type(exc).__name__}")
+        k = self.builder.latest_keyframe
+        self._rebuild(self._window + increment.factors, theta, exc, f"keyframe {k}", f"iSAM2 update at keyframe {k}")
 
-    def _rebuilt(self, factors: list[tuple[int, gtsam.NonlinearFactor]], theta: gtsam.Values) -> tuple[gtsam.ISAM2, list[tuple[int, gtsam.NonlinearFactor]]]:
-        """A QR iSAM2 holding ``factors`` at ``theta`` plus the negligible prior on every variable (see ``_recover``);
-        raises gtsam's error when even that fails."""
+    def _rebuild(self, factors: list[tuple[int, gtsam.NonlinearFactor]], theta: gtsam.Values, exc: RuntimeError, where: str, what: str) -> None:
+        """Replace the solver by a QR iSAM2 holding ``factors`` at ``theta`` plus the negligible prior on every variable
+        (see ``_recover``) after ``what`` failed with ``exc`` (listed in ``recoveries`` as ``where``); ``SolverFailureError``
+        when even that fails."""
         zero = theta.zeroVectors()
         weak: list[tuple[int, gtsam.NonlinearFactor]] = []
         for key in theta.keys():
@@ -199,8 +195,14 @@ class OnlineSmoother:
         for _, factor in factors + weak:
             graph.add(factor)
         rebuilt = self._new_isam("QR")
-        rebuilt.update(graph, theta)
-        return rebuilt, factors + weak
+        try:
+            rebuilt.update(graph, theta)
+        except RuntimeError as again:
+            raise SolverFailureError(f"{what} failed ({exc}) and failed again on a rebuilt solver ({again}): a variable no measurement "
+                                     "constrains, or a sensor sigma far too small") from again
+        self._isam, self._window = rebuilt, factors + weak
+        said = str(exc).strip()
+        self.recoveries.append(f"{where}: {said.splitlines()[0] if said else type(exc).__name__}")
 
     @property
     def isam(self) -> gtsam.ISAM2:
@@ -257,13 +259,7 @@ class OnlineSmoother:
             self._isam.update(new_graph, new_values)
             self._window = prior + kept
         except RuntimeError as exc:  # the re-anchored system near-singular for Cholesky: rebuilt as a failed update is
-            try:
-                self._isam, self._window = self._rebuilt(prior + kept, new_values)
-            except RuntimeError as again:
-                raise SolverFailureError(f"re-anchoring at keyframe {anchor} failed ({exc}) and failed again on a rebuilt solver "
-                                         f"({again}): a variable no measurement constrains, or a sensor sigma far too small") from again
-            said = str(exc).strip()
-            self.recoveries.append(f"re-anchoring at keyframe {anchor}: {said.splitlines()[0] if said else type(exc).__name__}")
+            self._rebuild(prior + kept, new_values, exc, f"re-anchoring at keyframe {anchor}", f"re-anchoring at keyframe {anchor}")
         self.builder.oldest_allowed_keyframe = anchor
         self._keyframes_since_anchor = 0
         self.reanchors += 1

@@ -23,7 +23,7 @@ import gtsam
 import numpy as np
 
 from ..estimate import Estimate
-from ..factors.accel import GravityNoise
+from ..factors.accel import GravityNoise, declared_gravity
 from ..factors.attitude import AttitudeTrack
 from ..factors.mag import MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
@@ -88,10 +88,8 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
             model = replace(model, motion=replace(model.motion, velocity_sigma_m_s=float(meta["velocity_sigma_m_s"])))
         if "noise_m_s2_sqrt_hz" in meta:
             model = replace(model, imu=replace(model.imu, accel_noise_m_s2_sqrt_hz=float(meta["noise_m_s2_sqrt_hz"])))
-        if model.gravity is not None and ("sigma_deg" in meta or "inflation_deg_per_m_s2" in meta):
-            gravity = replace(model.gravity, sigma_deg=float(meta.get("sigma_deg", model.gravity.sigma_deg)),
-                              inflation_deg_per_m_s2=float(meta.get("inflation_deg_per_m_s2", model.gravity.inflation_deg_per_m_s2)))
-            model = replace(model, gravity=gravity)
+        if model.gravity is not None:
+            model = replace(model, gravity=declared_gravity(meta, model.gravity))
     if "mag" not in session.streams:
         return model
     meta = session.stream("mag").meta

@@ -389,8 +389,9 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
 
     # the activity confusion on the independent (pendulum) gait, whose signals do not follow the detector's rules;
     # the first generator's figure beside it, and the positioning runs on that generator's walk as before
-    independent = simulate_walking(seed, WalkingScenarioConfig(gait="pendulum"))
-    independent_speed = calibrated_speed_model(seed, WalkingScenarioConfig(gait="pendulum"))
+    pendulum = WalkingScenarioConfig(gait="pendulum")
+    independent = simulate_walking(seed, pendulum)
+    independent_speed = calibrated_speed_model(seed, pendulum)
     independent_cycles, independent_rides, _ = analyse(independent, independent_speed)
     session = simulate_walking(seed)
     speed = calibrated_speed_model(seed)
@@ -472,8 +473,7 @@ def format_walking_table(result: dict[str, object]) -> str:
         lines.append("")
         lines.append(f"{'oxford recording':40s}{'true':>8s}{'counted':>9s}{'error':>8s}{'foot switches':>15s}{'phone':>7s}")
         for name, r in oxford.items():
-            switches = "-" if r.get("foot_switches") is None else str(r["foot_switches"])
-            phone = "-" if r.get("phone") is None else str(r["phone"])
+            switches, phone = ("-" if r.get(key) is None else str(r[key]) for key in ("foot_switches", "phone"))
             lines.append(f"{name:40s}{r['true']:8d}{r['counted']:9d}{100 * (r['counted'] - r['true']) / r['true']:7.1f}%{switches:>15s}{phone:>7s}")
         lines.append("true: counted by hand (stats.csv); foot switches: the dataset's insoles (stepcounter.csv, heel contacts);"
                      " phone: the phone's own step counter, not in these recordings")
