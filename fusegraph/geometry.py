@@ -23,7 +23,7 @@ def skew(v: FloatArray) -> FloatArray:
 
 def rot3_from_quat_wxyz(quat_wxyz: FloatArray) -> gtsam.Rot3:
     """One unit quaternion (w, x, y, z) as a gtsam rotation."""
-    w, x, y, z = (float(v) for v in quat_wxyz)
+    w, x, y, z = np.asarray(quat_wxyz, dtype=float).tolist()
     return gtsam.Rot3.Quaternion(w, x, y, z)
 
 

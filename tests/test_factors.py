@@ -109,3 +109,18 @@ def test_integrate_gyro_matches_constant_rate_rotation() -> None:
     expected = gtsam.Rot3.Expmap(omega * 1.0)
     np.testing.assert_allclose(rot3_from_quat_wxyz(quats[-1]).matrix(), expected.matrix(), atol=1e-12)
     assert quat_wxyz_from_rot3(expected)[0] >= 0
+
+
+def test_insert_by_keyword_stores_what_the_positional_insert_stores() -> None:
+    from fusegraph.graphs.increment import insert
+
+    rot = gtsam.Rot3.RzRyRx(0.1, -0.2, 0.3)
+    pose = gtsam.Pose3(rot, np.array([1.0, 2.0, 3.0]))
+    bias = gtsam.imuBias.ConstantBias(np.array([0.1, 0.2, 0.3]), np.array([-0.01, 0.02, -0.03]))
+    values = gtsam.Values()
+    for key, value in enumerate((rot, pose, bias, np.array([4.0, 5.0]))):
+        insert(values, key, value)
+    assert values.atRot3(0).equals(rot, 0.0)
+    assert values.atPose3(1).equals(pose, 0.0)
+    assert values.atConstantBias(2).equals(bias, 0.0)
+    np.testing.assert_array_equal(values.atVector(3), [4.0, 5.0])

@@ -23,7 +23,9 @@ import numpy as np
 
 from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray, rot3_from_quat_wxyz
-from .linear import ar1_coefficients, linear_factor
+from .linear import ar1_coefficients, isotropic, linear_factor
+
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -76,7 +78,7 @@ class AttitudeTrack:
 
 def attitude_prior_factor(key: int, measured: gtsam.Rot3, sigma_rad: float) -> gtsam.PriorFactorRot3:
     """White-noise attitude measurement on the state ``key``."""
-    return gtsam.PriorFactorRot3(key, measured, gtsam.noiseModel.Isotropic.Sigma(3, sigma_rad))
+    return gtsam.PriorFactorRot3(key, measured, isotropic(3, sigma_rad))
 
 
 #: Sigma of the T = X * Exp(e) tie, rad: a near-hard constraint that keeps the system well conditioned.
@@ -100,12 +102,12 @@ def error_state_factor(state_key: int, reading_key: int, error_key: int) -> gtsa
 def gauss_markov_factor(prev_key: int, next_key: int, dt_s: float, sigma: float, tau_s: float) -> gtsam.LinearContainerFactor:
     """Exact AR(1) transition e_next = phi * e_prev + w of a 3-vector first-order Markov process."""
     phi, drive_sigma = ar1_coefficients(dt_s, sigma, tau_s)
-    return linear_factor([(prev_key, -phi * np.eye(3)), (next_key, np.eye(3))], drive_sigma)
+    return linear_factor([(prev_key, -phi * _EYE3), (next_key, _EYE3)], drive_sigma)
 
 
 def markov_prior_factor(key: int, sigma: float) -> gtsam.PriorFactorVector:
     """Stationary prior N(0, sigma^2) on the first state of a Markov process."""
-    return gtsam.PriorFactorVector(key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+    return gtsam.PriorFactorVector(key, np.zeros(3), isotropic(3, sigma))
 
 CATALOGUE = (
     SensorKind(

@@ -64,6 +64,10 @@ class GyroCalibrationPrior:
         return np.where(np.eye(3, dtype=bool).ravel(), self.scale_sigma, self.misalignment_sigma)
 
 
+_EYE3 = np.eye(3)
+_MINUS_EYE3 = -_EYE3
+
+
 def rate_matrix(omega: FloatArray) -> FloatArray:
     """W(omega), 3x9, with W @ c = K @ omega for c = K flattened row by row."""
     out = np.zeros((3, 9))
@@ -80,14 +84,13 @@ def calibrated_bias_walk_factor(
     beta_i: int, beta_j: int, cal_key: int, rate_i: FloatArray, rate_j: FloatArray, dt_s: float, noise: GyroNoise
 ) -> gtsam.LinearContainerFactor:
     """(beta_j - W_j c) - (beta_i - W_i c) ~ N(0, q dt): the bias walk seen through effective biases."""
-    eye = np.eye(3)
-    sigma = noise.bias_rw_sigma * np.sqrt(max(dt_s, 1e-9))
-    return linear_factor([(beta_i, -eye), (beta_j, eye), (cal_key, rate_matrix(rate_i) - rate_matrix(rate_j))], sigma)
+    sigma = noise.bias_rw_sigma * math.sqrt(max(dt_s, 1e-9))
+    return linear_factor([(beta_i, _MINUS_EYE3), (beta_j, _EYE3), (cal_key, rate_matrix(np.subtract(rate_i, rate_j)))], sigma)  # W is linear in omega
 
 
 def calibrated_bias_prior_factor(beta_key: int, cal_key: int, rate: FloatArray, noise: GyroNoise) -> gtsam.LinearContainerFactor:
     """beta_0 - W_0 c ~ N(0, sigma_b0^2): the start-up bias prior seen through the effective bias."""
-    return linear_factor([(beta_key, np.eye(3)), (cal_key, -rate_matrix(rate))], noise.bias_prior_sigma_rad_s)
+    return linear_factor([(beta_key, _EYE3), (cal_key, -rate_matrix(rate))], noise.bias_prior_sigma_rad_s)
 
 
 class GyroInterval:

@@ -214,7 +214,7 @@ class Attitude9Builder:
 
     def add_variable(self, key: int, value: FloatArray) -> None:
         """The initial guess of a point or vector variable another sensor adds (goes out with the next ``take``)."""
-        self._pending.values.insert(key, np.asarray(value, dtype=float))
+        self._pending.insert(key, np.asarray(value, dtype=float))
 
     @property
     def predicted_attitude(self) -> gtsam.Rot3:
@@ -281,9 +281,9 @@ class Attitude9Builder:
         self._pending.add(0, gtsam.PriorFactorPose3(self.X(0), self._nav.pose(), pose_noise))
         self._pending.add(0, velocity_prior_factor(self.V(0), model.motion.velocity_sigma_m_s if np.isfinite(model.motion.velocity_sigma_m_s) else 50.0))
         self._pending.add(0, bias_prior_factor(self.B(0), model.imu))
-        self._pending.values.insert(self.X(0), self._nav.pose())
-        self._pending.values.insert(self.V(0), np.zeros(3))
-        self._pending.values.insert(self.B(0), self._bias)
+        self._pending.insert(self.X(0), self._nav.pose())
+        self._pending.insert(self.V(0), np.zeros(3))
+        self._pending.insert(self.B(0), self._bias)
         self.keyframe_t.append(t)
         self.keyframe_index.append(self._count)
         self._keyframe_guess.append(rot)
@@ -327,9 +327,9 @@ class Attitude9Builder:
             add(k, velocity_prior_factor(self.V(k), model.motion.rest_velocity_sigma_m_s))
         if model.gravity is not None:
             add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
-        self._pending.values.insert(self.X(k), predicted.pose())
-        self._pending.values.insert(self.V(k), predicted.velocity())
-        self._pending.values.insert(self.B(k), self._bias)
+        self._pending.insert(self.X(k), predicted.pose())
+        self._pending.insert(self.V(k), predicted.velocity())
+        self._pending.insert(self.B(k), self._bias)
         self.keyframe_t.append(self._last_t)
         self.keyframe_index.append(self._count)
         self._keyframe_guess.append(predicted.attitude())
@@ -371,7 +371,7 @@ class Attitude9Builder:
             solved = k < len(self.posterior_quat) and np.isfinite(self.posterior_quat[k][0])
             guess = rot3_from_quat_wxyz(self.posterior_quat[k]) if solved else self._keyframe_guess[k]
             world_R_tracker = guess.compose(measured.inverse())
-            self._pending.values.insert(TRACKER_WORLD, gtsam.Pose3(world_R_tracker, np.zeros(3)))
+            self._pending.insert(TRACKER_WORLD, gtsam.Pose3(world_R_tracker, np.zeros(3)))
             # the rotation is free (10 rad); the translation, which no factor sees, is pinned at zero
             loose = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[10.0] * 3, [1.0] * 3])
             self._pending.add(k, gtsam.PriorFactorPose3(TRACKER_WORLD, gtsam.Pose3(world_R_tracker, np.zeros(3)), loose))

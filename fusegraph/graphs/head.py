@@ -52,8 +52,6 @@ from ..session import Session
 from .increment import GraphIncrement
 from .ordering import nested_dissection
 
-_EYE3 = np.eye(3)
-
 
 def X(k: int) -> int:
     """Key of world_R_head at keyframe k."""
@@ -246,7 +244,9 @@ class HeadGraphBuilder:
         """
         assert self._interval is not None
         dt = self._interval.t_last - self.keyframe_t[self._solved_keyframe]
-        return cov_kf + (dt * self._density_sq) * _EYE3 + (dt * dt) * cov_bias
+        cov = cov_kf + (dt * dt) * cov_bias
+        cov.flat[::4] += dt * self._density_sq  # the diagonal: cheaper than adding a scaled identity
+        return cov
 
     @property
     def now_s(self) -> float:
@@ -277,14 +277,14 @@ class HeadGraphBuilder:
         self.keyframe_t.append(t0)
         self._keyframe_omega[0] = omega0
         self._latest_rot = first_fix.compose(gtsam.Rot3.Expmap(-omega0 * (t_fix - t0)))
-        self._pending.values.insert(X(0), self._latest_rot)
+        self._pending.insert(X(0), self._latest_rot)
         if self.model.latency is not None:
-            self._pending.values.insert(D(0), np.zeros(1))
+            self._pending.insert(D(0), np.zeros(1))
             self._pending.add(0, offset_prior_factor(D(0), self.model.latency))
             self._latency_segment = 0
             self._latency_t0 = t0
         if self.model.gyro_calibration is not None:
-            self._pending.values.insert(C, np.zeros(9))
+            self._pending.insert(C, np.zeros(9))
             self._pending.add(0, calibration_prior_factor(C, self.model.gyro_calibration))
         self._interval = GyroInterval(self._params, self._latest_bias, t0, omega0)
         # tracker samples older than the anchor can never be used: say so, do not drop silently
@@ -301,7 +301,7 @@ class HeadGraphBuilder:
         interval = self._interval
         gyro, calibration = self.model.gyro, self.model.gyro_calibration
         self._pending.add(k, interval.factor(X(k), X(k + 1), B(k)))
-        self._pending.values.insert(B(k), self._latest_bias)
+        self._pending.insert(B(k), self._latest_bias)
         first: gtsam.NonlinearFactor | None
         link: gtsam.NonlinearFactor | None
         if calibration is None:
@@ -316,7 +316,7 @@ class HeadGraphBuilder:
             self._pending.add(k - 1, link)
         self._previous_rate = interval.mean_rate
         self._latest_rot = self._latest_rot.compose(interval.delta(self._latest_bias))
-        self._pending.values.insert(X(k + 1), self._latest_rot)
+        self._pending.insert(X(k + 1), self._latest_rot)
         self.keyframe_t.append(interval.t_last)
         self._keyframe_omega[k + 1] = interval.omega_last
         self._interval = GyroInterval(self._params, self._latest_bias, interval.t_last, interval.omega_last)
@@ -343,9 +343,10 @@ class HeadGraphBuilder:
         # the factors then model only the remainder (see factors.latency)
         applied = self.latency_applied_s
         t_place = t - applied
-        i = bisect.bisect_left(self.keyframe_t, t_place)
-        candidates = [j for j in (i - 1, i) if 0 <= j < len(self.keyframe_t)]
-        k = min(candidates, key=lambda j: abs(self.keyframe_t[j] - t_place))
+        times = self.keyframe_t
+        i = bisect.bisect_left(times, t_place)
+        # the nearer of the keyframes either side (the earlier one on a tie)
+        k = i if i == 0 or (i < len(times) and times[i] - t_place < t_place - times[i - 1]) else i - 1
         if k < self.oldest_allowed_keyframe or (self._last_error_kf is not None and k < self._last_error_kf):
             self.too_late.append(t)  # its state was marginalised, or it came out of order: counted, not hidden
             return
@@ -364,8 +365,8 @@ class HeadGraphBuilder:
         if k == self._last_error_kf:
             return  # a second sample on this keyframe: its error state exists already
         self._pending.add(k, error_state_factor(X(k), T(k), E(k)))
-        self._pending.values.insert(T(k), measured)
-        self._pending.values.insert(E(k), np.zeros(3))
+        self._pending.insert(T(k), measured)
+        self._pending.insert(E(k), np.zeros(3))
         rate = self._keyframe_omega[k] - self._latest_bias
         restart = self._last_error_kf is None or self._last_error_kf < self.oldest_allowed_keyframe
         markov = float(np.deg2rad(noise.markov_sigma_deg))
@@ -407,7 +408,7 @@ class HeadGraphBuilder:
         segment = int((self.keyframe_t[k] - self._latency_t0) // LATENCY_SEGMENT_S)
         while self._latency_segment < segment:
             j = self._latency_segment
-            self._pending.values.insert(D(j + 1), np.zeros(1))
+            self._pending.insert(D(j + 1), np.zeros(1))
             self._pending.add(k, offset_walk_factor(D(j), D(j + 1), LATENCY_SEGMENT_S, prior))
             self._latency_segment = j + 1
         return D(min(segment, self._latency_segment))
