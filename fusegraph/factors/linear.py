@@ -25,6 +25,12 @@ def isotropic(dim: int, sigma: float) -> gtsam.noiseModel.Isotropic:
 
 
 _ZEROS = {n: np.zeros(n) for n in range(1, 13)}
+for _zero in _ZEROS.values():
+    _zero.setflags(write=False)  # shared by every factor (gtsam copies them)
+
+
+def _zeros(n: int) -> FloatArray:
+    return _ZEROS[n] if n in _ZEROS else np.zeros(n)
 
 
 def linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float, rhs: FloatArray | None = None) -> gtsam.LinearContainerFactor:
@@ -33,9 +39,8 @@ def linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float, rhs: Float
     at_zero = gtsam.Values()
     for key, matrix in blocks:
         args += [key, matrix]
-        cols = matrix.shape[1]
-        at_zero.insert(key, _ZEROS[cols] if cols in _ZEROS else np.zeros(cols))
+        at_zero.insert(key, _zeros(matrix.shape[1]))
     rows = blocks[0][1].shape[0]
-    b = _ZEROS[rows] if rhs is None and rows in _ZEROS else (np.zeros(rows) if rhs is None else np.asarray(rhs, dtype=float))
+    b = _zeros(rows) if rhs is None else np.asarray(rhs, dtype=float)
     jacobian = gtsam.JacobianFactor(*args, b, isotropic(rows, float(sigma)))  # type: ignore[call-overload]
     return gtsam.LinearContainerFactor(jacobian, at_zero)
