@@ -155,17 +155,11 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     """The 9-axis model with one grid point of a BROAD study applied to the solver's tuned model."""
     from dataclasses import replace
 
-    from .systems.attitude9 import broad_model
+    from .graphs.attitude9 import mag_noise_from
+    from .systems.attitude9 import broad_model, with_motion
 
     base = broad_model(solver)
-    if study == "broad_mag":
-        mag = replace(base.mag, heading_sigma_deg=point["heading_sigma_deg"], norm_gain=point["gains"], dip_gain=point["gains"],
-                      cauchy_k=point["cauchy_k"])
-        return replace(base, mag=mag)
-    imu = replace(base.imu, gyro_noise_rad_s_sqrt_hz=point["gyro_noise_rad_s_sqrt_hz"], accel_noise_m_s2_sqrt_hz=point["accel_noise_m_s2_sqrt_hz"])
-    assert base.gravity is not None
-    gravity = replace(base.gravity, sigma_deg=point["gravity_sigma_deg"], inflation_deg_per_m_s2=point["gravity_inflation_deg_per_m_s2"])
-    return replace(base, imu=imu, gravity=gravity, motion=replace(base.motion, velocity_sigma_m_s=point["velocity_sigma_m_s"]))
+    return replace(base, mag=mag_noise_from(point)) if study == "broad_mag" else with_motion(base, point)
 
 
 def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:

@@ -16,6 +16,7 @@ attitude (``heading_factors``).
 from __future__ import annotations
 
 import bisect
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import gtsam
@@ -62,11 +63,15 @@ TRACKER_WORLD = int(gtsam.symbol("a", 0))
 _FREE_TRANSLATION_SIGMA_M = 1e3
 
 
+def mag_noise_from(settings: Mapping[str, float]) -> MagNoise:
+    """The magnetometer model of a ``broad_mag`` setting (a grid point, or the chosen one): heading sigma, gains, Cauchy width."""
+    return MagNoise(heading_sigma_deg=float(settings["heading_sigma_deg"]), norm_gain=float(settings["gains"]), dip_gain=float(settings["gains"]),
+                    cauchy_k=float(settings["cauchy_k"]))
+
+
 def mag_noise_tuned(study: str) -> MagNoise:
     """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``)."""
-    chosen = tuned(study)
-    return MagNoise(heading_sigma_deg=float(chosen["heading_sigma_deg"]), norm_gain=float(chosen["gains"]), dip_gain=float(chosen["gains"]),
-                    cauchy_k=float(chosen["cauchy_k"]))
+    return mag_noise_from(tuned(study))
 
 
 @dataclass(frozen=True)
@@ -82,8 +87,7 @@ class Attitude9Model:
     """Zero-mean position/velocity pseudo-measurements and the rest detector."""
     mag: MagNoise = field(default_factory=lambda: mag_noise_tuned("broad_mag"))
     """Magnetometer heading noise and disturbance rejection, chosen for the online estimate by leave-one-trial-out over
-    the eleven BROAD trials (``fusegraph tune broad_mag``, ``tuned.toml``: 3 deg, gains 20, Cauchy 2 sigma; 2.75 deg
-    in-sample, 2.87 cross-validated; the previous 5 deg / 1 sigma: 2.95 in-sample)."""
+    the eleven BROAD trials (``fusegraph tune broad_mag``; the values and their scores are in ``tuned.toml`` [broad_mag])."""
     mag_calibration: MagCalibration = field(default_factory=MagCalibration)
     """M = G m + B applied to every reading."""
     use_mag: bool = True

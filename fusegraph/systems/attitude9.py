@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -145,12 +145,17 @@ def broad_model(solver: str = "online") -> Attitude9Model:
     (``fusegraph tune broad_mag|broad_motion [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion] and
     their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's)."""
     suffix = "" if solver == "online" else "_batch"
-    model = Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}"))
-    chosen = tuned(f"broad_motion{suffix}")
-    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(chosen["gyro_noise_rad_s_sqrt_hz"]),
-                  accel_noise_m_s2_sqrt_hz=float(chosen["accel_noise_m_s2_sqrt_hz"]))
-    gravity = GravityNoise(sigma_deg=float(chosen["gravity_sigma_deg"]), inflation_deg_per_m_s2=float(chosen["gravity_inflation_deg_per_m_s2"]))
-    motion = replace(model.motion, velocity_sigma_m_s=float(chosen["velocity_sigma_m_s"]))
+    return with_motion(Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}")), tuned(f"broad_motion{suffix}"))
+
+
+def with_motion(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
+    """``model`` with a ``broad_motion`` setting (a grid point, or the chosen one): the velocity prior, the gyro and
+    accelerometer densities, the gravity direction's sigma and inflation."""
+    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(settings["gyro_noise_rad_s_sqrt_hz"]),
+                  accel_noise_m_s2_sqrt_hz=float(settings["accel_noise_m_s2_sqrt_hz"]))
+    gravity = replace(model.gravity or GravityNoise(), sigma_deg=float(settings["gravity_sigma_deg"]),
+                      inflation_deg_per_m_s2=float(settings["gravity_inflation_deg_per_m_s2"]))
+    motion = replace(model.motion, velocity_sigma_m_s=float(settings["velocity_sigma_m_s"]))
     return replace(model, imu=imu, gravity=gravity, motion=motion)
 
 
