@@ -38,6 +38,34 @@ def test_noise_free_batch_recovers_truth(profile: str) -> None:
     assert err.max() < 2e-4
 
 
+def test_gauss_newton_batch_equals_levenberg_marquardt_with_its_covariances() -> None:
+    """The head batch's Gauss-Newton (covariances from its last factorisation) and gtsam's Levenberg-Marquardt
+    (covariances from a fresh one) reach the same optimum; when Gauss-Newton does not converge within the
+    iteration cap, the result is Levenberg-Marquardt's."""
+    from fusegraph.graphs.head import time_ordering
+    from fusegraph.solvers.batch import BatchConfig
+
+    session = simulate_head(4, profile="realistic", duration_s=4.0)
+    builder = HeadGraphBuilder(head_model_for(session))
+    feed(builder, session)
+    increment = builder.take()
+    graph, order = increment.graph(), time_ordering(increment.values.keys())
+    keys = [X(k) for k in range(len(builder.keyframe_t))]
+    results = [solve_batch(graph, increment.values, keys, BatchConfig(gauss_newton=gn, max_iterations=cap), ordering=order)
+               for gn, cap in ((True, 50), (False, 50), (True, 1), (False, 1))]
+    gn, lm, capped, lm_capped = results
+    assert gn.iterations > 1  # the start is not the optimum: the comparison means something
+    # both stop at a relative cost decrease of 1e-5; the optima agree far below the tracker's 0.4 deg noise
+    assert abs(lm.final_error - gn.final_error) <= 1e-4 * gn.final_error
+    for key in keys:
+        assert gn.values.atRot3(key).between(lm.values.atRot3(key)).axisAngle()[1] < 1e-5
+    for key, cov in gn.covariances.items():
+        # linearised one converged step apart: equal to a part in 1e4 of the variances (off-diagonal terms are
+        # ~1/200 of them, so their relative differences are larger)
+        np.testing.assert_allclose(cov, lm.covariances[key], rtol=0, atol=1e-4 * float(np.max(np.diag(cov))))
+    assert capped.final_error == lm_capped.final_error > 2 * gn.final_error  # LM's one iteration, not GN's
+
+
 def test_noise_free_online_recovers_truth_after_bias_converges() -> None:
     session = noise_free_session("ideal")
     estimate = run_isam2(session, TIGHT)
@@ -192,8 +220,8 @@ def test_online_window_must_cover_the_latency() -> None:
 
 
 def test_nested_dissection_orders_every_key_once_and_solves_like_the_time_order() -> None:
-    """Every keyframe's keys once, a cut after both its halves, shared keys last; and the head batch's
-    Levenberg-Marquardt reaches the same solution in that order as keyframe by keyframe (the order only
+    """Every keyframe's keys once, a cut after both its halves, shared keys last; and the head batch
+    reaches the same solution in that order as keyframe by keyframe (the order only
     changes how the same linear systems are factored: equal to 1e-9 rad)."""
     from fusegraph.graphs.head import time_ordering
     from fusegraph.graphs.ordering import nested_dissection
