@@ -108,9 +108,10 @@ class _HeadSolver:
 
     def __init__(self, declared: Session) -> None:
         from .graphs.head import head_model_for
-        from .systems.head import OnlineHeadTracker
+        from .systems.head import OnlineHeadTracker, gyro_delay_s
 
         self.tracker = OnlineHeadTracker(head_model_for(declared))
+        self.gyro_delay_s = gyro_delay_s(declared)  # samples go in at their true time, estimates out at their stamps (as replay)
 
     def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray]]:
         if name == "tracker":
@@ -119,8 +120,14 @@ class _HeadSolver:
         if name == "accel":
             self.tracker.add_accel(t, values)
             return []
-        now = self.tracker.add_gyro(t, values)
-        return [] if now is None else [(now.t, now.quat_wxyz, now.cov)]
+        from .systems.head import carried_over_delay
+
+        now = self.tracker.add_gyro(t - self.gyro_delay_s, values)
+        if now is None:
+            return []
+        if self.gyro_delay_s == 0.0:
+            return [(now.t, now.quat_wxyz, now.cov)]
+        return [(t, carried_over_delay(now.quat_wxyz, values, self.gyro_delay_s), now.cov)]
 
     def maintain(self) -> None:
         self.tracker.maintain()

@@ -19,7 +19,17 @@ import numpy as np
 
 from ..estimate import Estimate
 from ..factors.gyro import GyroNoise, integrate_gyro
-from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
+from ..geometry import (
+    FloatArray,
+    matrix_from_quat,
+    quat_conjugate,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_normalize,
+    quat_wxyz_from_rot3,
+    rot3_from_quat_wxyz,
+    rotvec_from_quat,
+)
 from ..graphs.head import B, HeadGraphBuilder, HeadModel, X, head_model_for, time_ordering
 from ..metrics import AXES, AttitudeScore, mean_scores, score_attitude
 from ..progress import progress as progress_bar
@@ -189,6 +199,9 @@ class OnlineHeadTracker:
 
 def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineConfig | None = None) -> Estimate:
     """fusegraph online: replay in arrival order through ``OnlineHeadTracker``; causal estimate per gyro sample."""
+    delayed = _with_gyro_delay(session, lambda retimed: run_isam2(retimed, model, config))
+    if delayed is not None:
+        return delayed
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
     max_latency = max((s.latency_s for s in session.streams_of_kind("attitude")), default=0.0)
@@ -232,6 +245,9 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
 
 def run_batch(session: Session, model: HeadModel | None = None, config: BatchConfig | None = None) -> Estimate:
     """fusegraph batch: the same factors as online, optimised together; smoothed attitude per gyro sample."""
+    delayed = _with_gyro_delay(session, lambda retimed: run_batch(retimed, model, config))
+    if delayed is not None:
+        return delayed
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
     start = time.perf_counter()
@@ -333,6 +349,108 @@ def gyro_bias_from_tracker(session: Session, span_s: float = 1.0) -> FloatArray:
     return np.median(excess / (gyro.t[gj] - gyro.t[gi])[:, None], axis=0)
 
 
+@dataclass(frozen=True)
+class GyroDelay:
+    """How late a gyro's samples are on the tracker's clock, estimated from the two streams alone."""
+
+    delay_s: float
+    """The gyro sample stamped t measured the rate at t - delay_s, seconds (a filter's group delay, a clock offset)."""
+    sigma_s: float
+    """Its standard error, seconds (least squares over the pairs kept)."""
+    pairs: int
+    """Tracker sample pairs used (after the outliers were set aside)."""
+
+
+def gyro_delay_from_tracker(session: Session, span_s: float = 0.1) -> GyroDelay:
+    """The gyro's delay relative to the tracker from their agreement: no reference attitude is read.
+
+    A gyro that lags by d integrates, between tracker stamps a and b, the rotation of [a - d, b - d]:
+    G = Exp(w_a d) T Exp(-w_b d) for the tracker's rotation T, so Log(T^-1 G) = d (G^T w_a - w_b) + bias (b - a)
+    to first order (w the body rates at a and b, G^T carrying w_a into the frame at b). Least squares for (d, bias)
+    over tracker pairs ``span_s`` apart; pairs whose residual exceeds 4 robust sigmas (tracker glitches) are set
+    aside and the fit repeated. The tracker's own error is what makes the residual: over thousands of pairs it
+    averages to a fraction of a millisecond when the head moves (at rest d is not observable and sigma says so).
+    """
+    gyro, tracker = session.stream("gyro"), session.stream("tracker")
+    t_g = gyro.t
+    raw = integrate_gyro(t_g, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]))
+
+    def at(times: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Integrated gyro attitude and gyro rate at arbitrary times (the next sample's rate carries the last one)."""
+        i = np.clip(np.searchsorted(t_g, times, side="right") - 1, 0, len(t_g) - 2)
+        rate = gyro.values[i + 1]
+        quat = quat_multiply(raw[i], quat_from_rotvec(rate * (times - t_g[i])[:, None]))
+        return quat, np.stack([np.interp(times, t_g, gyro.values[:, axis]) for axis in range(3)], axis=1)
+
+    stamps = tracker.t
+    inside = (stamps > t_g[0]) & (stamps < t_g[-1])
+    a = np.nonzero(inside)[0]
+    b = np.searchsorted(stamps, stamps[a] + span_s - 1e-9)
+    keep = (b < len(stamps)) & (stamps[np.minimum(b, len(stamps) - 1)] - stamps[a] < 1.5 * span_s)
+    a, b = a[keep], b[keep]
+    ok = inside[b]  # both ends inside the gyro's span
+    a, b = a[ok], b[ok]
+    if len(a) < 10:
+        return GyroDelay(0.0, float("inf"), 0)
+    q_a, w_a = at(stamps[a])
+    q_b, w_b = at(stamps[b])
+    by_gyro = quat_multiply(quat_conjugate(q_a), q_b)
+    by_tracker = quat_multiply(quat_conjugate(tracker.values[a]), tracker.values[b])
+    excess = rotvec_from_quat(quat_multiply(quat_conjugate(by_tracker), by_gyro))  # (n, 3)
+    column = np.einsum("nji,nj->ni", matrix_from_quat(by_gyro), w_a) - w_b  # G^T w_a - w_b
+    finite = np.all(np.isfinite(excess), axis=1) & np.all(np.isfinite(column), axis=1)
+    excess, column, a, b = excess[finite], column[finite], a[finite], b[finite]
+    n = len(a)
+    design = np.zeros((3 * n, 4))
+    design[:, 0] = column.ravel()
+    dt = (stamps[b] - stamps[a])
+    for axis in range(3):
+        design[axis::3, 1 + axis] = dt
+    target = excess.ravel()
+    use = np.ones(n, dtype=bool)
+    for _ in range(2):
+        rows = np.repeat(use, 3)
+        solution, *_ = np.linalg.lstsq(design[rows], target[rows], rcond=None)
+        residual = np.linalg.norm((target - design @ solution).reshape(n, 3), axis=1)
+        spread = 1.4826 * np.median(residual[use])
+        use = residual <= 4.0 * spread
+    rows = np.repeat(use, 3)
+    solution, *_ = np.linalg.lstsq(design[rows], target[rows], rcond=None)
+    dof = max(int(rows.sum()) - 4, 1)
+    variance = float(np.sum((target[rows] - design[rows] @ solution) ** 2)) / dof
+    info = design[rows].T @ design[rows]
+    sigma = float(np.sqrt(variance * np.linalg.inv(info)[0, 0])) if np.linalg.cond(info) < 1e12 else float("inf")
+    return GyroDelay(float(solution[0]), sigma, int(use.sum()))
+
+
+def gyro_delay_s(session: Session) -> float:
+    """The delay the session's gyro declares (``delay_s``, 0 when it declares none), seconds."""
+    return float(session.stream("gyro").meta.get("delay_s", 0.0))
+
+
+def _with_gyro_delay(session: Session, run: Callable[[Session], Estimate]) -> Estimate | None:
+    """A method run on the gyro's true timeline when the gyro declares a delay d (None when it declares none).
+
+    The samples are re-stamped to t - d (they still arrive at t: the stream's latency grows by d), so every
+    sensor meets on one clock; the attitude the method gives for each sample's true time is carried forward over
+    d by that sample's rate and reported at the sample's stamp. Online that is a prediction d ahead from the
+    newest sample, so the estimate stays causal.
+    """
+    delay = gyro_delay_s(session)
+    if delay == 0.0:
+        return None
+    gyro = session.stream("gyro")
+    retimed = replace(gyro, t=gyro.t - delay, latency_s=gyro.latency_s + delay, meta={**gyro.meta, "delay_s": 0.0})
+    estimate = run(replace(session, streams={**session.streams, "gyro": retimed}))
+    quats = carried_over_delay(estimate.quat_wxyz, gyro.values, delay)
+    return replace(estimate, t=gyro.t.copy(), quat_wxyz=quats, extras={**estimate.extras, "gyro_delay_s": delay})
+
+
+def carried_over_delay(quat_wxyz: FloatArray, rate_rad_s: FloatArray, delay_s: float) -> FloatArray:
+    """Attitudes at a sample's true time carried to its stamp, ``delay_s`` later, by its body rate (one or (N, 4))."""
+    return quat_normalize(quat_multiply(quat_wxyz, quat_from_rotvec(np.asarray(rate_rad_s, dtype=float) * delay_s)))
+
+
 def corrected_dead_reckoning(session: Session) -> FloatArray:
     """The gyro integrated from identity at every sample, less the bias the tracker shows."""
     gyro = session.stream("gyro")
@@ -380,6 +498,9 @@ def run_tracker_only(session: Session) -> Estimate:
 
 def run_gyro_only(session: Session) -> Estimate:
     """Dead reckoning: integrate the raw gyro from the first tracker fix, from when that fix arrived."""
+    delayed = _with_gyro_delay(session, run_gyro_only)
+    if delayed is not None:
+        return delayed
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     start = time.perf_counter()
     i0 = int(np.argmin(np.abs(gyro.t - tracker.t[0])))
@@ -409,6 +530,9 @@ TUNED_EKF_KALMAN = ekf_config_from(tuned("head_ekf_kalman"))
 def run_ekf(session: Session, mode: str, config: HeadEkfConfig | None = None) -> Estimate:
     """One of the paper's EKFs (``kalman``, ``method1``, ``method2``) over the session, each with its own noise
     figures chosen on the tuning seeds unless ``config`` is given (the paper's: ``HeadEkfConfig()``)."""
+    delayed = _with_gyro_delay(session, lambda retimed: run_ekf(retimed, mode, config))
+    if delayed is not None:
+        return delayed
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     # the filter's H = (I, -d F') uses the latency the session declares (true, or only assumed)
     default = {"method2": TUNED_EKF, "method1": TUNED_EKF_METHOD1, "kalman": TUNED_EKF_KALMAN}.get(mode, HeadEkfConfig())
