@@ -401,9 +401,11 @@ def gyro_delay_from_tracker(session: Session, span_s: float = 0.1) -> GyroDelay:
     finite = np.all(np.isfinite(excess), axis=1) & np.all(np.isfinite(column), axis=1)
     excess, column, a, b = excess[finite], column[finite], a[finite], b[finite]
     n = len(a)
+    if n < 10:  # a gap in the gyro (NaN samples) everywhere: nothing to fit
+        return GyroDelay(0.0, float("inf"), 0)
     design = np.zeros((3 * n, 4))
     design[:, 0] = column.ravel()
-    dt = (stamps[b] - stamps[a])
+    dt = stamps[b] - stamps[a]
     for axis in range(3):
         design[axis::3, 1 + axis] = dt
     target = excess.ravel()
