@@ -108,10 +108,11 @@ class _HeadSolver:
 
     def __init__(self, declared: Session) -> None:
         from .graphs.head import head_model_for
-        from .systems.head import OnlineHeadTracker, gyro_delay_s
+        from .systems.head import OnlineHeadTracker, carried_over_delay, gyro_delay_s
 
         self.tracker = OnlineHeadTracker(head_model_for(declared))
         self.gyro_delay_s = gyro_delay_s(declared)  # samples go in at their true time, estimates out at their stamps (as replay)
+        self._carried_over_delay = carried_over_delay  # imported once, not per sample
 
     def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray]]:
         if name == "tracker":
@@ -120,14 +121,12 @@ class _HeadSolver:
         if name == "accel":
             self.tracker.add_accel(t, values)
             return []
-        from .systems.head import carried_over_delay
-
         now = self.tracker.add_gyro(t - self.gyro_delay_s, values)
         if now is None:
             return []
         if self.gyro_delay_s == 0.0:
             return [(now.t, now.quat_wxyz, now.cov)]
-        return [(t, carried_over_delay(now.quat_wxyz, values, self.gyro_delay_s), now.cov)]
+        return [(t, self._carried_over_delay(now.quat_wxyz, values, self.gyro_delay_s), now.cov)]
 
     def maintain(self) -> None:
         self.tracker.maintain()

@@ -8,11 +8,12 @@ paper's EKFs), ``isam2`` (fusegraph online: causal estimate after every gyro sam
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Concatenate, ParamSpec
 
 import gtsam
 import numpy as np
@@ -38,6 +39,8 @@ from ..solvers.batch import BatchConfig, solve_batch
 from ..solvers.ekf import HeadEkfConfig, run_head_ekf
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from ..tuned import tuned, value
+
+P = ParamSpec("P")
 
 METHODS = ("tracker", "gyro", "kalman", "method1", "method2", "isam2", "batch")
 """Method names in the order of the report's rows."""
@@ -100,6 +103,39 @@ QUAT_NORM_TOLERANCE = 0.01
 #: How far (s) a tracker sample's time may lie after the newest gyro sample. Streams interleave unevenly (a
 #: tracker sample may overtake a few gyro samples in transit) but a second ahead is another clock.
 FUTURE_TOLERANCE_S = 1.0
+
+
+def gyro_delay_s(session: Session) -> float:
+    """The delay the session's gyro declares (``delay_s``, 0 when it declares none), seconds."""
+    return float(session.stream("gyro").meta.get("delay_s", 0.0))
+
+
+def honours_gyro_delay(run: Callable[Concatenate[Session, P], Estimate]) -> Callable[Concatenate[Session, P], Estimate]:
+    """A head method that runs on the gyro's true timeline when the gyro declares a delay d.
+
+    The samples are re-stamped to t - d (they still arrive at t: the stream's latency grows by d), so every
+    sensor meets on one clock; the attitude the method gives for each sample's true time is carried forward over
+    d by that sample's rate and reported at the sample's stamp. Online that is a prediction d ahead from the
+    newest sample, so the estimate stays causal.
+    """
+
+    @functools.wraps(run)
+    def on_true_time(session: Session, *args: P.args, **kwargs: P.kwargs) -> Estimate:
+        delay = gyro_delay_s(session)
+        if delay == 0.0:
+            return run(session, *args, **kwargs)
+        gyro = session.stream("gyro")
+        retimed = replace(gyro, t=gyro.t - delay, latency_s=gyro.latency_s + delay, meta={**gyro.meta, "delay_s": 0.0})
+        estimate = run(replace(session, streams={**session.streams, "gyro": retimed}), *args, **kwargs)
+        quats = carried_over_delay(estimate.quat_wxyz, gyro.values, delay)
+        return replace(estimate, t=gyro.t.copy(), quat_wxyz=quats, extras={**estimate.extras, "gyro_delay_s": delay})
+
+    return on_true_time
+
+
+def carried_over_delay(quat_wxyz: FloatArray, rate_rad_s: FloatArray, delay_s: float) -> FloatArray:
+    """Attitudes at a sample's true time carried to its stamp, ``delay_s`` later, by its body rate (one or (N, 4))."""
+    return quat_normalize(quat_multiply(quat_wxyz, quat_from_rotvec(np.asarray(rate_rad_s, dtype=float) * delay_s)))
 
 
 #: The head tracker's online solver: iSAM2 once every 3 keyframes (60 ms), the gyro carrying the estimate in
@@ -197,11 +233,9 @@ class OnlineHeadTracker:
         return AttitudeNow(t, rot, self.builder.predict_cov(self.solver.latest_cov, self.solver.latest_bias_cov))
 
 
+@honours_gyro_delay
 def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineConfig | None = None) -> Estimate:
     """fusegraph online: replay in arrival order through ``OnlineHeadTracker``; causal estimate per gyro sample."""
-    delayed = _with_gyro_delay(session, lambda retimed: run_isam2(retimed, model, config))
-    if delayed is not None:
-        return delayed
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
     max_latency = max((s.latency_s for s in session.streams_of_kind("attitude")), default=0.0)
@@ -243,11 +277,9 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     return Estimate("isam2", gyro.t.copy(), quats, covs, runtime, extras)
 
 
+@honours_gyro_delay
 def run_batch(session: Session, model: HeadModel | None = None, config: BatchConfig | None = None) -> Estimate:
     """fusegraph batch: the same factors as online, optimised together; smoothed attitude per gyro sample."""
-    delayed = _with_gyro_delay(session, lambda retimed: run_batch(retimed, model, config))
-    if delayed is not None:
-        return delayed
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
     start = time.perf_counter()
@@ -328,6 +360,14 @@ def tracker_seeded_initial(session: Session, times: FloatArray, tracker_shift_s:
     return quat_normalize(quat_multiply(tracker.values[j], since_fix))
 
 
+def _pairs_span_apart(stamps: FloatArray, span_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (i, j) of sample pairs: j the first stamp at least ``span_s`` after i, kept when under 1.5 spans apart (a gap)."""
+    i = np.arange(len(stamps))
+    j = np.searchsorted(stamps, stamps + span_s)
+    ok = (j < len(stamps)) & (stamps[np.minimum(j, len(stamps) - 1)] - stamps < 1.5 * span_s)
+    return i[ok], j[ok]
+
+
 def gyro_bias_from_tracker(session: Session, span_s: float = 1.0) -> FloatArray:
     """A constant gyro bias (rad/s, body frame) that makes the gyro agree with the tracker: the median over
     tracker sample pairs ``span_s`` apart of the rotation the gyro adds beyond the tracker's, per second.
@@ -336,12 +376,9 @@ def gyro_bias_from_tracker(session: Session, span_s: float = 1.0) -> FloatArray:
     tracker's own error, which ``span_s`` of gyro drift outweighs for a bias above ~0.01 rad/s."""
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     raw = integrate_gyro(gyro.t, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]))
-    i = np.arange(len(tracker))
-    j = np.searchsorted(tracker.t, tracker.t + span_s)
-    ok = (j < len(tracker)) & (tracker.t[np.minimum(j, len(tracker) - 1)] - tracker.t < 1.5 * span_s)
-    if not ok.any():
+    i, j = _pairs_span_apart(tracker.t, span_s)
+    if not len(i):
         return np.zeros(3)
-    i, j = i[ok], j[ok]
     gi, gj = (np.clip(np.searchsorted(gyro.t, tracker.t[k] - 1e-9), 0, len(gyro) - 1) for k in (i, j))
     by_gyro = quat_multiply(quat_conjugate(raw[gi]), raw[gj])
     by_tracker = quat_multiply(quat_conjugate(tracker.values[i]), tracker.values[j])
@@ -383,12 +420,9 @@ def gyro_delay_from_tracker(session: Session, span_s: float = 0.1) -> GyroDelay:
         return quat, np.stack([np.interp(times, t_g, gyro.values[:, axis]) for axis in range(3)], axis=1)
 
     stamps = tracker.t
+    a, b = _pairs_span_apart(stamps, span_s)
     inside = (stamps > t_g[0]) & (stamps < t_g[-1])
-    a = np.nonzero(inside)[0]
-    b = np.searchsorted(stamps, stamps[a] + span_s - 1e-9)
-    keep = (b < len(stamps)) & (stamps[np.minimum(b, len(stamps) - 1)] - stamps[a] < 1.5 * span_s)
-    a, b = a[keep], b[keep]
-    ok = inside[b]  # both ends inside the gyro's span
+    ok = inside[a] & inside[b]  # both ends inside the gyro's span
     a, b = a[ok], b[ok]
     if len(a) < 10:
         return GyroDelay(0.0, float("inf"), 0)
@@ -410,47 +444,17 @@ def gyro_delay_from_tracker(session: Session, span_s: float = 0.1) -> GyroDelay:
         design[axis::3, 1 + axis] = dt
     target = excess.ravel()
     use = np.ones(n, dtype=bool)
-    for _ in range(2):
+    for refit in range(3):  # all pairs, then twice without the outliers of the fit before
         rows = np.repeat(use, 3)
         solution, *_ = np.linalg.lstsq(design[rows], target[rows], rcond=None)
-        residual = np.linalg.norm((target - design @ solution).reshape(n, 3), axis=1)
-        spread = 1.4826 * np.median(residual[use])
-        use = residual <= 4.0 * spread
-    rows = np.repeat(use, 3)
-    solution, *_ = np.linalg.lstsq(design[rows], target[rows], rcond=None)
+        if refit < 2:
+            residual = np.linalg.norm((target - design @ solution).reshape(n, 3), axis=1)
+            use = residual <= 4.0 * 1.4826 * np.median(residual[use])
     dof = max(int(rows.sum()) - 4, 1)
     variance = float(np.sum((target[rows] - design[rows] @ solution) ** 2)) / dof
     info = design[rows].T @ design[rows]
     sigma = float(np.sqrt(variance * np.linalg.inv(info)[0, 0])) if np.linalg.cond(info) < 1e12 else float("inf")
     return GyroDelay(float(solution[0]), sigma, int(use.sum()))
-
-
-def gyro_delay_s(session: Session) -> float:
-    """The delay the session's gyro declares (``delay_s``, 0 when it declares none), seconds."""
-    return float(session.stream("gyro").meta.get("delay_s", 0.0))
-
-
-def _with_gyro_delay(session: Session, run: Callable[[Session], Estimate]) -> Estimate | None:
-    """A method run on the gyro's true timeline when the gyro declares a delay d (None when it declares none).
-
-    The samples are re-stamped to t - d (they still arrive at t: the stream's latency grows by d), so every
-    sensor meets on one clock; the attitude the method gives for each sample's true time is carried forward over
-    d by that sample's rate and reported at the sample's stamp. Online that is a prediction d ahead from the
-    newest sample, so the estimate stays causal.
-    """
-    delay = gyro_delay_s(session)
-    if delay == 0.0:
-        return None
-    gyro = session.stream("gyro")
-    retimed = replace(gyro, t=gyro.t - delay, latency_s=gyro.latency_s + delay, meta={**gyro.meta, "delay_s": 0.0})
-    estimate = run(replace(session, streams={**session.streams, "gyro": retimed}))
-    quats = carried_over_delay(estimate.quat_wxyz, gyro.values, delay)
-    return replace(estimate, t=gyro.t.copy(), quat_wxyz=quats, extras={**estimate.extras, "gyro_delay_s": delay})
-
-
-def carried_over_delay(quat_wxyz: FloatArray, rate_rad_s: FloatArray, delay_s: float) -> FloatArray:
-    """Attitudes at a sample's true time carried to its stamp, ``delay_s`` later, by its body rate (one or (N, 4))."""
-    return quat_normalize(quat_multiply(quat_wxyz, quat_from_rotvec(np.asarray(rate_rad_s, dtype=float) * delay_s)))
 
 
 def corrected_dead_reckoning(session: Session) -> FloatArray:
@@ -498,11 +502,9 @@ def run_tracker_only(session: Session) -> Estimate:
     return Estimate("tracker", gyro.t.copy(), quats, None, time.perf_counter() - start)
 
 
+@honours_gyro_delay
 def run_gyro_only(session: Session) -> Estimate:
     """Dead reckoning: integrate the raw gyro from the first tracker fix, from when that fix arrived."""
-    delayed = _with_gyro_delay(session, run_gyro_only)
-    if delayed is not None:
-        return delayed
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     start = time.perf_counter()
     i0 = int(np.argmin(np.abs(gyro.t - tracker.t[0])))
@@ -529,12 +531,10 @@ TUNED_EKF_METHOD1 = ekf_config_from(tuned("head_ekf_method1"))
 TUNED_EKF_KALMAN = ekf_config_from(tuned("head_ekf_kalman"))
 
 
+@honours_gyro_delay
 def run_ekf(session: Session, mode: str, config: HeadEkfConfig | None = None) -> Estimate:
     """One of the paper's EKFs (``kalman``, ``method1``, ``method2``) over the session, each with its own noise
     figures chosen on the tuning seeds unless ``config`` is given (the paper's: ``HeadEkfConfig()``)."""
-    delayed = _with_gyro_delay(session, lambda retimed: run_ekf(retimed, mode, config))
-    if delayed is not None:
-        return delayed
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     # the filter's H = (I, -d F') uses the latency the session declares (true, or only assumed)
     default = {"method2": TUNED_EKF, "method1": TUNED_EKF_METHOD1, "kalman": TUNED_EKF_KALMAN}.get(mode, HeadEkfConfig())

@@ -132,7 +132,7 @@ def head_session_from_broad(path: str | Path, config: RecordedHeadConfig | None 
 #: fit its own hardware and rate): process noise (x the paper's w1, w2) and gyro sigma; the tracker sigma
 #: stays the paper's 0.0268 rad (the same tracker error model as the simulated head report's). Once the gyro's delay was
 #: declared, Method II chose the grid's lowest gyro sigma (0.00185 rad/s, then 0.0006 in the next run: leave-one-trial-out
-#: 0.626 -> 0.620 deg): the grid goes two steps lower (0.0006, 0.0002), so its choice need not sit on an edge.
+#: 0.626 -> 0.620 deg); a run with 0.0002 chose that edge too but scored 0.620 deg again: its score has levelled off there.
 EKF_GRID: tuple[tuple[float, float], ...] = tuple((p, g) for p in (1 / 256, 1 / 64, 1 / 16, 1 / 4, 1.0)
                                                   for g in (0.0002, 0.0006, 0.00185, 0.0056, 0.0167, 0.05, 0.15))
 
