@@ -181,14 +181,14 @@ def build_parser() -> argparse.ArgumentParser:
                          "the same rule: the grid printed here, scored on TUNING seeds 100-119 (reports score 0-9), or on real data by "
                          "leave-one-trial-out with the cross-validated figure beside the in-sample one. With --write the chosen values go "
                          "to fusegraph/tuned.toml (with the seeds or trials and the score), which the reports and benches read. "
-                         f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag, broad_motion (BROAD trials; the last two per "
-                         "--solver, written as broad_mag / broad_mag_batch ...).",
+                         f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag, broad_motion, broad_bias (BROAD trials; the "
+                         "last three per --solver, written as broad_mag / broad_mag_batch ...).",
                          epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune head_ekf --write --workers 2\n"
                          "  fusegraph tune broad_mag --solver batch --write\n  fusegraph tune broad_motion --workers 2",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     tun.add_argument("study", help="the study's name (see above)")
     tun.add_argument("--seeds", type=_seeds_arg, help="tuning seeds (default 100-119; test seeds 0-9 are refused)")
-    tun.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion: the estimate the settings are chosen for")
+    tun.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias: which estimate they tune")
     tun.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml, which the reports and benches read")
     tun.add_argument("--workers", type=int, default=1, help="processes scoring the grid: a simulated study's settings, or BROAD's trials (default 1)")
 

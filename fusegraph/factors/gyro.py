@@ -188,7 +188,7 @@ CATALOGUE = (
         "head: gyro scale/misalignment as a calibration variable unless calibrated = true",
         keys=(
             KeySpec("noise_sigma_rad_s", 0.015, "white noise per sample, rad/s (head, > 0)"),
-            KeySpec("bias_rw_sigma", 0.001, "bias random walk, rad/s/sqrt(s) (head, > 0)"),
+            KeySpec("bias_rw_sigma", 0.001, "bias random walk, rad/s/sqrt(s) (head, > 0; attitude9: default chosen on BROAD, 1e-6)"),
             KeySpec("calibrated", False, "true when scale factors and axes are already calibrated (head: else estimated)"),
             KeySpec("delay_s", 0.0, "the output lags the motion by this much (the sensor's filter delay), s; head: every method re-times "
                     "the samples and reports at their stamps (estimate it with the tracker: systems.head.gyro_delay_from_tracker)"),

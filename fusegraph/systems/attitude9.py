@@ -77,8 +77,9 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
     (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording.
 
     Without an explicit ``model``: the solver's BROAD-chosen model (``broad_model``), with what the ``accel`` stream
-    declares replacing its motion, noise and gravity settings (``velocity_sigma_m_s``, ``noise_m_s2_sqrt_hz``, ``sigma_deg``,
-    ``inflation_deg_per_m_s2``):
+    declares replacing its motion, noise, bias and gravity settings (``velocity_sigma_m_s``, ``noise_m_s2_sqrt_hz``,
+    ``bias_rw_m_s2_sqrt_s``, ``sigma_deg``, ``inflation_deg_per_m_s2``) and the ``gyro`` stream's ``bias_rw_sigma`` its
+    bias walk (a data sheet's bias instability belongs with the recording):
     BROAD is hand-held motion, and a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior
     (e.g. 2 m/s)."""
     if model is None:
@@ -88,6 +89,11 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
             model = replace(model, motion=replace(model.motion, velocity_sigma_m_s=float(meta["velocity_sigma_m_s"])))
         if "noise_m_s2_sqrt_hz" in meta:
             model = replace(model, imu=replace(model.imu, accel_noise_m_s2_sqrt_hz=float(meta["noise_m_s2_sqrt_hz"])))
+        if "bias_rw_m_s2_sqrt_s" in meta:
+            model = replace(model, imu=replace(model.imu, accel_bias_walk_m_s2_sqrt_s=float(meta["bias_rw_m_s2_sqrt_s"])))
+        gyro_meta = session.stream("gyro").meta if "gyro" in session.streams else {}
+        if "bias_rw_sigma" in gyro_meta:
+            model = replace(model, imu=replace(model.imu, gyro_bias_walk_rad_s_sqrt_s=float(gyro_meta["bias_rw_sigma"])))
         if model.gravity is not None:
             model = replace(model, gravity=declared_gravity(meta, model.gravity))
     if "mag" not in session.streams:
@@ -142,10 +148,11 @@ def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: 
 
 def broad_model(solver: str = "online") -> Attitude9Model:
     """The 9-axis model each solver runs with: its settings chosen for it by leave-one-trial-out over the BROAD trials
-    (``fusegraph tune broad_mag|broad_motion [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion] and
+    (``fusegraph tune broad_mag|broad_motion|broad_bias [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion], [broad_bias] and
     their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's)."""
     suffix = "" if solver == "online" else "_batch"
-    return with_motion(Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}")), tuned(f"broad_motion{suffix}"))
+    model = with_motion(Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}")), tuned(f"broad_motion{suffix}"))
+    return with_bias(model, tuned(f"broad_bias{suffix}"))
 
 
 def with_motion(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
@@ -157,6 +164,15 @@ def with_motion(model: Attitude9Model, settings: Mapping[str, float]) -> Attitud
                       inflation_deg_per_m_s2=float(settings["gravity_inflation_deg_per_m_s2"]))
     motion = replace(model.motion, velocity_sigma_m_s=float(settings["velocity_sigma_m_s"]))
     return replace(model, imu=imu, gravity=gravity, motion=motion)
+
+
+def with_bias(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
+    """``model`` with a ``broad_bias`` setting (a grid point, or the chosen one): the accelerometer bias's start-up sigma
+    and random walk, the gyro bias's random walk."""
+    imu = replace(model.imu, accel_bias_prior_m_s2=float(settings["accel_bias_prior_m_s2"]),
+                  accel_bias_walk_m_s2_sqrt_s=float(settings["accel_bias_walk_m_s2_sqrt_s"]),
+                  gyro_bias_walk_rad_s_sqrt_s=float(settings["gyro_bias_walk_rad_s_sqrt_s"]))
+    return replace(model, imu=imu)
 
 
 #: Median heading residual (angle between the levelled field and north) above which a batch solution is
