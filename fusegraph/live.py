@@ -52,6 +52,9 @@ class LiveStats:
     """Wall time of the run."""
     solve_s: float = 0.0
     """Time inside the solver."""
+    behind: int = 0
+    """Samples that arrived after a sample due later (sample time + declared latency) had been used: the live estimate
+    then parts from the replay's, which takes every sample in the order it was due."""
 
 
 def _require_pylsl() -> Any:
@@ -186,7 +189,11 @@ def run_live(
     should_stop: Callable[[], bool] | None = None,
     on_ready: Callable[[], None] | None = None,
 ) -> LiveStats:
-    """Read the inputs, publish estimates, until ``duration_s`` passes, ``should_stop()`` or Ctrl-C."""
+    """Read the inputs, publish estimates, until ``duration_s`` passes, ``should_stop()`` or Ctrl-C.
+
+    Each input travels on its own connection, so a tracker sample due at the same instant as a gyro sample (sample time
+    + declared latency) may reach us just after it; the estimate for that gyro sample then lacks it, where the replay
+    has it (counted in ``LiveStats.behind``). Waiting for it would cost that latency on every dropped sample."""
     pylsl = _require_pylsl()
     spec = LIVE_INPUTS[system]
     inlets = {}
@@ -202,6 +209,10 @@ def run_live(
         inlets[name].open_stream(timeout=resolve_timeout_s)
         inlets[name].time_correction(timeout=resolve_timeout_s)  # the first clock sync blocks: do it before data flows
         rate = max(rate, float(found[0].nominal_srate()))  # the output runs at the fastest input's rate
+    # the stream whose samples make the estimates (the gyro) is polled last: a sample of another stream due at the same
+    # instant, sent first but on its own connection, is then more often in the same pile (the replay's order)
+    driver = next(iter(spec))
+    inlets = dict(sorted(inlets.items(), key=lambda item: item[0] == driver))
     info = pylsl.StreamInfo(out_name, "Orientation", len(OUTPUT_CHANNELS), rate, pylsl.cf_double64, f"fusegraph-{system}-{out_name}")
     labels = info.desc().append_child("channels")
     for label in OUTPUT_CHANNELS:
@@ -212,6 +223,13 @@ def run_live(
     due = {name: declared.streams[name].latency_s if name in declared.streams else 0.0 for name in inputs}
     recorded: dict[str, list[tuple[float, np.ndarray]]] = {name: [] for name in inputs}
     transit: dict[str, list[float]] = {name: [] for name in inputs}  # arrival - sample time, s
+
+    def arrival_order(item: tuple[float, str, np.ndarray]) -> tuple[int, bool]:
+        # to the microsecond, as the replay ranks them: a tracker stamp plus its 0.1 s latency is not bit-equal to the gyro
+        # stamp due at the same instant; at the same instant the other stream's sample goes first
+        return round((item[0] + due[item[1]]) * 1e6), item[1] == driver
+
+    newest = (-(2**62), False)  # the latest arrival order used so far
     start = time.perf_counter()
     if on_ready is not None:
         on_ready()
@@ -230,9 +248,12 @@ def run_live(
             # their stream's declared latency, a tracker sample before a gyro one due at the same instant: the
             # replay's order. By sample time alone a late tracker sample jumped ahead of gyro samples and the
             # estimate parted from the replay's for the rest of the run.
-            got.sort(key=lambda item: (item[0] + due[item[1]], item[1] != "tracker"))
-            for t, name, values in got:
+            for t, name, values in sorted(got, key=arrival_order):
                 stats.received[name] += 1
+                order = arrival_order((t, name, values))
+                if order < newest:
+                    stats.behind += 1
+                newest = max(newest, order)
                 if record is not None:
                     recorded[name].append((t, values))
                 tick = time.perf_counter()
@@ -302,6 +323,8 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
     lost = gyro samples from the first estimate on without an estimate. The RMS against the truth is
     printed beside the replay's (``run --solver online`` on the same session).
     """
+    import re
+    import signal
     import subprocess
     import sys
     import tempfile
@@ -326,7 +349,7 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
         toml = save_session(session, Path(tmp) / "declared") / "session.toml"
         command = [sys.executable, "-m", "fusegraph.cli", "live", "head", "--in", f"gyro=lsl:{tag}_gyro", "--in", f"tracker=lsl:{tag}_tracker",
                    "--out", f"lsl:{tag}_estimate", "--session-toml", str(toml), "--duration", f"{duration_s + 8.0:g}"]
-        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             found = pylsl.resolve_byprop("name", f"{tag}_estimate", 1, 20.0)
             if not found:
@@ -368,8 +391,13 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
             reader.join(timeout=2.0)
             sys.setswitchinterval(switch)
         finally:
-            process.terminate()
-            process.wait(timeout=10)
+            process.send_signal(signal.SIGINT)  # it stops as on Ctrl-C and prints what it did
+            try:
+                said, _ = process.communicate(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                said, _ = process.communicate()
+    behind = re.search(r"(\d+) arrived behind a sample due after them", said or "")
     arrival = np.array([r[0] for r in received])
     stamp = np.array([r[1] for r in received])
     # the gyro sample each estimate is for: the nearest in time (LSL's clock correction moves a stamp by
@@ -405,6 +433,7 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
         "replay_rms_deg": {a: float(np.rad2deg(v)) for a, v in zip(axes, rms_replay, strict=True)},
         "duration_s": duration_s,
         "estimates": len(received),
+        "behind": int(behind.group(1)) if behind else None,
         "latency_ms_by_second": [float(np.max(latency_ms[(stamp - t0 >= k) & (stamp - t0 < k + 1)], initial=0.0)) for k in range(int(duration_s))],
     }
 
@@ -422,6 +451,8 @@ def format_bench_live(result: dict[str, Any]) -> str:
         f"live head over LSL loopback, {result['duration_s']:g} s (gyro 100 Hz, tracker 50 Hz 100 ms late), {result['estimates']} estimates",
         f"latency gyro push -> estimate arrival: p50 {result['p50_ms']:.2f} ms, p99 {result['p99_ms']:.2f} ms, max {result['max_ms']:.2f} ms; "
         f"lost {result['lost']} (and {result['before_first_fix']} gyro sample(s) due after the first fix that came before it)",
+        f"samples that reached the live process behind a sample due after them: {result['behind']} (the live estimate parts from the "
+        "replay's there: each stream has its own connection)",
         f"RMS deg  live    az {r['azimuth']:.3f} el {r['elevation']:.3f} roll {r['roll']:.3f}",
         f"         replay  az {p['azimuth']:.3f} el {p['elevation']:.3f} roll {p['roll']:.3f}",
     ])
