@@ -114,3 +114,16 @@ def test_a_broad_study_chooses_by_leave_one_trial_out_in_one_or_two_processes(tm
     # on these two trials the hand-held prior wins on each, so both folds choose it and the figures agree
     assert one["chosen"].startswith(f"velocity_sigma_m_s={chosen['velocity_sigma_m_s']}")
     assert one["cross_validated"] == pytest.approx(one["in_sample"])
+
+
+def test_a_broad_bias_point_changes_the_bias_model_only() -> None:
+    from fusegraph import tuning
+    from fusegraph.systems.attitude9 import broad_model
+
+    point = {"accel_bias_prior_m_s2": 0.02, "accel_bias_walk_m_s2_sqrt_s": 1e-4, "gyro_bias_walk_rad_s_sqrt_s": 1e-4}
+    model, base = tuning._broad_model("broad_bias", point, "batch"), broad_model("batch")
+    imu = model.imu
+    assert (imu.accel_bias_prior_m_s2, imu.accel_bias_walk_m_s2_sqrt_s, imu.gyro_bias_walk_rad_s_sqrt_s) == (0.02, 1e-4, 1e-4)
+    # the other studies' choices stay as tuned
+    assert model.mag == base.mag and model.motion == base.motion and model.gravity == base.gravity
+    assert imu.accel_noise_m_s2_sqrt_hz == base.imu.accel_noise_m_s2_sqrt_hz
