@@ -82,7 +82,7 @@ CATALOGUE = (
                     "0.005 online, 0.02 batch); with a wide velocity prior declare the wider 0.02 too: stiff specific force and a "
                     "loose velocity make a near-singular system that the solver must rebuild again and again"),
             KeySpec("bias_rw_m_s2_sqrt_s", None, "attitude9: accelerometer bias random walk, m/s^2/sqrt(s) (default: chosen on BROAD, "
-                    "1e-5: constant over a session; a data sheet's bias instability belongs here)"),
+                    "1e-5 online, 1e-3 batch; a data sheet's bias instability belongs here)"),
         ),
         magnitude=(Magnitude("median", 4.0, 20.0, "the median |a| should be near g = 9.81 m/s^2: in g? set units = 'g' or convert"),),
         unit_conversions={"m/s^2": 1.0, "g": 9.80665},
