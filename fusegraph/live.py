@@ -224,10 +224,10 @@ def run_live(
     recorded: dict[str, list[tuple[float, np.ndarray]]] = {name: [] for name in inputs}
     transit: dict[str, list[float]] = {name: [] for name in inputs}  # arrival - sample time, s
 
-    def arrival_order(item: tuple[float, str, np.ndarray]) -> tuple[int, bool]:
+    def arrival_order(t: float, name: str) -> tuple[int, bool]:
         # to the microsecond, as the replay ranks them: a tracker stamp plus its 0.1 s latency is not bit-equal to the gyro
         # stamp due at the same instant; at the same instant the other stream's sample goes first
-        return round((item[0] + due[item[1]]) * 1e6), item[1] == driver
+        return round((t + due[name]) * 1e6), name == driver
 
     newest = (-(2**62), False)  # the latest arrival order used so far
     start = time.perf_counter()
@@ -248,9 +248,8 @@ def run_live(
             # their stream's declared latency, a tracker sample before a gyro one due at the same instant: the
             # replay's order. By sample time alone a late tracker sample jumped ahead of gyro samples and the
             # estimate parted from the replay's for the rest of the run.
-            for t, name, values in sorted(got, key=arrival_order):
+            for order, (t, name, values) in sorted(((arrival_order(t, name), (t, name, values)) for t, name, values in got), key=lambda row: row[0]):
                 stats.received[name] += 1
-                order = arrival_order((t, name, values))
                 if order < newest:
                     stats.behind += 1
                 newest = max(newest, order)

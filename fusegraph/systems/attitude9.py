@@ -72,6 +72,14 @@ def attitude_tracker(session: Session) -> AttitudeTrack | None:
     return AttitudeTrack(tracker.t, tracker.latency_s, tracker.values, float(np.deg2rad(sigma_deg)))
 
 
+DECLARED_IMU: tuple[tuple[str, str, str], ...] = (
+    ("accel", "noise_m_s2_sqrt_hz", "accel_noise_m_s2_sqrt_hz"),
+    ("accel", "bias_rw_m_s2_sqrt_s", "accel_bias_walk_m_s2_sqrt_s"),
+    ("gyro", "bias_rw_sigma", "gyro_bias_walk_rad_s_sqrt_s"),
+)
+"""(stream, key it declares, ``ImuNoise`` field it replaces) for what a recording may say about its IMU (``model_for``)."""
+
+
 def model_for(session: Session, model: Attitude9Model | None = None, solver: str = "online") -> Attitude9Model:
     """The model with the session's magnetometer calibration: declared in the ``mag`` stream's metadata
     (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording.
@@ -84,16 +92,12 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
     (e.g. 2 m/s)."""
     if model is None:
         model = broad_model(solver)
-        meta = session.stream("accel").meta if "accel" in session.streams else {}
+        declared = {kind: session.stream(kind).meta if kind in session.streams else {} for kind in ("accel", "gyro")}
+        meta = declared["accel"]
         if "velocity_sigma_m_s" in meta:
             model = replace(model, motion=replace(model.motion, velocity_sigma_m_s=float(meta["velocity_sigma_m_s"])))
-        if "noise_m_s2_sqrt_hz" in meta:
-            model = replace(model, imu=replace(model.imu, accel_noise_m_s2_sqrt_hz=float(meta["noise_m_s2_sqrt_hz"])))
-        if "bias_rw_m_s2_sqrt_s" in meta:
-            model = replace(model, imu=replace(model.imu, accel_bias_walk_m_s2_sqrt_s=float(meta["bias_rw_m_s2_sqrt_s"])))
-        gyro_meta = session.stream("gyro").meta if "gyro" in session.streams else {}
-        if "bias_rw_sigma" in gyro_meta:
-            model = replace(model, imu=replace(model.imu, gyro_bias_walk_rad_s_sqrt_s=float(gyro_meta["bias_rw_sigma"])))
+        imu = {field: float(declared[kind][key]) for kind, key, field in DECLARED_IMU if key in declared[kind]}
+        model = replace(model, imu=replace(model.imu, **imu)) if imu else model
         if model.gravity is not None:
             model = replace(model, gravity=declared_gravity(meta, model.gravity))
     if "mag" not in session.streams:
