@@ -2,9 +2,9 @@
 
 ``run_live`` resolves one LSL stream per declared input (``NAME=lsl:STREAM``), feeds every sample to the
 same online solver as replay, as it arrives, and publishes the estimate as an LSL stream. Sample times
-are LSL time stamps (the sender's capture times) moved onto this machine's clock with the inlet's time
-correction, so a tracker that stamps its samples when they were taken arrives "late" exactly as in a
-recorded session. Systems:
+are LSL time stamps (the sender's capture times) moved onto this machine's clock with a line through the
+time corrections of the sender's host (``ClockMap``), so a tracker that stamps its samples when they were
+taken arrives "late" exactly as in a recorded session. Systems:
 
 * ``head``: inputs ``gyro`` (3 channels, rad/s), ``tracker`` (4: quaternion wxyz), optional ``accel``
   (3, m/s^2); one estimate per gyro sample.
@@ -19,6 +19,7 @@ smooths the live run afterwards.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -55,6 +56,46 @@ class LiveStats:
     behind: int = 0
     """Samples that arrived after a sample due later (sample time + declared latency) had been used: the live estimate
     then parts from the replay's, which takes every sample in the order it was due."""
+
+
+class ClockMap:
+    """One stream's time stamps moved onto this machine's clock: stamp + offset, the offset a line fitted to LSL's
+    time-correction estimates over the last ``window_s`` (a mean until they span ``fit_span_s``).
+
+    LSL re-estimates a connection's clock offset every few seconds, each time with noise (+-20 us on the loopback,
+    more across a network). Applied as they come (LSL's ``proc_clocksync``), each new estimate steps the stamps: the
+    interval the gyro integrates over is then off by that step and the estimate parts from the replay's. A true offset
+    changes slowly (two machines' clocks drift apart by tens of ppm), which the line follows.
+    """
+
+    def __init__(self, correction: Callable[[], float], now: float, window_s: float = 60.0, fit_span_s: float = 10.0) -> None:
+        self._correction = correction
+        self.window_s = window_s
+        """How far back the estimates are fitted, seconds."""
+        self.fit_span_s = fit_span_s
+        """The shortest span of estimates a line is fitted over; a mean before, seconds."""
+        self._readings: list[tuple[float, float]] = [(now, float(correction()))]
+        self._offset, self._slope, self._t_ref = self._readings[0][1], 0.0, now
+
+    def refresh(self, now: float) -> None:
+        """Read LSL's newest estimate (instant after the first; a new one every few seconds) and refit."""
+        value = float(self._correction())
+        if value == self._readings[-1][1]:
+            return  # not re-estimated since
+        self._readings.append((now, value))
+        while self._readings[0][0] < now - self.window_s:
+            self._readings.pop(0)
+        t = np.array([r[0] for r in self._readings])
+        offset = np.array([r[1] for r in self._readings])
+        self._t_ref = float(t[-1])
+        if len(t) >= 3 and t[-1] - t[0] >= self.fit_span_s:
+            self._slope, self._offset = (float(v) for v in np.polyfit(t - self._t_ref, offset, 1))
+        else:
+            self._slope, self._offset = 0.0, float(offset.mean())
+
+    def __call__(self, stamp: float) -> float:
+        """The stamp on this machine's clock."""
+        return stamp + self._offset + self._slope * (stamp - self._t_ref)
 
 
 def _require_pylsl() -> Any:
@@ -197,6 +238,8 @@ def run_live(
     pylsl = _require_pylsl()
     spec = LIVE_INPUTS[system]
     inlets = {}
+    clocks: dict[str, ClockMap] = {}
+    host_clocks: dict[str, ClockMap] = {}
     rate = 0.0
     for name, stream_name in inputs.items():
         found = pylsl.resolve_byprop("name", stream_name, 1, resolve_timeout_s)
@@ -205,9 +248,15 @@ def run_live(
         channels = found[0].channel_count()
         if channels != spec[name][1]:
             raise SessionError(f"--in {name}=lsl:{stream_name}: {channels} channels, {system} {name} needs {spec[name][1]}")
-        inlets[name] = pylsl.StreamInlet(found[0], max_buflen=10, processing_flags=pylsl.proc_clocksync)
+        inlets[name] = pylsl.StreamInlet(found[0], max_buflen=10)
         inlets[name].open_stream(timeout=resolve_timeout_s)
-        inlets[name].time_correction(timeout=resolve_timeout_s)  # the first clock sync blocks: do it before data flows
+        # one clock per sending host: its streams share one offset. Estimated per connection, the offsets differed by
+        # ~20 us on the loopback and a tracker sample due with a gyro sample ranked after it on every tie
+        host = found[0].hostname()
+        if host not in host_clocks:
+            # the first clock sync blocks: done before data flows; later ones return LSL's newest estimate at once
+            host_clocks[host] = ClockMap(functools.partial(inlets[name].time_correction, timeout=resolve_timeout_s), pylsl.local_clock())
+        clocks[name] = host_clocks[host]
         rate = max(rate, float(found[0].nominal_srate()))  # the output runs at the fastest input's rate
     # the stream whose samples make the estimates (the gyro) is polled last: a sample of another stream due at the same
     # instant, sent first but on its own connection, is then more often in the same pile (the replay's order)
@@ -231,6 +280,7 @@ def run_live(
 
     newest = (-(2**62), False)  # the latest arrival order used so far
     start = time.perf_counter()
+    clock_checked = start
     if on_ready is not None:
         on_ready()
     try:
@@ -238,9 +288,14 @@ def run_live(
             got = []
             for name, inlet in inlets.items():
                 chunk, stamps = inlet.pull_chunk(timeout=0.0)
-                got += [(float(ts), name, np.asarray(sample, dtype=float)) for sample, ts in zip(chunk, stamps, strict=True)]
+                to_local = clocks[name]
+                got += [(to_local(ts), name, np.asarray(sample, dtype=float)) for sample, ts in zip(chunk, stamps, strict=True)]
                 if stamps and record is not None:
-                    transit[name].append(pylsl.local_clock() - float(stamps[-1]))
+                    transit[name].append(pylsl.local_clock() - to_local(stamps[-1]))
+            if time.perf_counter() - clock_checked > 1.0:  # LSL's newest offset estimates, once a second (instant)
+                clock_checked = time.perf_counter()
+                for clock in host_clocks.values():
+                    clock.refresh(pylsl.local_clock())
             if not got:
                 time.sleep(0.0002)
                 continue

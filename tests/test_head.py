@@ -139,6 +139,23 @@ def test_live_api_matches_the_replay() -> None:
     assert np.all(np.linalg.eigvalsh(last.cov) > 0)
 
 
+def test_stamps_jittered_by_microseconds_make_the_same_keyframes() -> None:
+    # a live clock's correction moves stamps by tens of microseconds: a keyframe must still close on the gyro sample
+    # nearest its period (closing one sample later changed the graph and the estimate parted from the replay's)
+    session = simulate_head(0, profile="ideal", duration_s=3.0)
+    gyro, tracker = session.stream("gyro"), session.stream("tracker")
+    jitter = np.random.default_rng(0).uniform(-30e-6, 30e-6, len(gyro.t))  # +-30 us, the loopback's measured steps
+    keyframes = []
+    for stamps in (gyro.t, gyro.t + jitter):
+        builder = HeadGraphBuilder(head_model_for(session))
+        builder.add_tracker(float(tracker.t[0]), tracker.values[0])
+        for t, omega in zip(stamps, gyro.values, strict=True):
+            builder.add_gyro(float(t), omega)
+        keyframes.append(np.asarray(builder.keyframe_t))
+    assert len(keyframes[0]) == len(keyframes[1]) == 151  # 0 to 3 s at 50 Hz
+    np.testing.assert_allclose(keyframes[1], keyframes[0], atol=30e-6)
+
+
 def test_live_api_refuses_bad_samples_and_carries_on() -> None:
     """A NaN or 1e30 gyro sample, a gyro time 0.5 s back, a tracker sample 5 s in the future, a scaled or zero
     quaternion: each is refused with a message, and the estimate afterwards equals the replay's (the bad

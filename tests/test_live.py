@@ -9,11 +9,36 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusegraph.live import declared_session, parse_inputs, run_live
+from fusegraph.live import ClockMap, declared_session, parse_inputs, run_live
 from fusegraph.scenarios.head import simulate_head
 from fusegraph.session import SessionError, load_session
 
 pylsl = pytest.importorskip("pylsl", reason="pylsl (liblsl) is not installed")
+
+
+def test_clock_map_smooths_the_offset_estimates_and_follows_a_drift() -> None:
+    # LSL re-estimates the offset every ~2 s with +-20 us of noise (the loopback, measured); the true offset here
+    # drifts by 50 ppm (two machines' clocks). Mapped stamps 10 ms apart must stay closer to 10 ms apart than with
+    # each estimate applied as it comes (LSL's proc_clocksync), and the mapped time must follow the drift.
+    rng = np.random.default_rng(0)
+    drift, now = 50e-6, [0.0]
+    readings = [0.003 + drift * 2.0 * k + rng.normal(0.0, 20e-6) for k in range(61)]
+    clock = ClockMap(lambda: readings[int(round(now[0] / 2.0))], now=0.0)
+    steps_mapped, steps_raw, errors = [], [], []
+    previous = None
+    for k in range(12001):  # 120 s of 100 Hz stamps, the offset re-read every 2 s
+        now[0] = 0.01 * k
+        if k % 200 == 0 and k:
+            clock.refresh(now[0])
+        mapped, raw = clock(now[0]), now[0] + readings[k // 200]
+        if previous is not None and now[0] >= 12.0:  # once a line is fitted (a mean before: it lags a drift, then steps once)
+            steps_mapped.append(abs(mapped - previous[0] - 0.01))
+            steps_raw.append(abs(raw - previous[1] - 0.01))
+        previous = (mapped, raw)
+        if now[0] >= 20.0:
+            errors.append(abs(mapped - now[0] - 0.003 - drift * now[0]))
+    assert max(steps_mapped) < 0.5 * max(steps_raw)
+    assert max(errors) < 30e-6  # the mean of 20 us noise over ~10-30 readings, and the line's extrapolation over 2 s
 
 
 def test_inputs_are_checked() -> None:

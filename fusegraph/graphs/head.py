@@ -114,6 +114,9 @@ class HeadGraphBuilder:
         self.model = model or HeadModel()
         self._params = preintegration_params(self.model.gyro)
         self._density_sq = self.model.gyro.density**2
+        # a keyframe closes on the gyro sample nearest its period: stamps jitter (a live clock's correction, a
+        # logger's rounding) by microseconds, and a sample 5 us early must not push the keyframe one sample on
+        self._close_tolerance_s = 0.5 / self.model.gyro.sample_rate_hz
         self._pending = GraphIncrement()
         self._gyro_buffer: list[tuple[float, FloatArray]] = []
         self._tracker_waiting: list[tuple[float, FloatArray]] = []
@@ -170,7 +173,7 @@ class HeadGraphBuilder:
             return
         assert self._interval is not None
         self._interval.add(t, omega)
-        if self._interval.elapsed_s >= self.model.keyframe_period_s - 1e-9:
+        if self._interval.elapsed_s >= self.model.keyframe_period_s - self._close_tolerance_s:
             self._close_keyframe()
         else:
             self._partials.setdefault(self.latest_keyframe, []).append((t, self._interval.delta()))
