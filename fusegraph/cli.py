@@ -193,16 +193,22 @@ def build_parser() -> argparse.ArgumentParser:
     tun.add_argument("--workers", type=int, default=1, help="processes scoring the grid: a simulated study's settings, or BROAD's trials (default 1)")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
-                         description="Read each declared input from an LSL stream (sample times from LSL's clock, time-corrected), feed the "
-                         "online solver as replay does, publish the estimate (qw qx qy qz and the 9 attitude covariance entries) as an "
-                         "LSL stream at the fastest input's rate. head: --in gyro= (3 ch, rad/s), --in tracker= (4 ch, quaternion wxyz; "
-                         "stamped with the sample's capture time, so its latency is real), optional --in accel= (3 ch, m/s^2). "
-                         "attitude9: --in imu= (9 ch: gyro, accel, mag sampled together), optional --in tracker=. Ctrl-C stops.",
+                         description="Read each declared input from an LSL stream (sample times from LSL's clock, moved onto this machine's "
+                         "with one smoothed offset per sending host), feed the online solver as replay does, publish the estimate as an "
+                         "LSL stream. head: --in gyro= (3 ch, rad/s), --in tracker= (4 ch, quaternion wxyz; "
+                         "stamped with the sample's capture time, so its latency is real), optional --in accel= (3 ch, m/s^2); "
+                         "publishes qw qx qy qz and the 9 attitude covariance entries per gyro sample. "
+                         "attitude9: --in imu= (9 ch: gyro, accel, mag sampled together), optional --in tracker=; the same channels per "
+                         "keyframe. gaze: --in imu=, --in gaze= (2 ch: pixel u right, v up from the image centre), optional --in tracker=; "
+                         "--session-toml gives the wall (wall_m) or fixation depth (target_depth_m) and the scene camera; publishes the "
+                         "fixated point gaze_x_m gaze_y_m gaze_z_m and the head's qw qx qy qz per gaze sample. Ctrl-C stops.",
                          epilog="examples:\n  fusegraph live head --in gyro=lsl:HMD_gyro --in tracker=lsl:Polhemus --out lsl:head_estimate "
                          "--session-toml sessions/head0/session.toml --record sessions/live1\n"
-                         "  fusegraph run sessions/live1 --solver batch        # smooth the live run afterwards",
+                         "  fusegraph run sessions/live1 --solver batch        # smooth the live run afterwards\n"
+                         "  fusegraph live gaze --in imu=lsl:HeadIMU --in gaze=lsl:EyeTracker --out lsl:gaze_estimate "
+                         "--session-toml sessions/gaze0/session.toml",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    liv.add_argument("system", choices=["head", "attitude9"])
+    liv.add_argument("system", choices=["head", "attitude9", "gaze"])
     liv.add_argument("--in", dest="inputs", action="append", default=[], metavar="NAME=lsl:STREAM", help="an input stream (repeatable)")
     liv.add_argument("--out", required=True, metavar="lsl:STREAM", help="name of the LSL stream the estimate is published on")
     liv.add_argument("--session-toml", type=Path, help="a session.toml declaring the sensors (noise, rates, latency); defaults otherwise")

@@ -11,8 +11,16 @@ taken arrives "late" exactly as in a recorded session. Systems:
 * ``attitude9``: inputs ``imu`` (9 channels: gyro rad/s, accelerometer m/s^2, magnetometer, sampled
   together), optional ``tracker`` (4); one estimate per keyframe (the 9-axis graph updates per keyframe).
 
-The output stream (type ``Orientation``) has channels ``qw qx qy qz`` and the attitude covariance's 9
-entries (rad^2, NaN when the solver does not compute it), stamped with the sample time it describes.
+* ``gaze``: inputs ``imu`` (9 channels, as attitude9), ``gaze`` (2: the eye tracker's pixel u right, v up from
+  the image centre), optional ``tracker`` (4); ``--session-toml`` must give the wall (``wall_m``) or the
+  fixation depth (``target_depth_m``) in ``[session]`` and the scene camera on the gaze stream; one estimate
+  per gaze sample, right after the iSAM2 update that added it (the replay's).
+
+The output stream of head and attitude9 (type ``Orientation``) has channels ``qw qx qy qz`` and the attitude
+covariance's 9 entries (rad^2, NaN when the solver does not compute it); gaze's (type ``Gaze``) has the fixated
+point ``gaze_x_m gaze_y_m gaze_z_m`` (world frame) and the head attitude ``qw qx qy qz`` at the gaze sample.
+Each estimate is stamped with the sample time it describes; the stream's nominal rate is the gyro's (head), the
+gaze input's (gaze) or irregular (attitude9, one per keyframe).
 ``--record DIR`` writes what was received as a session directory, so ``fusegraph run DIR --solver batch``
 smooths the live run afterwards.
 """
@@ -34,9 +42,12 @@ from .session import KIND_COLUMNS, Session, SessionError, Stream
 LIVE_INPUTS: dict[str, dict[str, tuple[str, int, bool]]] = {
     "head": {"gyro": ("gyro", 3, True), "tracker": ("attitude", 4, True), "accel": ("accel", 3, False)},
     "attitude9": {"imu": ("imu9", 9, True), "tracker": ("attitude", 4, False)},
+    "gaze": {"imu": ("imu9", 9, True), "gaze": ("pixel", 2, True), "tracker": ("attitude", 4, False)},
 }
 OUTPUT_CHANNELS = ("qw", "qx", "qy", "qz", *(f"cov{i}{j}" for i in range(3) for j in range(3)))
-"""Channels of the published estimate."""
+"""Channels of the published attitude estimate (head, attitude9)."""
+GAZE_CHANNELS = ("gaze_x_m", "gaze_y_m", "gaze_z_m", "qw", "qx", "qy", "qz")
+"""Channels of the published gaze estimate."""
 
 
 @dataclass
@@ -147,8 +158,23 @@ def declared_session(system: str, toml_path: Path | None) -> Session:
     return Session(system, streams, None, {k: v for k, v in spec.items() if k not in ("streams", "truth")})
 
 
+def checked_sample(name: str, t: float, values: np.ndarray) -> np.ndarray:
+    """A sample as the graph takes it (a tracker quaternion normalised); ValueError when not finite or a tracker
+    quaternion's norm is not 1 within 1 % (the head tracker's own checks are ``OnlineHeadTracker``'s)."""
+    if not np.all(np.isfinite(values)) or not np.isfinite(t):
+        raise ValueError(f"{name} sample at t = {t!r}: not finite")
+    if name != "tracker":
+        return values
+    norm = float(np.linalg.norm(values))
+    if abs(norm - 1.0) > 0.01:
+        raise ValueError(f"tracker sample at t = {t:.6f} s: quaternion norm {norm:.4g} is not 1")
+    return values / norm
+
+
 class _HeadSolver:
     """The head system's live solver: ``OnlineHeadTracker`` (it refuses bad samples and carries on)."""
+
+    channels, stream_type, rate_of = OUTPUT_CHANNELS, "Orientation", "gyro"  # rate_of: the input whose rate the output has
 
     def __init__(self, declared: Session) -> None:
         from .graphs.head import head_model_for
@@ -158,7 +184,7 @@ class _HeadSolver:
         self.gyro_delay_s = gyro_delay_s(declared)  # samples go in at their true time, estimates out at their stamps (as replay)
         self._carried_over_delay = carried_over_delay  # imported once, not per sample
 
-    def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, list[float]]]:
         if name == "tracker":
             self.tracker.add_tracker(t, values)
             return []
@@ -169,8 +195,8 @@ class _HeadSolver:
         if now is None:
             return []
         if self.gyro_delay_s == 0.0:
-            return [(now.t, now.quat_wxyz, now.cov)]
-        return [(t, self._carried_over_delay(now.quat_wxyz, values, self.gyro_delay_s), now.cov)]
+            return [(now.t, [*now.quat_wxyz, *now.cov.reshape(-1)])]
+        return [(t, [*self._carried_over_delay(now.quat_wxyz, values, self.gyro_delay_s), *now.cov.reshape(-1)])]
 
     def maintain(self) -> None:
         self.tracker.maintain()
@@ -178,6 +204,8 @@ class _HeadSolver:
 
 class _Attitude9Solver:
     """The 9-axis graph fed sample by sample; an estimate per keyframe, right after its iSAM2 update."""
+
+    channels, stream_type, rate_of = OUTPUT_CHANNELS, "Orientation", None  # one per keyframe: declared irregular
 
     def __init__(self, declared: Session) -> None:
         from .graphs.attitude9 import Attitude9Builder
@@ -190,16 +218,12 @@ class _Attitude9Solver:
         declared_tracker = attitude_tracker(declared)  # the declared noise, read as replay reads it
         self.tracker_sigma_rad = declared_tracker.sigma_rad if declared_tracker is not None else float(np.deg2rad(0.4))
 
-    def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, list[float]]]:
         from .geometry import rot3_from_quat_wxyz
 
-        if not np.all(np.isfinite(values)) or not np.isfinite(t):
-            raise ValueError(f"{name} sample at t = {t!r}: not finite")
+        values = checked_sample(name, t, values)
         if name == "tracker":
-            norm = float(np.linalg.norm(values))
-            if abs(norm - 1.0) > 0.01:
-                raise ValueError(f"tracker sample at t = {t:.6f} s: quaternion norm {norm:.4g} is not 1")
-            self.builder.add_attitude(t, rot3_from_quat_wxyz(values / norm), self.tracker_sigma_rad)
+            self.builder.add_attitude(t, rot3_from_quat_wxyz(values), self.tracker_sigma_rad)
             return []
         if t <= self.last_t:
             raise ValueError(f"imu sample at t = {t:.6f} s does not follow the previous one ({self.last_t:.6f} s)")
@@ -210,13 +234,130 @@ class _Attitude9Solver:
             return []
         self.solver.update()
         k = self.builder.latest_keyframe
-        return [(self.builder.keyframe_t[k], np.asarray(self.builder.posterior_quat[k]), np.full((3, 3), np.nan))]
+        return [(self.builder.keyframe_t[k], [*self.builder.posterior_quat[k], *[np.nan] * 9])]
 
     def maintain(self) -> None:
         self.solver.maintain()  # its re-anchorings run inside update (the replay's order): nothing is deferred
 
 
-SOLVERS: dict[str, Callable[[Session], Any]] = {"head": _HeadSolver, "attitude9": _Attitude9Solver}
+class _Growing:
+    """Rows appended one at a time, read as one array (a view; capacity doubles, so appending stays O(1))."""
+
+    def __init__(self, width: int) -> None:
+        self._rows = np.empty((64, width))
+        self.n = 0
+
+    def append(self, row: np.ndarray | float) -> None:
+        if self.n == len(self._rows):
+            self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
+        self._rows[self.n] = row
+        self.n += 1
+
+    @property
+    def view(self) -> np.ndarray:
+        return self._rows[: self.n]
+
+
+class _LiveGazeData:
+    """A gaze session whose arrays grow as the samples arrive (what ``GazeGraph`` reads)."""
+
+    def __init__(self, config: Any, tracker_latency_s: float, tracker_sigma_rad: float) -> None:
+        self.config = config
+        self._imu, self._imu_t = _Growing(9), _Growing(1)
+        self._gaze, self._gaze_t = _Growing(2), _Growing(1)
+        self._tracker, self._tracker_t = _Growing(4), _Growing(1)
+        self._tracker_latency_s, self._tracker_sigma_rad = tracker_latency_s, tracker_sigma_rad
+
+    t = property(lambda self: self._imu_t.view[:, 0])
+    gyro_rad_s = property(lambda self: self._imu.view[:, 0:3])
+    accel_m_s2 = property(lambda self: self._imu.view[:, 3:6])
+    mag = property(lambda self: self._imu.view[:, 6:9])
+    tracker_t = property(lambda self: self._gaze_t.view[:, 0])
+    gaze_px = property(lambda self: self._gaze.view)
+
+    @property
+    def head_tracker(self) -> Any:
+        from .factors.attitude import AttitudeTrack
+
+        if not self._tracker.n:
+            return None
+        return AttitudeTrack(self._tracker_t.view[:, 0], self._tracker_latency_s, self._tracker.view, self._tracker_sigma_rad)
+
+    def add(self, name: str, t: float, values: np.ndarray) -> None:
+        """A sample of input ``name`` (imu, gaze, tracker) at ``t``; refused (ValueError) unless after that input's last."""
+        times, rows = {"imu": (self._imu_t, self._imu), "gaze": (self._gaze_t, self._gaze), "tracker": (self._tracker_t, self._tracker)}[name]
+        if times.n and t <= times.view[-1, 0]:
+            raise ValueError(f"{name} sample at t = {t:.6f} s does not follow the previous one ({times.view[-1, 0]:.6f} s)")
+        times.append(t)
+        rows.append(values)
+
+
+class _GazeSolver:
+    """The gaze graph fed as samples arrive: the IMU in blocks of one keyframe's samples and iSAM2 after each, as the
+    replay (``systems.gaze.run_online``) runs it; an estimate per gaze sample right after the update that added it."""
+
+    channels, stream_type, rate_of = GAZE_CHANNELS, "Gaze", "gaze"
+
+    def __init__(self, declared: Session) -> None:
+        from .graphs.attitude9 import X
+        from .solvers.online import OnlineSmoother
+        from .systems.attitude9 import attitude_tracker
+        from .systems.gaze import NEEDS_WALL, G, GazeGraph, GazeModel, declared_config
+
+        self._keys = (G, X)  # imported once, not per sample
+
+        header = declared.meta.get("session", {})
+        if "wall_m" not in header and "target_depth_m" not in header:
+            raise SessionError(f"live gaze: --session-toml {NEEDS_WALL}")
+        gaze = next(s for s in declared.streams.values() if s.kind == "pixel")
+        tracker = attitude_tracker(declared)  # the declared noise and latency, read as replay reads them
+        self.data = _LiveGazeData(declared_config(header, gaze.meta, float("nan")), tracker.latency_s if tracker else 0.0,
+                                  tracker.sigma_rad if tracker else float(np.deg2rad(0.4)))
+        self.model = GazeModel()
+        self.graph = GazeGraph(self.data, self.model)
+        self.solver = OnlineSmoother(self.graph.builder, self.model.online)
+        rate = next((s.meta.get("rate_hz") for s in declared.streams.values() if s.kind == "gyro" and "rate_hz" in s.meta), None)
+        self.block = None if rate is None else max(1, int(round(self.model.head.keyframe_period_s * float(rate))))
+        self.pushed = 0
+
+    def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, list[float]]]:
+        G, X = self._keys
+        self.data.add(name, t, checked_sample(name, t, values))
+        n = len(self.data.t)
+        if name != "imu":
+            return []
+        if self.block is None:  # no rate declared: the replay's block from the first samples' spacing
+            if n < 11:
+                return []
+            self.block = max(1, int(round(self.model.head.keyframe_period_s / float(np.median(np.diff(self.data.t))))))
+        if n - self.pushed < self.block:
+            return []
+        added = self.graph.push(self.pushed, self.pushed + self.block)
+        self.pushed += self.block
+        if not self.solver.update():
+            return []
+        isam, builder = self.solver.isam, self.graph.builder
+        k = builder.latest_keyframe
+        if builder.posterior_gyro_bias:
+            self.graph.gyro_bias = builder.posterior_gyro_bias[k]
+        points: dict[int, np.ndarray] = {}
+        rotations: dict[int, Any] = {}
+        out = []
+        for j in added:
+            kj = int(self.graph.sample_keyframe[j])
+            if kj < 0:
+                continue  # before the first keyframe: no factor, no estimate (as the replay)
+            if kj not in points:
+                points[kj] = isam.calculateEstimatePoint3(G(kj))
+                rotations[kj] = isam.calculateEstimatePose3(X(kj)).rotation()
+            out.append((float(self.data.tracker_t[j]), [*points[kj], *self.graph.sample_attitude(rotations[kj], j)]))
+        return out
+
+    def maintain(self) -> None:
+        self.solver.maintain()
+
+
+SOLVERS: dict[str, Callable[[Session], Any]] = {"head": _HeadSolver, "attitude9": _Attitude9Solver, "gaze": _GazeSolver}
 
 
 def run_live(
@@ -240,7 +381,7 @@ def run_live(
     inlets = {}
     clocks: dict[str, ClockMap] = {}
     host_clocks: dict[str, ClockMap] = {}
-    rate = 0.0
+    rates: dict[str, float] = {}
     for name, stream_name in inputs.items():
         found = pylsl.resolve_byprop("name", stream_name, 1, resolve_timeout_s)
         if not found:
@@ -257,17 +398,18 @@ def run_live(
             # the first clock sync blocks: done before data flows; later ones return LSL's newest estimate at once
             host_clocks[host] = ClockMap(functools.partial(inlets[name].time_correction, timeout=resolve_timeout_s), pylsl.local_clock())
         clocks[name] = host_clocks[host]
-        rate = max(rate, float(found[0].nominal_srate()))  # the output runs at the fastest input's rate
+        rates[name] = float(found[0].nominal_srate())
     # the stream whose samples make the estimates (the gyro) is polled last: a sample of another stream due at the same
     # instant, sent first but on its own connection, is then more often in the same pile (the replay's order)
     driver = next(iter(spec))
     inlets = dict(sorted(inlets.items(), key=lambda item: item[0] == driver))
-    info = pylsl.StreamInfo(out_name, "Orientation", len(OUTPUT_CHANNELS), rate, pylsl.cf_double64, f"fusegraph-{system}-{out_name}")
+    solver = SOLVERS[system](declared)
+    rate = rates.get(solver.rate_of, 0.0) if solver.rate_of is not None else 0.0  # 0: LSL's irregular rate
+    info = pylsl.StreamInfo(out_name, solver.stream_type, len(solver.channels), rate, pylsl.cf_double64, f"fusegraph-{system}-{out_name}")
     labels = info.desc().append_child("channels")
-    for label in OUTPUT_CHANNELS:
+    for label in solver.channels:
         labels.append_child("channel").append_child_value("label", label)
     outlet = pylsl.StreamOutlet(info)
-    solver = SOLVERS[system](declared)
     stats = LiveStats(received=dict.fromkeys(inputs, 0))
     due = {name: declared.streams[name].latency_s if name in declared.streams else 0.0 for name in inputs}
     recorded: dict[str, list[tuple[float, np.ndarray]]] = {name: [] for name in inputs}
@@ -318,8 +460,8 @@ def run_live(
                     continue
                 finally:
                     stats.solve_s += time.perf_counter() - tick
-                for t_est, quat, cov in estimates:
-                    outlet.push_sample([*quat, *np.asarray(cov).reshape(-1)], t_est)
+                for t_est, row in estimates:
+                    outlet.push_sample(row, t_est)
                     stats.published += 1
             # the solver's housekeeping (a re-anchoring) once the pile's estimates are out, not before them
             tick = time.perf_counter()

@@ -97,3 +97,32 @@ def test_report_rows_tell_every_method_its_sigmas_halved_and_doubled(session: ga
     assert model.head.imu.gyro_noise_rad_s_sqrt_hz == 2.0 * base_model.head.imu.gyro_noise_rad_s_sqrt_hz
     assert model.head.mag.heading_sigma_deg == 2.0 * base_model.head.mag.heading_sigma_deg
     assert ekf.head.gyro_sigma_rad_s == 2.0 * base_ekf.head.gyro_sigma_rad_s and ekf.pixel_sigma == 2.0 * base_ekf.pixel_sigma
+
+
+def test_live_gaze_solver_publishes_what_the_replay_estimates() -> None:
+    # the live loop's solver fed sample by sample (each gaze sample once its time has come, the IMU as it arrives)
+    # must give every gaze sample the replay's point and attitude: the same graph, updated at the same samples
+    from fusegraph.live import GAZE_CHANNELS, SOLVERS
+    from fusegraph.scenarios.gaze import gaze_session
+
+    recorded = gaze_session(3, duration_s=8.0)
+    data = gaze.from_session(recorded)
+    replay = gaze.run_online(data)
+    solver = SOLVERS["gaze"](recorded)
+    imu = np.hstack([data.gyro_rad_s, data.accel_m_s2, data.mag])
+    published: dict[float, list[float]] = {}
+    j = 0
+    for i, t in enumerate(data.t):
+        while j < len(data.tracker_t) and data.tracker_t[j] <= t:
+            assert solver.push("gaze", float(data.tracker_t[j]), data.gaze_px[j]) == []
+            j += 1
+        published.update(solver.push("imu", float(t), imu[i]))
+        solver.maintain()
+    have = np.all(np.isfinite(replay.points_xz_m), axis=1)
+    # the replay also pushes the last, partial block when the session ends; live waits for its samples
+    assert len(published) >= have.sum() - 10 and len(published[next(iter(published))]) == len(GAZE_CHANNELS)
+    index = {float(t): n for n, t in enumerate(data.tracker_t)}
+    rows = np.array(list(published.values()))
+    at = np.array([index[t] for t in published])
+    np.testing.assert_allclose(rows[:, 1:3], replay.points_xz_m[at], atol=1e-9)  # world y, z = the wall's X, Z
+    np.testing.assert_allclose(rows[:, 3:], replay.world_R_head[at], atol=1e-9)

@@ -5,13 +5,14 @@ from __future__ import annotations
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from fusegraph.live import ClockMap, declared_session, parse_inputs, run_live
+from fusegraph.live import ClockMap, LiveStats, declared_session, parse_inputs, run_live
 from fusegraph.scenarios.head import simulate_head
-from fusegraph.session import SessionError, load_session
+from fusegraph.session import Session, SessionError, load_session
 
 pylsl = pytest.importorskip("pylsl", reason="pylsl (liblsl) is not installed")
 
@@ -51,42 +52,48 @@ def test_inputs_are_checked() -> None:
         parse_inputs("walking", [])
 
 
+def _live_over_loopback(system: str, inputs: dict[str, str], out: str, declared: Session, record: Path, duration_s: float,
+                        pushes: list[tuple[float, Any, list[float], float]]) -> tuple[LiveStats, list[list[float]], Any]:
+    """Run ``run_live`` in a thread, push (when, outlet, sample, stamp) in real time (``when`` seconds after the start,
+    stamps on the same clock), read the published estimates; the run's stats, the estimates and the output's info."""
+    ready, stats = threading.Event(), {}
+
+    def live() -> None:
+        stats["run"] = run_live(system, inputs, out, declared, duration_s=duration_s, record=record, on_ready=ready.set)
+
+    thread = threading.Thread(target=live)
+    thread.start()
+    assert ready.wait(20.0), "the live loop did not start"
+    found = pylsl.resolve_byprop("name", out, 1, 10.0)
+    assert found, "no estimate stream"
+    inlet = pylsl.StreamInlet(found[0])
+    inlet.open_stream(timeout=5.0)
+    time.sleep(0.5)
+    t0 = pylsl.local_clock()
+    chunk: list[list[float]] = []
+    for when, outlet, sample, stamp in pushes:  # in real time, as a lab's devices would send
+        while pylsl.local_clock() < t0 + when:
+            time.sleep(0.0005)
+        outlet.push_sample(sample, t0 + stamp)
+    deadline = time.time() + 1.5
+    while time.time() < deadline:  # read the estimates while the live loop (and its outlet) still runs
+        chunk += inlet.pull_chunk(timeout=0.0)[0]
+        time.sleep(0.01)
+    thread.join(30.0)
+    return stats["run"], chunk, found[0]
+
+
 def test_live_head_publishes_estimates_and_records_a_session_the_batch_smooths(tmp_path: Path) -> None:
     session = simulate_head(2, duration_s=3.0)
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     tag = f"fgtest{time.time_ns() % 10**9}"
     out_g = pylsl.StreamOutlet(pylsl.StreamInfo(f"{tag}_g", "gyro", 3, 100.0, pylsl.cf_double64, f"{tag}g"))
     out_t = pylsl.StreamOutlet(pylsl.StreamInfo(f"{tag}_t", "attitude", 4, 50.0, pylsl.cf_double64, f"{tag}t"))
-    ready, stats = threading.Event(), {}
-
-    def live() -> None:
-        stats["run"] = run_live("head", {"gyro": f"{tag}_g", "tracker": f"{tag}_t"}, f"{tag}_est", declared_session("head", None),
-                                duration_s=6.5, record=tmp_path / "rec", on_ready=ready.set)
-
-    thread = threading.Thread(target=live)
-    thread.start()
-    assert ready.wait(20.0), "the live loop did not start"
-    found = pylsl.resolve_byprop("name", f"{tag}_est", 1, 10.0)
-    assert found, "no estimate stream"
-    inlet = pylsl.StreamInlet(found[0])
-    inlet.open_stream(timeout=5.0)
-    time.sleep(0.5)
-    t0 = pylsl.local_clock()
-    events = sorted([(t, 1, i) for i, t in enumerate(gyro.t)] + [(t + tracker.latency_s, 0, -1 - j) for j, t in enumerate(tracker.t)])
-    chunk: list[list[float]] = []
-    for when, _, i in events:  # in real time, as a lab's devices would send
-        while pylsl.local_clock() < t0 + when:
-            time.sleep(0.0005)
-        if i >= 0:
-            out_g.push_sample(list(gyro.values[i]), t0 + float(gyro.t[i]))
-        else:
-            out_t.push_sample(list(tracker.values[-1 - i]), t0 + float(tracker.t[-1 - i]))
-    deadline = time.time() + 2.0
-    while time.time() < deadline:  # read the estimates while the live loop (and its outlet) still runs
-        chunk += inlet.pull_chunk(timeout=0.0)[0]
-        time.sleep(0.01)
-    thread.join(30.0)
-    run = stats["run"]
+    pushes = sorted([(float(t), 1, out_g, list(gyro.values[i]), float(t)) for i, t in enumerate(gyro.t)]
+                    + [(float(t) + tracker.latency_s, 0, out_t, list(tracker.values[j]), float(t)) for j, t in enumerate(tracker.t)],
+                    key=lambda p: (p[0], p[1]))
+    run, chunk, _ = _live_over_loopback("head", {"gyro": f"{tag}_g", "tracker": f"{tag}_t"}, f"{tag}_est", declared_session("head", None),
+                                        tmp_path / "rec", 6.5, [(when, outlet, sample, stamp) for when, _, outlet, sample, stamp in pushes])
     assert run.received == {"gyro": len(gyro), "tracker": len(tracker)} and run.rejected == 0
     first_fix = tracker.t[0] + tracker.latency_s
     # one estimate per gyro sample after the first fix; the gyro sample at the very instant the first fix arrives
@@ -105,3 +112,35 @@ def test_live_head_publishes_estimates_and_records_a_session_the_batch_smooths(t
     from fusegraph.systems.head import run_batch
 
     assert np.isfinite(run_batch(recorded).quat_wxyz[-1]).all()
+
+
+def test_live_gaze_publishes_a_point_per_gaze_sample_and_records_a_session_the_batch_smooths(tmp_path: Path) -> None:
+    from fusegraph.scenarios.gaze import gaze_session
+    from fusegraph.session import save_session
+    from fusegraph.systems import gaze
+
+    session = gaze_session(1, duration_s=3.0)
+    data = gaze.from_session(session)
+    toml = save_session(session, tmp_path / "declared") / "session.toml"  # the wall and the camera
+    tag = f"fgtestgaze{time.time_ns() % 10**9}"
+    out_imu = pylsl.StreamOutlet(pylsl.StreamInfo(f"{tag}_imu", "imu", 9, 100.0, pylsl.cf_double64, f"{tag}i"))
+    out_gaze = pylsl.StreamOutlet(pylsl.StreamInfo(f"{tag}_gaze", "gaze", 2, 60.0, pylsl.cf_double64, f"{tag}z"))
+    imu = np.hstack([data.gyro_rad_s, data.accel_m_s2, data.mag])
+    pushes = sorted([(float(t), 1, out_imu, list(imu[i])) for i, t in enumerate(data.t)]
+                    + [(float(t), 0, out_gaze, list(data.gaze_px[j])) for j, t in enumerate(data.tracker_t)], key=lambda p: (p[0], p[1]))
+    run, chunk, info = _live_over_loopback("gaze", {"imu": f"{tag}_imu", "gaze": f"{tag}_gaze"}, f"{tag}_est", declared_session("gaze", toml),
+                                           tmp_path / "rec", 6.0, [(when, outlet, sample, when) for when, _, outlet, sample in pushes])
+    assert info.channel_count() == 7 and info.type() == "Gaze"
+    assert run.received == {"imu": len(data.t), "gaze": len(data.tracker_t)} and run.rejected == 0
+    # every gaze sample gets its estimate once its keyframe's update ran; the replay's last, partial block of IMU
+    # samples is never closed live, and a few samples precede the first keyframe
+    replay = gaze.run_online(data)
+    assert np.isfinite(replay.points_xz_m).all(axis=1).sum() - 15 <= run.published <= len(data.tracker_t)
+    rows = np.array(chunk)
+    assert len(rows) > 0 and np.all(np.isfinite(rows)) and np.allclose(np.linalg.norm(rows[:, 3:], axis=1), 1.0)
+    # the fixated point lies on the wall (world x = wall_m) within the plane prior's spread
+    assert np.allclose(rows[:, 0], data.config.wall_m, atol=0.05)
+    recorded = load_session(tmp_path / "rec")
+    assert recorded.meta["session"]["wall_m"] == data.config.wall_m
+    smoothed = gaze.run_batch(gaze.from_session(recorded))
+    assert np.isfinite(smoothed.points_xz_m).all(axis=1).sum() >= len(data.tracker_t) - 15

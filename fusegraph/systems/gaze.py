@@ -16,12 +16,14 @@ of the sample's keyframe.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any, Protocol
 
 import gtsam
 import numpy as np
 
+from ..factors.attitude import AttitudeTrack
 from ..factors.gaze import FixationNoise, SceneCamera, depth_prior, fixation_tuned, fixation_walk, gaze_factor, wall_plane_prior
 from ..factors.imu import MotionPriors
 from ..factors.mag import MagNoise
@@ -53,10 +55,38 @@ class GazeModel:
     """iSAM2 settings (the 9-axis system's)."""
 
 
+class GazeData(Protocol):
+    """What ``GazeGraph`` reads: a ``GazeSession``, or a live one whose arrays grow as samples arrive."""
+
+    @property
+    def t(self) -> FloatArray: ...  # IMU sample times, s
+
+    @property
+    def gyro_rad_s(self) -> FloatArray: ...
+
+    @property
+    def accel_m_s2(self) -> FloatArray: ...
+
+    @property
+    def mag(self) -> FloatArray: ...
+
+    @property
+    def tracker_t(self) -> FloatArray: ...  # gaze sample times, s
+
+    @property
+    def gaze_px(self) -> FloatArray: ...
+
+    @property
+    def config(self) -> GazeScenarioConfig: ...
+
+    @property
+    def head_tracker(self) -> AttitudeTrack | None: ...
+
+
 class GazeGraph:
     """Feeds head IMU samples and gaze pixels into one builder; works online (iSAM2) and batch."""
 
-    def __init__(self, session: GazeSession, model: GazeModel, deferred_mag: bool = False) -> None:
+    def __init__(self, session: GazeData, model: GazeModel, deferred_mag: bool = False) -> None:
         self.session = session
         self.model = model
         self.builder = Attitude9Builder(model.head, deferred_mag=deferred_mag)
@@ -73,6 +103,14 @@ class GazeGraph:
         self._cumulative_k = -1
         self._cumulative: list[gtsam.Rot3] = []
 
+    def _grow(self) -> None:
+        """Room for every gaze sample the session holds now (a live session's arrays grow as samples arrive)."""
+        n = len(self.session.tracker_t)
+        if n > len(self.sample_keyframe):
+            extra = max(n, 2 * len(self.sample_keyframe)) - len(self.sample_keyframe)
+            self.sample_keyframe = np.r_[self.sample_keyframe, np.full(extra, -1)]
+            self.keyframe_R_sample = np.concatenate([self.keyframe_R_sample, np.tile(np.eye(3), (extra, 1, 1))])
+
     def push(self, i0: int, i1: int) -> range:
         """IMU samples [i0, i1), then every gaze sample up to the newest keyframe; returns the gaze samples added."""
         first = self._next_gaze
@@ -88,6 +126,7 @@ class GazeGraph:
             self._points += 1
         last = kf_t[-1]
         tt = s.tracker_t
+        self._grow()
         while self._next_gaze < len(tt) and tt[self._next_gaze] <= last:
             j = self._next_gaze
             k = int(np.searchsorted(kf_t, tt[j], side="right") - 1)
@@ -161,7 +200,28 @@ class GazeGraph:
                 continue
             if k not in rotations:
                 rotations[k] = keyframe_attitude(k)
-            out[j] = quat_wxyz_from_rot3(rotations[k].compose(gtsam.Rot3(self.keyframe_R_sample[j])))
+            out[j] = self.sample_attitude(rotations[k], j)
+
+    def sample_attitude(self, world_R_keyframe: gtsam.Rot3, j: int) -> FloatArray:
+        """world_R_head (w, x, y, z) at gaze sample j from its keyframe's attitude, carried by the gyro."""
+        return quat_wxyz_from_rot3(world_R_keyframe.compose(gtsam.Rot3(self.keyframe_R_sample[j])))
+
+
+NEEDS_WALL = "[session] needs wall_m (distance to the wall, metres) or, without a wall, target_depth_m (depth at which each fixation point is held, metres)"
+
+
+def declared_config(header: Mapping[str, Any], gaze_meta: Mapping[str, Any], duration_s: float) -> GazeScenarioConfig:
+    """What the graph needs from a session's declarations: the wall (``wall_m``) or the fixation depth (``target_depth_m``)
+    from ``[session]``, the scene camera from the gaze stream's metadata (``focal_px``, ``width_px``, ``height_px``,
+    ``pixel_sigma``)."""
+    camera = SceneCamera(**{k: type(getattr(SceneCamera(), k))(gaze_meta[k]) for k in ("focal_px", "width_px", "height_px", "pixel_sigma") if k in gaze_meta})
+    return GazeScenarioConfig(
+        duration_s=duration_s,
+        switch_s=float(header.get("switch_s", np.nan)),
+        wall_m=float(header.get("wall_m", np.nan)),
+        target_depth_m=float(header["target_depth_m"]) if "wall_m" not in header else None,
+        camera=camera,
+    )
 
 
 def from_session(session: Session) -> GazeSession:
@@ -176,19 +236,8 @@ def from_session(session: Session) -> GazeSession:
         raise SessionError(f"{where}: stream 'gaze' must be of kind 'pixel', not '{gaze_stream.kind}'")
     header = session.meta.get("session", {})
     if "wall_m" not in header and "target_depth_m" not in header:
-        raise SessionError(
-            f"{where}: [session] needs wall_m (distance to the wall, metres) or, without a wall, target_depth_m "
-            "(depth at which each fixation point is held, metres)"
-        )
-    m = gaze_stream.meta
-    camera = SceneCamera(**{k: type(getattr(SceneCamera(), k))(m[k]) for k in ("focal_px", "width_px", "height_px", "pixel_sigma") if k in m})
-    config = GazeScenarioConfig(
-        duration_s=float(t[-1] - t[0]),
-        switch_s=float(header.get("switch_s", np.nan)),
-        wall_m=float(header.get("wall_m", np.nan)),
-        target_depth_m=float(header["target_depth_m"]) if "wall_m" not in header else None,
-        camera=camera,
-    )
+        raise SessionError(f"{where}: {NEEDS_WALL}")
+    config = declared_config(header, gaze_stream.meta, float(t[-1] - t[0]))
     truth = np.full((len(gaze_stream), 2), np.nan)
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream):
         truth = session.truth.values[:, 1:3].copy()
@@ -390,4 +439,4 @@ def format_gaze_table(report: dict[str, object]) -> str:
 
 RUNNERS = {"ekf": run_ekf, "online": run_online, "batch": run_batch}
 
-__all__ = ["RUNNERS", "GazeGraph", "GazeModel", "format_gaze_table", "from_session", "gaze_report", "run_batch", "run_ekf", "run_online"]
+__all__ = ["RUNNERS", "GazeGraph", "GazeModel", "declared_config", "format_gaze_table", "from_session", "gaze_report", "run_batch", "run_ekf", "run_online"]
