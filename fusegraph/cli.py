@@ -214,6 +214,10 @@ def build_parser() -> argparse.ArgumentParser:
     liv.add_argument("--session-toml", type=Path, help="a session.toml declaring the sensors (noise, rates, latency); defaults otherwise")
     liv.add_argument("--record", type=Path, metavar="DIR", help="write what was received as a session directory when the run ends")
     liv.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    liv.add_argument("--estimate-first", action="store_true",
+                     help="head: publish each gyro sample's estimate before the iSAM2 update it makes due (the update runs before the "
+                     "next sample is read): no sample waits for an update, for an HMD. Cost measured on seeds 100-109: RMS +0.3 %% "
+                     "(realistic), +0.8 %% (ideal)")
 
     ben = sub.add_parser("bench", help="head: speed on a long session; broad: every BROAD trial, every method, side by side",
                          description="head: real-time factor of the whole causal loop in the first and last minute, batch time, peak memory.\n"
@@ -254,6 +258,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "ultrasonic: the tracks, errors and rest probability of the largest N, first seed")
     ben.add_argument("--seeds", type=_seeds_arg, default=None, help="ultrasonic: seeds per N (default 0-2); walking: the first is the walk's seed (default 0)")
     ben.add_argument("--transmitters", default="3,6,12", help="ultrasonic: comma list of N (default 3,6,12)")
+    ben.add_argument("--estimate-first", action="store_true", help="live: the live process and the replay publish before the update "
+                     "(fusegraph live --estimate-first)")
     ben.add_argument("--uwb", default="default", metavar="DIR", help="ultrasonic: the recorded UWB run (default ../shared/data/uwb_lias; 'none' skips it)")
     ben.add_argument("--oxford", default="default", metavar="DIR", help="walking: Oxford step recordings (default ../shared/data/steps_oxford; 'none' skips)")
     ben.add_argument("--no-plaza", action="store_true", help="walking: skip the Plaza runs")
@@ -493,7 +499,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "live":
         from .live import bench_live, format_bench_live
 
-        found = bench_live(60.0 if args.duration == 600.0 else args.duration, seed=(args.seeds or (0,))[0])
+        found = bench_live(60.0 if args.duration == 600.0 else args.duration, seed=(args.seeds or (0,))[0], estimate_first=args.estimate_first)
         print(json.dumps(found, indent=2) if args.json else format_bench_live(found))
         return 0
     if args.system == "head-recorded":
@@ -592,6 +598,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
         raise SessionError(f"--out {args.out!r}: write lsl:STREAM")
     inputs = parse_inputs(args.system, args.inputs)
     stats = run_live(args.system, inputs, args.out[4:], declared_session(args.system, args.session_toml), duration_s=args.duration, record=args.record,
+                     estimate_first=args.estimate_first,
                      on_ready=lambda: print(f"live {args.system}: reading {', '.join(f'{k}={v}' for k, v in inputs.items())}; publishing {args.out} "
                                             "(Ctrl-C stops)", flush=True))
     print(f"received {stats.received}, refused {stats.rejected}, published {stats.published} estimates in {stats.seconds:.1f} s "

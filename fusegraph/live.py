@@ -176,11 +176,11 @@ class _HeadSolver:
 
     channels, stream_type, rate_of = OUTPUT_CHANNELS, "Orientation", "gyro"  # rate_of: the input whose rate the output has
 
-    def __init__(self, declared: Session) -> None:
+    def __init__(self, declared: Session, estimate_first: bool = False) -> None:
         from .graphs.head import head_model_for
         from .systems.head import OnlineHeadTracker, carried_over_delay, gyro_delay_s
 
-        self.tracker = OnlineHeadTracker(head_model_for(declared))
+        self.tracker = OnlineHeadTracker(head_model_for(declared), estimate_first=estimate_first)
         self.gyro_delay_s = gyro_delay_s(declared)  # samples go in at their true time, estimates out at their stamps (as replay)
         self._carried_over_delay = carried_over_delay  # imported once, not per sample
 
@@ -357,7 +357,7 @@ class _GazeSolver:
         self.solver.maintain()
 
 
-SOLVERS: dict[str, Callable[[Session], Any]] = {"head": _HeadSolver, "attitude9": _Attitude9Solver, "gaze": _GazeSolver}
+SOLVERS: dict[str, Callable[..., Any]] = {"head": _HeadSolver, "attitude9": _Attitude9Solver, "gaze": _GazeSolver}
 
 
 def run_live(
@@ -370,12 +370,18 @@ def run_live(
     resolve_timeout_s: float = 10.0,
     should_stop: Callable[[], bool] | None = None,
     on_ready: Callable[[], None] | None = None,
+    estimate_first: bool = False,
 ) -> LiveStats:
     """Read the inputs, publish estimates, until ``duration_s`` passes, ``should_stop()`` or Ctrl-C.
 
     Each input travels on its own connection, so a tracker sample due at the same instant as a gyro sample (sample time
     + declared latency) may reach us just after it; the estimate for that gyro sample then lacks it, where the replay
-    has it (counted in ``LiveStats.behind``). Waiting for it would cost that latency on every dropped sample."""
+    has it (counted in ``LiveStats.behind``). Waiting for it would cost that latency on every dropped sample.
+
+    ``estimate_first`` (head): publish each gyro sample's estimate before the iSAM2 update it makes due, which then
+    runs before the next sample is read (``OnlineHeadTracker``); no sample's latency holds an update."""
+    if estimate_first and system != "head":
+        raise SessionError(f"live {system}: --estimate-first is for head (the others publish what an update gives)")
     pylsl = _require_pylsl()
     spec = LIVE_INPUTS[system]
     inlets = {}
@@ -403,7 +409,7 @@ def run_live(
     # instant, sent first but on its own connection, is then more often in the same pile (the replay's order)
     driver = next(iter(spec))
     inlets = dict(sorted(inlets.items(), key=lambda item: item[0] == driver))
-    solver = SOLVERS[system](declared)
+    solver = SOLVERS[system](declared, estimate_first=True) if estimate_first else SOLVERS[system](declared)
     rate = rates.get(solver.rate_of, 0.0) if solver.rate_of is not None else 0.0  # 0: LSL's irregular rate
     info = pylsl.StreamInfo(out_name, solver.stream_type, len(solver.channels), rate, pylsl.cf_double64, f"fusegraph-{system}-{out_name}")
     labels = info.desc().append_child("channels")
@@ -511,13 +517,14 @@ def save_recording(system: str, declared: Session, recorded: dict[str, list[tupl
 # ------------------------------------------------------------------------------------------ bench
 
 
-def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = True) -> dict[str, Any]:
+def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = True, estimate_first: bool = False) -> dict[str, Any]:
     """``fusegraph bench live``: a simulated head session replayed in real time over the loopback into
     ``fusegraph live head`` (its own process), the estimates read back by an inlet.
 
     Latency is the time from a gyro sample's push to its estimate's arrival (LSL clock, one machine);
     lost = gyro samples from the first estimate on without an estimate. The RMS against the truth is
-    printed beside the replay's (``run --solver online`` on the same session).
+    printed beside the replay's (``run --solver online`` on the same session). ``estimate_first``: the live process and
+    the replay both publish before the update (``fusegraph live --estimate-first``).
     """
     import re
     import signal
@@ -545,6 +552,7 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
         toml = save_session(session, Path(tmp) / "declared") / "session.toml"
         command = [sys.executable, "-m", "fusegraph.cli", "live", "head", "--in", f"gyro=lsl:{tag}_gyro", "--in", f"tracker=lsl:{tag}_tracker",
                    "--out", f"lsl:{tag}_estimate", "--session-toml", str(toml), "--duration", f"{duration_s + 8.0:g}"]
+        command += ["--estimate-first"] if estimate_first else []
         process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             found = pylsl.resolve_byprop("name", f"{tag}_estimate", 1, 20.0)
@@ -611,7 +619,7 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
     quats = np.array([r[2][:4] for r in received]) if received else np.zeros((0, 4))
     from .estimate import Estimate
 
-    replay = run_isam2(session)  # sampled at the gyro times, as the truth
+    replay = run_isam2(session, estimate_first=estimate_first)  # sampled at the gyro times, as the truth
     live_quat = np.full((len(replay.t), 4), np.nan)
     index = _nearest_index(replay.t, t_session)
     live_quat[index] = quats
@@ -628,6 +636,7 @@ def bench_live(duration_s: float = 60.0, seed: int = 0, show_progress: bool = Tr
         "rms_deg": {a: float(np.rad2deg(v)) for a, v in zip(axes, rms_live, strict=True)},
         "replay_rms_deg": {a: float(np.rad2deg(v)) for a, v in zip(axes, rms_replay, strict=True)},
         "duration_s": duration_s,
+        "estimate_first": estimate_first,
         "estimates": len(received),
         "behind": int(behind.group(1)) if behind else None,
         "latency_ms_by_second": [float(np.max(latency_ms[(stamp - t0 >= k) & (stamp - t0 < k + 1)], initial=0.0)) for k in range(int(duration_s))],
@@ -644,7 +653,8 @@ def format_bench_live(result: dict[str, Any]) -> str:
     """The bench as text."""
     r, p = result["rms_deg"], result["replay_rms_deg"]
     return "\n".join([
-        f"live head over LSL loopback, {result['duration_s']:g} s (gyro 100 Hz, tracker 50 Hz 100 ms late), {result['estimates']} estimates",
+        f"live head over LSL loopback, {result['duration_s']:g} s (gyro 100 Hz, tracker 50 Hz 100 ms late), {result['estimates']} estimates"
+        + (" (estimate first, the update after it: live and replay)" if result.get("estimate_first") else ""),
         f"latency gyro push -> estimate arrival: p50 {result['p50_ms']:.2f} ms, p99 {result['p99_ms']:.2f} ms, max {result['max_ms']:.2f} ms; "
         f"lost {result['lost']} (and {result['before_first_fix']} gyro sample(s) due after the first fix that came before it)",
         f"samples that reached the live process behind a sample due after them: {result['behind']} (the live estimate parts from the "

@@ -122,10 +122,11 @@ def test_dropout_heavy_session_still_runs() -> None:
             assert np.all(rms < 0.03), (method, rms)  # bounded: the bias-corrected gyro bridges 2 s
 
 
-def test_live_api_matches_the_replay() -> None:
+@pytest.mark.parametrize("estimate_first", [False, True])
+def test_live_api_matches_the_replay(estimate_first: bool) -> None:
     session = simulate_head(0, profile="ideal", duration_s=3.0)
-    replay = run_isam2(session)
-    live = OnlineHeadTracker(head_model_for(session))
+    replay = run_isam2(session, estimate_first=estimate_first)
+    live = OnlineHeadTracker(head_model_for(session), estimate_first=estimate_first)
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     j, last = 0, None
     for t, omega in zip(gyro.t, gyro.values, strict=True):
