@@ -27,7 +27,6 @@ smooths the live run afterwards.
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -79,18 +78,23 @@ class ClockMap:
     changes slowly (two machines' clocks drift apart by tens of ppm), which the line follows.
     """
 
-    def __init__(self, correction: Callable[[], float], now: float, window_s: float = 60.0, fit_span_s: float = 10.0) -> None:
+    def __init__(self, correction: Callable[[float], float], now: float, first_timeout_s: float = 10.0, window_s: float = 60.0,
+                 fit_span_s: float = 10.0) -> None:
         self._correction = correction
+        """LSL's estimate of the offset, given a timeout in seconds (an inlet's ``time_correction``)."""
         self.window_s = window_s
         """How far back the estimates are fitted, seconds."""
         self.fit_span_s = fit_span_s
         """The shortest span of estimates a line is fitted over; a mean before, seconds."""
-        self._readings: list[tuple[float, float]] = [(now, float(correction()))]
+        self._readings: list[tuple[float, float]] = [(now, float(correction(first_timeout_s)))]  # the first one blocks
         self._offset, self._slope, self._t_ref = self._readings[0][1], 0.0, now
 
     def refresh(self, now: float) -> None:
         """Read LSL's newest estimate (instant after the first; a new one every few seconds) and refit."""
-        value = float(self._correction())
+        try:
+            value = float(self._correction(0.005))
+        except (TimeoutError, RuntimeError):  # the connection is re-syncing or lost: keep the line, never stall the loop
+            return
         if value == self._readings[-1][1]:
             return  # not re-estimated since
         self._readings.append((now, value))
@@ -402,7 +406,7 @@ def run_live(
         host = found[0].hostname()
         if host not in host_clocks:
             # the first clock sync blocks: done before data flows; later ones return LSL's newest estimate at once
-            host_clocks[host] = ClockMap(functools.partial(inlets[name].time_correction, timeout=resolve_timeout_s), pylsl.local_clock())
+            host_clocks[host] = ClockMap(inlets[name].time_correction, pylsl.local_clock(), first_timeout_s=resolve_timeout_s)
         clocks[name] = host_clocks[host]
         rates[name] = float(found[0].nominal_srate())
     # the stream whose samples make the estimates (the gyro) is polled last: a sample of another stream due at the same

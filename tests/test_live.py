@@ -24,7 +24,7 @@ def test_clock_map_smooths_the_offset_estimates_and_follows_a_drift() -> None:
     rng = np.random.default_rng(0)
     drift, now = 50e-6, [0.0]
     readings = [0.003 + drift * 2.0 * k + rng.normal(0.0, 20e-6) for k in range(61)]
-    clock = ClockMap(lambda: readings[int(round(now[0] / 2.0))], now=0.0)
+    clock = ClockMap(lambda timeout: readings[int(round(now[0] / 2.0))], now=0.0)
     steps_mapped, steps_raw, errors = [], [], []
     previous = None
     for k in range(12001):  # 120 s of 100 Hz stamps, the offset re-read every 2 s
@@ -40,6 +40,20 @@ def test_clock_map_smooths_the_offset_estimates_and_follows_a_drift() -> None:
             errors.append(abs(mapped - now[0] - 0.003 - drift * now[0]))
     assert max(steps_mapped) < 0.5 * max(steps_raw)
     assert max(errors) < 30e-6  # the mean of 20 us noise over ~10-30 readings, and the line's extrapolation over 2 s
+
+
+def test_clock_map_keeps_its_line_when_lsl_cannot_answer() -> None:
+    answers = iter([0.002])
+
+    def correction(timeout: float) -> float:  # the first estimate, then a connection re-syncing (LSL times out)
+        value = next(answers, None)
+        if value is None:
+            raise TimeoutError("time_correction timed out")
+        return value
+
+    clock = ClockMap(correction, now=0.0)
+    clock.refresh(2.0)  # must neither raise nor stall the live loop
+    assert clock(5.0) == 5.002
 
 
 def test_inputs_are_checked() -> None:
