@@ -388,6 +388,8 @@ def run_live(
         raise SessionError(f"live {system}: --estimate-first is for head (the others publish what an update gives)")
     pylsl = _require_pylsl()
     spec = LIVE_INPUTS[system]
+    # the solver first: what the declarations lack (gaze's wall) is said before any stream is waited for
+    solver = SOLVERS[system](declared, estimate_first=True) if estimate_first else SOLVERS[system](declared)
     inlets = {}
     clocks: dict[str, ClockMap] = {}
     host_clocks: dict[str, ClockMap] = {}
@@ -413,7 +415,6 @@ def run_live(
     # instant, sent first but on its own connection, is then more often in the same pile (the replay's order)
     driver = next(iter(spec))
     inlets = dict(sorted(inlets.items(), key=lambda item: item[0] == driver))
-    solver = SOLVERS[system](declared, estimate_first=True) if estimate_first else SOLVERS[system](declared)
     rate = rates.get(solver.rate_of, 0.0) if solver.rate_of is not None else 0.0  # 0: LSL's irregular rate
     info = pylsl.StreamInfo(out_name, solver.stream_type, len(solver.channels), rate, pylsl.cf_double64, f"fusegraph-{system}-{out_name}")
     labels = info.desc().append_child("channels")

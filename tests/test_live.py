@@ -64,6 +64,9 @@ def test_inputs_are_checked() -> None:
         parse_inputs("head", ["gyro=G"])
     with pytest.raises(SessionError, match="no live mode"):
         parse_inputs("walking", [])
+    # gaze without a declared wall: said at once, before any stream is waited for
+    with pytest.raises(SessionError, match="wall_m"):
+        run_live("gaze", {"imu": "none", "gaze": "none"}, "out", declared_session("gaze", None), resolve_timeout_s=60.0)
 
 
 def _live_over_loopback(system: str, inputs: dict[str, str], out: str, declared: Session, record: Path, duration_s: float,
