@@ -351,6 +351,9 @@ class _GazeSolver:
             kj = int(self.graph.sample_keyframe[j])
             if kj < 0:
                 continue  # before the first keyframe: no factor, no estimate (as the replay)
+            if kj < builder.oldest_allowed_keyframe:
+                self.graph.too_late += 1  # a late sample whose keyframe this update's re-anchoring marginalised
+                continue
             if kj not in points:
                 points[kj] = isam.calculateEstimatePoint3(G(kj))
                 rotations[kj] = isam.calculateEstimatePose3(X(kj)).rotation()

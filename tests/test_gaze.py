@@ -126,3 +126,26 @@ def test_live_gaze_solver_publishes_what_the_replay_estimates() -> None:
     at = np.array([index[t] for t in published])
     np.testing.assert_allclose(rows[:, 1:3], replay.points_xz_m[at], atol=1e-9)  # world y, z = the wall's X, Z
     np.testing.assert_allclose(rows[:, 3:], replay.world_R_head[at], atol=1e-9)
+
+
+def test_live_gaze_sample_after_its_keyframe_left_the_window_is_counted_not_fatal() -> None:
+    # a gaze stream that stalls for 2 s and then delivers its backlog: samples whose keyframe the online solver has
+    # marginalised (its window is 1 s) cannot get a factor; they are counted and the solver carries on
+    from fusegraph.live import SOLVERS
+    from fusegraph.scenarios.gaze import gaze_session
+
+    recorded = gaze_session(3, duration_s=8.0)
+    data = gaze.from_session(recorded)
+    solver = SOLVERS["gaze"](recorded)
+    imu = np.hstack([data.gyro_rad_s, data.accel_m_s2, data.mag])
+    stalled = (data.tracker_t >= 3.0) & (data.tracker_t < 4.0)
+    published = 0
+    j = 0
+    for i, t in enumerate(data.t):
+        while j < len(data.tracker_t) and data.tracker_t[j] <= (t - 2.0 if stalled[j] else t):
+            solver.push("gaze", float(data.tracker_t[j]), data.gaze_px[j])
+            j += 1
+        published += len(solver.push("imu", float(t), imu[i]))
+        solver.maintain()
+    assert solver.graph.too_late > 0.5 * stalled.sum()
+    assert published >= len(data.tracker_t) - stalled.sum() - 15 and published + solver.graph.too_late <= len(data.tracker_t)

@@ -102,6 +102,9 @@ class GazeGraph:
         """Gyro bias used to carry a gaze sample from its keyframe (the online solver refreshes it)."""
         self._cumulative_k = -1
         self._cumulative: list[gtsam.Rot3] = []
+        self.too_late = 0
+        """Gaze samples that came too late for the online solver's window: no estimate (and no factor when their keyframe had
+        already left it)."""
 
     def _grow(self) -> None:
         """Room for every gaze sample the session holds now (a live session's arrays grow as samples arrive)."""
@@ -130,8 +133,10 @@ class GazeGraph:
         while self._next_gaze < len(tt) and tt[self._next_gaze] <= last:
             j = self._next_gaze
             k = int(np.searchsorted(kf_t, tt[j], side="right") - 1)
-            if k >= 0:
+            if k >= self.builder.oldest_allowed_keyframe:
                 self._add_gaze(j, k)
+            elif k >= 0:
+                self.too_late += 1  # live: it came after the online solver marginalised its keyframe (counted, not hidden)
             self._next_gaze += 1
         return range(first, self._next_gaze)
 
