@@ -602,7 +602,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
                      on_ready=lambda: print(f"live {args.system}: reading {', '.join(f'{k}={v}' for k, v in inputs.items())}; publishing {args.out} "
                                             "(Ctrl-C stops)", flush=True))
     print(f"received {stats.received}, refused {stats.rejected}, published {stats.published} estimates in {stats.seconds:.1f} s "
-          f"({100 * stats.solve_s / max(stats.seconds, 1e-9):.0f}% in the solver); {stats.behind} arrived behind a sample due after them")
+          f"({100 * stats.solve_s / max(stats.seconds, 1e-9):.0f}% in the solver); {stats.behind} arrived behind a sample due after them; "
+          f"{stats.too_late} came after the solver's window had passed their time (no estimate)")
     if args.record:
         print(f"wrote {args.record}/ (fusegraph run {args.record} --solver batch smooths it)")
     return 0

@@ -63,6 +63,8 @@ class LiveStats:
     """Wall time of the run."""
     solve_s: float = 0.0
     """Time inside the solver."""
+    too_late: int = 0
+    """Samples that came after the online solver's window had passed their time: no factor or no estimate."""
     behind: int = 0
     """Samples that arrived after a sample due later (sample time + declared latency) had been used: the live estimate
     then parts from the replay's, which takes every sample in the order it was due."""
@@ -205,6 +207,9 @@ class _HeadSolver:
     def maintain(self) -> None:
         self.tracker.maintain()
 
+    def too_late(self) -> int:
+        return len(self.tracker.builder.too_late)
+
 
 class _Attitude9Solver:
     """The 9-axis graph fed sample by sample; an estimate per keyframe, right after its iSAM2 update."""
@@ -242,6 +247,9 @@ class _Attitude9Solver:
 
     def maintain(self) -> None:
         self.solver.maintain()  # its re-anchorings run inside update (the replay's order): nothing is deferred
+
+    def too_late(self) -> int:
+        return int(self.builder.tracker_dropped)
 
 
 class _Growing:
@@ -362,6 +370,9 @@ class _GazeSolver:
 
     def maintain(self) -> None:
         self.solver.maintain()
+
+    def too_late(self) -> int:
+        return self.graph.too_late + int(self.graph.builder.tracker_dropped)
 
 
 SOLVERS: dict[str, Callable[..., Any]] = {"head": _HeadSolver, "attitude9": _Attitude9Solver, "gaze": _GazeSolver}
@@ -484,6 +495,7 @@ def run_live(
     except KeyboardInterrupt:
         pass
     stats.seconds = time.perf_counter() - start
+    stats.too_late = solver.too_late()
     if record is not None:
         reference = float(np.median(transit[next(iter(inputs))])) if transit[next(iter(inputs))] else 0.0
         lateness = {n: max(0.0, float(np.median(v)) - reference) for n, v in transit.items() if v}

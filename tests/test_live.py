@@ -111,7 +111,7 @@ def test_live_head_publishes_estimates_and_records_a_session_the_batch_smooths(t
                     key=lambda p: (p[0], p[1]))
     run, chunk, _ = _live_over_loopback("head", {"gyro": f"{tag}_g", "tracker": f"{tag}_t"}, f"{tag}_est", declared_session("head", None),
                                         tmp_path / "rec", 6.5, [(when, outlet, sample, stamp) for when, _, outlet, sample, stamp in pushes])
-    assert run.received == {"gyro": len(gyro), "tracker": len(tracker)} and run.rejected == 0
+    assert run.received == {"gyro": len(gyro), "tracker": len(tracker)} and run.rejected == 0 and run.too_late == 0
     first_fix = tracker.t[0] + tracker.latency_s
     # one estimate per gyro sample after the first fix; the gyro sample at the very instant the first fix arrives
     # may be handled before it (two streams, two sockets: their order at one instant is not guaranteed)
@@ -148,7 +148,7 @@ def test_live_gaze_publishes_a_point_per_gaze_sample_and_records_a_session_the_b
     run, chunk, info = _live_over_loopback("gaze", {"imu": f"{tag}_imu", "gaze": f"{tag}_gaze"}, f"{tag}_est", declared_session("gaze", toml),
                                            tmp_path / "rec", 6.0, [(when, outlet, sample, when) for when, _, outlet, sample in pushes])
     assert info.channel_count() == 7 and info.type() == "Gaze"
-    assert run.received == {"imu": len(data.t), "gaze": len(data.tracker_t)} and run.rejected == 0
+    assert run.received == {"imu": len(data.t), "gaze": len(data.tracker_t)} and run.rejected == 0 and run.too_late == 0
     # every gaze sample gets its estimate once its keyframe's update ran; the replay's last, partial block of IMU
     # samples is never closed live, and a few samples precede the first keyframe
     replay = gaze.run_online(data)
