@@ -217,6 +217,8 @@ class OnlineHeadTracker:
         self.builder.add_gyro(float(t), w)
         self._last_gyro_t = float(t)
         if self.estimate_first:
+            if self._update_due:  # maintain() was not called after the previous sample: run its update now, not never
+                self.solver.update()
             self._update_due = True
         else:
             self.solver.update()
