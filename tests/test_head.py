@@ -11,9 +11,10 @@ from fusegraph.factors.gyro import GyroNoise
 from fusegraph.graphs.head import HeadGraphBuilder, HeadModel, X, head_model_for
 from fusegraph.metrics import body_errors, score_attitude
 from fusegraph.scenarios import simulate_head
+from fusegraph.session import Session
 from fusegraph.solvers.batch import solve_batch
 from fusegraph.solvers.online import OnlineConfig, OnlineSmoother
-from fusegraph.systems.head import METHODS, OnlineHeadTracker, RejectedSampleError, feed, run_batch, run_isam2, run_method
+from fusegraph.systems.head import METHODS, AttitudeNow, OnlineHeadTracker, RejectedSampleError, feed, run_batch, run_isam2, run_method
 
 
 def noise_free_session(profile: str = "ideal", seed: int = 3):
@@ -122,11 +123,8 @@ def test_dropout_heavy_session_still_runs() -> None:
             assert np.all(rms < 0.03), (method, rms)  # bounded: the bias-corrected gyro bridges 2 s
 
 
-@pytest.mark.parametrize("estimate_first", [False, True])
-def test_live_api_matches_the_replay(estimate_first: bool) -> None:
-    session = simulate_head(0, profile="ideal", duration_s=3.0)
-    replay = run_isam2(session, estimate_first=estimate_first)
-    live = OnlineHeadTracker(head_model_for(session), estimate_first=estimate_first)
+def _fed_live(live: OnlineHeadTracker, session: Session, maintain: bool) -> AttitudeNow:
+    """The session pushed through the live API in arrival order; the last estimate."""
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     j, last = 0, None
     for t, omega in zip(gyro.t, gyro.values, strict=True):
@@ -134,8 +132,17 @@ def test_live_api_matches_the_replay(estimate_first: bool) -> None:
             live.add_tracker(tracker.t[j], tracker.values[j])
             j += 1
         last = live.add_gyro(t, omega)
-        live.maintain()  # after reading the estimate, as the replay and the live loop do
+        if maintain:
+            live.maintain()  # after reading the estimate, as the replay and the live loop do
     assert last is not None
+    return last
+
+
+@pytest.mark.parametrize("estimate_first", [False, True])
+def test_live_api_matches_the_replay(estimate_first: bool) -> None:
+    session = simulate_head(0, profile="ideal", duration_s=3.0)
+    replay = run_isam2(session, estimate_first=estimate_first)
+    last = _fed_live(OnlineHeadTracker(head_model_for(session), estimate_first=estimate_first), session, maintain=True)
     np.testing.assert_allclose(last.quat_wxyz, replay.quat_wxyz[-1], atol=1e-9)
     assert np.all(np.linalg.eigvalsh(last.cov) > 0)
 
@@ -161,15 +168,8 @@ def test_estimate_first_still_updates_when_maintain_is_never_called() -> None:
     session = simulate_head(0, profile="ideal", duration_s=3.0)
     truth = session.truth
     assert truth is not None
-    live = OnlineHeadTracker(head_model_for(session), estimate_first=True)
-    gyro, tracker = session.stream("gyro"), session.stream("tracker")
-    j, last = 0, None
-    for t, omega in zip(gyro.t, gyro.values, strict=True):
-        while j < len(tracker) and tracker.arrival_t[j] <= t + 1e-9:
-            live.add_tracker(tracker.t[j], tracker.values[j])
-            j += 1
-        last = live.add_gyro(t, omega)  # no maintain(): the due update runs with the next sample instead
-    assert last is not None
+    # no maintain(): the due update runs with the next sample instead
+    last = _fed_live(OnlineHeadTracker(head_model_for(session), estimate_first=True), session, maintain=False)
     # the tracker keeps it within a few tenths of a degree; the gyro alone from the first fix drifts by degrees in 3 s
     error_deg = np.rad2deg(2 * np.arccos(min(1.0, abs(float(np.dot(last.quat_wxyz, truth.values[-1]))))))
     assert error_deg < 0.5
