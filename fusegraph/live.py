@@ -279,6 +279,7 @@ class _LiveGazeData:
         self._gaze, self._gaze_t = _Growing(2), _Growing(1)
         self._tracker, self._tracker_t = _Growing(4), _Growing(1)
         self._tracker_latency_s, self._tracker_sigma_rad = tracker_latency_s, tracker_sigma_rad
+        self._inputs = {"imu": (self._imu_t, self._imu), "gaze": (self._gaze_t, self._gaze), "tracker": (self._tracker_t, self._tracker)}
 
     t = property(lambda self: self._imu_t.view[:, 0])
     gyro_rad_s = property(lambda self: self._imu.view[:, 0:3])
@@ -297,7 +298,7 @@ class _LiveGazeData:
 
     def add(self, name: str, t: float, values: np.ndarray) -> None:
         """A sample of input ``name`` (imu, gaze, tracker) at ``t``; refused (ValueError) unless after that input's last."""
-        times, rows = {"imu": (self._imu_t, self._imu), "gaze": (self._gaze_t, self._gaze), "tracker": (self._tracker_t, self._tracker)}[name]
+        times, rows = self._inputs[name]
         if times.n and t <= times.view[-1, 0]:
             raise ValueError(f"{name} sample at t = {t:.6f} s does not follow the previous one ({times.view[-1, 0]:.6f} s)")
         times.append(t)
@@ -314,7 +315,7 @@ class _GazeSolver:
         from .graphs.attitude9 import X
         from .solvers.online import OnlineSmoother
         from .systems.attitude9 import attitude_tracker
-        from .systems.gaze import NEEDS_WALL, G, GazeGraph, GazeModel, declared_config
+        from .systems.gaze import NEEDS_WALL, G, GazeGraph, GazeModel, block_size, declared_config
 
         self._keys = (G, X)  # imported once, not per sample
 
@@ -329,7 +330,7 @@ class _GazeSolver:
         self.graph = GazeGraph(self.data, self.model)
         self.solver = OnlineSmoother(self.graph.builder, self.model.online)
         rate = next((s.meta.get("rate_hz") for s in declared.streams.values() if s.kind == "gyro" and "rate_hz" in s.meta), None)
-        self.block = None if rate is None else max(1, int(round(self.model.head.keyframe_period_s * float(rate))))
+        self.block = None if rate is None else block_size(self.data, self.model, float(rate))
         self.pushed = 0
 
     def push(self, name: str, t: float, values: np.ndarray) -> list[tuple[float, list[float]]]:
@@ -341,7 +342,9 @@ class _GazeSolver:
         if self.block is None:  # no rate declared: the replay's block from the first samples' spacing
             if n < 11:
                 return []
-            self.block = max(1, int(round(self.model.head.keyframe_period_s / float(np.median(np.diff(self.data.t))))))
+            from .systems.gaze import block_size
+
+            self.block = block_size(self.data, self.model)
         if n - self.pushed < self.block:
             return []
         added = self.graph.push(self.pushed, self.pushed + self.block)

@@ -251,8 +251,9 @@ def from_session(session: Session) -> GazeSession:
                        head_tracker=attitude_tracker(session))
 
 
-def _block(session: GazeSession, model: GazeModel) -> int:
-    dt = float(np.median(np.diff(session.t)))
+def block_size(session: GazeData, model: GazeModel, rate_hz: float | None = None) -> int:
+    """IMU samples per push (one keyframe's): from ``rate_hz`` when given, else from the samples' median spacing."""
+    dt = 1.0 / rate_hz if rate_hz is not None else float(np.median(np.diff(session.t)))
     return max(1, int(round(model.head.keyframe_period_s / dt)))
 
 
@@ -276,7 +277,7 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEsti
     solver = OnlineSmoother(graph.builder, model.online)
     out = np.full((len(session.tracker_t), 2), np.nan)
     attitude = np.full((len(session.tracker_t), 4), np.nan)
-    block = _block(session, model)
+    block = block_size(session, model)
     for i in range(0, len(session.t), block):
         added = graph.push(i, i + block)
         if not solver.update():
@@ -309,7 +310,7 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstim
     model = model or batch_model()
     start = time.perf_counter()
     graph = GazeGraph(session, model, deferred_mag=True)
-    block = _block(session, model)
+    block = block_size(session, model)
     for i in range(0, len(session.t), block):
         graph.push(i, i + block)
     increment = graph.builder.take()
