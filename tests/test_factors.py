@@ -62,6 +62,17 @@ def test_gyro_factor_zero_at_truth_and_jacobians(seed: int) -> None:
     assert_jacobians_match(factor, values)
 
 
+def test_gyro_interval_delta_is_kept_as_it_was() -> None:
+    """A rotation read mid-interval (the builder stores them to carry tracker samples between keyframes) must not
+    follow the integration on: constant 1 rad/s about x, read after 10 ms, still 10 mrad after 20 ms."""
+    interval = GyroInterval(preintegration_params(GyroNoise()), np.zeros(3), 0.0, np.array([1.0, 0.0, 0.0]))
+    interval.add(0.01, np.array([1.0, 0.0, 0.0]))
+    partial = interval.delta()
+    interval.add(0.02, np.array([1.0, 0.0, 0.0]))
+    np.testing.assert_allclose(gtsam.Rot3.Logmap(partial), [0.01, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(gtsam.Rot3.Logmap(interval.delta()), [0.02, 0.0, 0.0], atol=1e-12)
+
+
 def test_attitude_prior_jacobian() -> None:
     rng = np.random.default_rng(0)
     values = gtsam.Values()

@@ -65,6 +65,7 @@ class GyroCalibrationPrior:
 
 
 _EYE3 = np.eye(3)
+_IDENTITY_ROT = gtsam.Rot3()
 _MINUS_EYE3 = -_EYE3
 
 
@@ -130,7 +131,9 @@ class GyroInterval:
 
     def delta(self, bias: FloatArray | None = None) -> gtsam.Rot3:
         """Rotation from the interval start to the last sample, corrected to ``bias`` to first order."""
-        delta = self.pim.deltaRij()
+        # a copy: deltaRij() is a view of the preintegration, which the next sample moves on (a stored partial
+        # rotation that aliased it became the whole interval's by the time a tracker sample used it)
+        delta = self.pim.deltaRij().compose(_IDENTITY_ROT)  # exact: products with 1 and 0
         if bias is None or self.elapsed_s == 0.0:
             return delta
         # d(deltaR)/d(bias) ~ -dt for the short intervals used here (a few samples)
