@@ -142,11 +142,11 @@ class OnlineSmoother:
         # multiple of the keyframe period) keeps the newest covariance until the next keyframe:
         # recomputing it there cost ~2 ms per update, 6x the whole loop, for a change of a few percent
         if self.config.covariance and (new_keyframe or np.isnan(self.latest_cov[0, 0])):
-            self.latest_cov = self._isam.marginalCovariance(rot_key)[:3, :3]  # rotation block (Rot3, or Pose3's first)
+            self.latest_cov = self._marginal(rot_key, k)[:3, :3]  # rotation block (Rot3, or Pose3's first)
             self._updates += 1
             if bias_key is not None and (self._updates % self.config.bias_covariance_every == 1 or np.isnan(self.latest_bias_cov[0, 0])):
                 # the bias uncertainty changes slowly; refreshing it every few updates halves the cost
-                self.latest_bias_cov = self._isam.marginalCovariance(bias_key)[-3:, -3:]  # gyro block (Vector3, or ConstantBias' last)
+                self.latest_bias_cov = self._marginal(bias_key, k)[-3:, -3:]  # gyro block (Vector3, or ConstantBias' last)
         self.builder.set_latest(self.latest_rot, self.latest_bias)
         feedback = getattr(self.builder, "feedback", None)
         if feedback is not None:
@@ -160,6 +160,17 @@ class OnlineSmoother:
             else:
                 self._reanchor()
         return True
+
+    def _marginal(self, key: int, k: int) -> FloatArray:
+        """iSAM2's marginal covariance of ``key``; where Cholesky calls the system indeterminate (an update can pass
+        and the covariance's own elimination fail: BROAD trial 06 at its fifth keyframe, the gyro's calibration not yet
+        observable), the solver is rebuilt as after a failed update (``_recover``) and asked again."""
+        try:
+            return np.asarray(self._isam.marginalCovariance(key))
+        except RuntimeError as exc:
+            theta = gtsam.Values(self._isam.getLinearizationPoint())
+            self._rebuild(self._window, theta, exc, f"keyframe {k}", f"covariance at keyframe {k}")
+            return np.asarray(self._isam.marginalCovariance(key))
 
     def maintain(self) -> None:
         """Run a re-anchoring that ``update`` deferred (``defer_reanchor``); nothing when none is due."""
