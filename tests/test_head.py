@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gtsam
 import numpy as np
 import pytest
@@ -34,9 +36,10 @@ def test_noise_free_batch_recovers_truth(profile: str) -> None:
     estimate = run_batch(session, TIGHT)
     assert session.truth is not None
     err = np.linalg.norm(body_errors(estimate.quat_wxyz, session.truth.values), axis=1)
-    # midpoint integration of exact rates leaves ~1e-6 rad per keyframe; the realistic gyro's 3 %
-    # scale error is absorbed by the calibration variables
-    assert err.max() < 2e-4
+    # midpoint integration of exact rates leaves ~1e-6 rad per keyframe; the realistic gyro's 3 % scale error is
+    # absorbed by the calibration variables, but a tracker reading between keyframes (every second one at 40 ms) is
+    # carried to its keyframe by the gyro before that calibration is known: 3 % of the ~1 rad/s turn over 20 ms
+    assert err.max() < (2e-4 if profile == "ideal" else 1e-3)
 
 
 def test_gauss_newton_batch_equals_levenberg_marquardt_with_its_covariances() -> None:
@@ -79,7 +82,9 @@ def test_noise_free_online_recovers_truth_after_bias_converges() -> None:
 
 def test_final_isam2_equals_batch_on_the_same_graph() -> None:
     session = simulate_head(1, profile="realistic", duration_s=4.0)
-    model = head_model_for(session)
+    # keyframes on the tracker's samples: no reading is carried between keyframes by the gyro, whose bias the online
+    # builder has from its solver and this batch builder does not, so the two builders make the same graph
+    model = replace(head_model_for(session), keyframe_period_s=0.02)
     online_builder = HeadGraphBuilder(model)
     solver = OnlineSmoother(online_builder, OnlineConfig(reanchor_every=10**9, relinearize_threshold=1e-4))
     feed(online_builder, session, lambda t: solver.update())
@@ -98,7 +103,7 @@ def test_reanchored_online_keeps_the_accuracy_of_plain_isam2() -> None:
     session = simulate_head(2, profile="ideal", duration_s=12.0)
     assert session.truth is not None
     plain = run_isam2(session, None, OnlineConfig(reanchor_every=10**9))
-    anchored = run_isam2(session, None, OnlineConfig(reanchor_every=50))
+    anchored = run_isam2(session, None, OnlineConfig(reanchor_every=25))
     assert anchored.extras["reanchors"] >= 10
     rms_plain = score_attitude(plain, session.truth.t, session.truth.values).rms_rad
     rms_anchored = score_attitude(anchored, session.truth.t, session.truth.values).rms_rad
@@ -160,7 +165,7 @@ def test_stamps_jittered_by_microseconds_make_the_same_keyframes() -> None:
         for t, omega in zip(stamps, gyro.values, strict=True):
             builder.add_gyro(float(t), omega)
         keyframes.append(np.asarray(builder.keyframe_t))
-    assert len(keyframes[0]) == len(keyframes[1]) == 151  # 0 to 3 s at 50 Hz
+    assert len(keyframes[0]) == len(keyframes[1]) == 76  # 0 to 3 s at 25 Hz
     np.testing.assert_allclose(keyframes[1], keyframes[0], atol=30e-6)
 
 
@@ -205,8 +210,9 @@ def test_live_api_refuses_bad_samples_and_carries_on() -> None:
 
 def test_a_failed_online_update_is_redone_and_the_tracker_carries_on() -> None:
     """gtsam really fails (a variable only half constrained: "Indeterminate linear system"); the update is
-    redone on a rebuilt solver and every later estimate equals the replay that never saw it, to 1e-9 (the
-    rebuilt solver's 1e3-sigma priors move the estimate by ~1e-11 here), through two re-anchorings."""
+    redone on a rebuilt solver and every later estimate equals the replay that never saw it, to 1e-5 (the
+    estimates agree to 1e-9 until the first re-anchoring after the rebuild, where the rebuilt solver's 1e3-sigma
+    priors join the marginal; 8e-7 there, in quaternion units), through two re-anchorings."""
     from fusegraph.factors.linear import linear_factor
 
     session = simulate_head(0, profile="ideal", duration_s=6.0)
@@ -230,7 +236,7 @@ def test_a_failed_online_update_is_redone_and_the_tracker_carries_on() -> None:
         live.maintain()
     assert len(live.solver.recoveries) == 1 and "Indeterminate" in live.solver.recoveries[0]
     assert live.solver.reanchors >= 2
-    np.testing.assert_allclose(np.array(estimates), replay.quat_wxyz[150:], atol=1e-9)
+    np.testing.assert_allclose(np.array(estimates), replay.quat_wxyz[150:], atol=1e-5)
 
 
 def test_no_estimate_before_the_first_fix_arrives() -> None:
@@ -318,10 +324,11 @@ def test_a_declared_gyro_delay_puts_every_method_back_on_the_tracker_clock() -> 
 
     on_time, undeclared, fixed = (run_batch(s) for s in (session, late, declared))
     assert np.array_equal(fixed.t, session.stream("gyro").t) and fixed.extras["gyro_delay_s"] == 0.008
-    # measured 0.864 / 0.904 / 0.864 deg: the 8 ms lag costs 5 %, declaring it gives it back (to 1 %: the forward step
-    # over the delay is first order)
+    # measured 0.870 / 0.910 / 0.860 deg (40 ms keyframes): the 8 ms lag costs 5 %, declaring it gives it back (within
+    # 1 %: the forward step over the delay is first order; re-timed, every other tracker reading is carried a gyro sample
+    # less far)
     assert undeclared.extras.get("gyro_delay_s") is None and rms(undeclared) > 1.03 * rms(on_time)
-    assert abs(rms(fixed) - rms(on_time)) < 0.01 * rms(on_time)
+    assert rms(fixed) < 1.01 * rms(on_time)
     online = run_isam2(declared)
     assert online.quat_wxyz.shape == fixed.quat_wxyz.shape and online.extras["gyro_delay_s"] == 0.008
 
@@ -344,3 +351,25 @@ def test_live_head_solver_honours_a_declared_gyro_delay_as_replay_does() -> None
     rows = np.searchsorted(gyro.t, [t for t, _ in published])
     assert np.allclose([t for t, _ in published], gyro.t[rows])  # published at the stamps
     np.testing.assert_allclose(np.array([row[:4] for _, row in published]), replayed.quat_wxyz[rows], atol=1e-12)  # the same solver, the same numbers
+
+
+def test_a_reading_between_keyframes_is_carried_by_the_integrated_gyro_either_way() -> None:
+    """A tracker reading on a gyro sample between keyframes is carried to the nearer keyframe by the samples the gyro
+    integrated, forward or back: a rate ramping at 100 rad/s^2 (BROAD's fast turns), where the keyframe's own rate
+    extrapolated 10 ms was off by 0.005 rad."""
+    from fusegraph.factors.gyro import integrate_gyro
+    from fusegraph.geometry import rot3_from_quat_wxyz
+
+    t = np.arange(0.0, 0.2, 0.005)
+    omega = np.stack([100.0 * t, np.zeros_like(t), 0.5 * np.ones_like(t)], axis=1)
+    builder = HeadGraphBuilder(HeadModel(keyframe_period_s=0.04, gyro=GyroNoise(sample_rate_hz=200.0)))
+    builder.add_tracker(0.0, np.array([1.0, 0.0, 0.0, 0.0]))
+    for ti, wi in zip(t, omega, strict=True):
+        builder.add_gyro(float(ti), wi)
+    attitude = integrate_gyro(t, omega, np.array([1.0, 0.0, 0.0, 0.0]))  # the same midpoint rule, from t = 0
+    k = 2
+    i_k = int(np.argmin(abs(t - builder.keyframe_t[k])))
+    for step in (-2, 2):  # 10 ms before keyframe k and 10 ms after it
+        expected = rot3_from_quat_wxyz(attitude[i_k]).between(rot3_from_quat_wxyz(attitude[i_k + step]))
+        carried = builder._gyro_between(k, float(t[i_k + step]))
+        assert np.linalg.norm(gtsam.Rot3.Logmap(expected.between(carried))) < 1e-9

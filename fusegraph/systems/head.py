@@ -138,12 +138,12 @@ def carried_over_delay(quat_wxyz: FloatArray, rate_rad_s: FloatArray, delay_s: f
     return quat_normalize(quat_multiply(quat_wxyz, quat_from_rotvec(np.asarray(rate_rad_s, dtype=float) * delay_s)))
 
 
-#: The head tracker's online solver: iSAM2 once every 3 keyframes (60 ms), the gyro carrying the estimate in
-#: between. Chosen on seeds 100-102 (120 s, realistic profile) as the largest interval whose mean RMS stays
-#: within 0.5 % of updating at every keyframe on each axis: 1 / 2 / 3 / 4 keyframes gave 20.3 / 25.7 / 29.6 /
-#: 31.1 x real time, azimuth 0.6569 / 0.6583 / 0.6590 / 0.6602 deg, elevation 0.4867 / 0.4877 / 0.4880 /
-#: 0.4897 deg (4: +0.5 % and +0.6 %).
-HEAD_ONLINE = OnlineConfig(update_every=3)
+#: The head tracker's online solver: iSAM2 at every keyframe (40 ms, ``HeadModel.keyframe_period_s``), re-anchored every
+#: 2 s. On seeds 100-109 (120 s) the 40 ms keyframes updated at each gave the RMS of 20 ms keyframes updated at each
+#: (realistic 0.5851 / 0.5214 / 0.5024 against 0.5852 / 0.5214 / 0.5019 deg; ideal 0.1373 / 0.1337 / 0.1401 against
+#: 0.1373 / 0.1337 / 0.1400) at the speed of the former schedule, 20 ms keyframes updated every third (21.7x against
+#: 21.2x real time; that schedule cost +0.3-0.5 % RMS). Updating every second 40 ms keyframe: +0.7-1.3 % (seeds 100-102).
+HEAD_ONLINE = OnlineConfig(reanchor_every=50)
 
 
 class OnlineHeadTracker:
@@ -304,9 +304,10 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
     # with an estimated latency: a first pass finds it, a second places the readings with it so that
     # the first-order offset model only covers the remainder (as online, where it is the running estimate)
     applied = 0.0
-    dead_reckoned = corrected_dead_reckoning(session)  # shared by both passes
+    bias = gyro_bias_from_tracker(session)
+    dead_reckoned = corrected_dead_reckoning(session, bias)  # shared by both passes
     for _ in range(2 if model.latency is not None else 1):
-        builder = HeadGraphBuilder(model)
+        builder = HeadGraphBuilder(model, initial_bias=bias)
         builder.latency_applied_s = applied
         feed(builder, _with_latency(session, model))
         increment = builder.take()
@@ -475,10 +476,11 @@ def gyro_delay_from_tracker(session: Session, span_s: float = 0.1) -> GyroDelay:
     return GyroDelay(float(solution[0]), sigma, int(use.sum()))
 
 
-def corrected_dead_reckoning(session: Session) -> FloatArray:
-    """The gyro integrated from identity at every sample, less the bias the tracker shows."""
+def corrected_dead_reckoning(session: Session, bias: FloatArray | None = None) -> FloatArray:
+    """The gyro integrated from identity at every sample, less the bias the tracker shows (``bias`` when it is known)."""
     gyro = session.stream("gyro")
-    return integrate_gyro(gyro.t, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]), bias=gyro_bias_from_tracker(session))
+    bias = gyro_bias_from_tracker(session) if bias is None else bias
+    return integrate_gyro(gyro.t, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]), bias=bias)
 
 
 def interpolate_keyframes(t, omega, kf_t, kf_quat, kf_bias, kf_cov=None):  # type: ignore[no-untyped-def]
