@@ -833,4 +833,8 @@ def without_gyro(session: Session) -> tuple[Session, HeadModel]:
     clock = replace(gyro, values=np.zeros_like(gyro.values), meta={**gyro.meta, "calibrated": True})
     tracker_only = replace(session, streams={**session.streams, "gyro": clock})
     model = replace(head_model_for(tracker_only), gyro=replace(NO_GYRO_MODEL, sample_rate_hz=float(gyro.meta.get("rate_hz", 100.0))), gyro_calibration=None)
+    # no gyro to carry a reading between keyframes with: a keyframe per tracker sample (its period)
+    stamps = session.stream("tracker").t
+    if len(stamps) > 1:
+        model = replace(model, keyframe_period_s=float(np.median(np.diff(stamps))))
     return tracker_only, model
