@@ -90,12 +90,13 @@ class HeadModel:
     """How the head graph models its sensors (one parameter set for every session)."""
 
     keyframe_period_s: float = 0.04
-    """Time between keyframes, seconds; a tracker sample between two is carried to the one before it by the gyro samples
+    """Time between keyframes, seconds; a tracker sample between two is carried to the nearer one by the gyro samples
     between them. Chosen on seeds 100-109 (120 s, both profiles) as the longest period whose online and batch RMS stay
     within 0.5 % of 20 ms keyframes (iSAM2 at each) on every axis: 20 / 40 / 60 / 80 ms, batch azimuth RMS (ideal)
     0.0789 / 0.0791 / 0.0794 / 0.0798 deg (+0.6 % at 60 ms), realistic 0.3340 / 0.3333 / 0.3334 / 0.3329 deg; batch 36 /
-    63 / 88 / 108 x real time (realistic). Online at 40 ms (iSAM2 at every keyframe): realistic 0.5851 / 0.5214 / 0.5024
-    deg against 0.5852 / 0.5214 / 0.5019."""
+    63 / 88 / 108 x real time (realistic; at 60 and 80 ms measured with every reading carried forward from the keyframe
+    before it, at 40 ms the same as the nearer one's). Online at 40 ms (iSAM2 at every keyframe): realistic 0.5851 /
+    0.5214 / 0.5024 deg against 0.5852 / 0.5214 / 0.5019."""
     gyro: GyroNoise = field(default_factory=GyroNoise)
     """Gyro noise and bias model."""
     tracker: AttitudeNoise = field(default_factory=AttitudeNoise)
