@@ -372,3 +372,22 @@ def test_a_reading_between_keyframes_is_carried_by_the_integrated_gyro_either_wa
         expected = rot3_from_quat_wxyz(attitude[i_k]).between(rot3_from_quat_wxyz(attitude[i_k + step]))
         carried = builder._gyro_between(k, float(t[i_k + step]))
         assert np.linalg.norm(gtsam.Rot3.Logmap(expected.between(carried))) < 1e-9
+
+
+def test_a_reading_midway_between_keyframes_keeps_its_keyframe_when_its_stamp_jitters() -> None:
+    """The 50 Hz tracker puts every second reading midway between 40 ms keyframes: stamps moved by +-30 us (a live
+    clock's correction) must not send it to the other keyframe (the live estimate parted from the replay's by 0.008 deg)."""
+    session = simulate_head(0, profile="ideal", duration_s=3.0)
+    gyro, tracker = session.stream("gyro"), session.stream("tracker")
+    jitter = np.random.default_rng(1).uniform(-30e-6, 30e-6, len(tracker.t))
+    placed = []
+    for stamps in (tracker.t, tracker.t + jitter):
+        builder = HeadGraphBuilder(head_model_for(session))
+        j = 0
+        for t, omega in zip(gyro.t, gyro.values, strict=True):
+            while j < len(stamps) and tracker.arrival_t[j] <= t:
+                builder.add_tracker(float(stamps[j]), tracker.values[j])
+                j += 1
+            builder.add_gyro(float(t), omega)
+        placed.append([k for k, factor in builder.take().factors if isinstance(factor, gtsam.PriorFactorRot3)])
+    assert len(placed[0]) > 100 and placed[1] == placed[0]

@@ -360,8 +360,10 @@ class HeadGraphBuilder:
         t_place = t - applied
         times = self.keyframe_t
         i = bisect.bisect_left(times, t_place)
-        # the nearer of the keyframes either side (the earlier one on a tie)
-        k = i if i == 0 or (i < len(times) and times[i] - t_place < t_place - times[i - 1]) else i - 1
+        # the nearer of the keyframes either side; the earlier one unless the later is nearer by more than the snap
+        # tolerance: a reading midway (the 50 Hz tracker against 40 ms keyframes) must not change sides when a live
+        # clock's correction moves its stamp by microseconds
+        k = i if i == 0 or (i < len(times) and times[i] - t_place < t_place - times[i - 1] - self.model.snap_tolerance_s) else i - 1
         if k < self.oldest_allowed_keyframe or (self._last_error_kf is not None and k < self._last_error_kf):
             self.too_late.append(t)  # its state was marginalised, or it came out of order: counted, not hidden
             return
