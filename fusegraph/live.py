@@ -330,6 +330,7 @@ class _GazeSolver:
         self.graph = GazeGraph(self.data, self.model)
         self.solver = OnlineSmoother(self.graph.builder, self.model.online)
         rate = next((s.meta.get("rate_hz") for s in declared.streams.values() if s.kind == "gyro" and "rate_hz" in s.meta), None)
+        self._block_size = block_size  # imported once, not per sample
         self.block = None if rate is None else block_size(self.data, self.model, float(rate))
         self.pushed = 0
 
@@ -342,9 +343,7 @@ class _GazeSolver:
         if self.block is None:  # no rate declared: the replay's block from the first samples' spacing
             if n < 11:
                 return []
-            from .systems.gaze import block_size
-
-            self.block = block_size(self.data, self.model)
+            self.block = self._block_size(self.data, self.model)
         if n - self.pushed < self.block:
             return []
         added = self.graph.push(self.pushed, self.pushed + self.block)

@@ -291,8 +291,6 @@ def test_nested_dissection_orders_every_key_once_and_solves_like_the_time_order(
 
 def _gyro_late(session, delay_s: float):  # type: ignore[no-untyped-def]
     """The session with its gyro lagging the motion by delay_s (each sample the rate delay_s earlier)."""
-    from dataclasses import replace
-
     gyro = session.stream("gyro")
     late = np.stack([np.interp(gyro.t - delay_s, gyro.t, gyro.values[:, axis]) for axis in range(3)], axis=1)
     return replace(session, streams={**session.streams, "gyro": replace(gyro, values=late)})
@@ -309,8 +307,6 @@ def test_gyro_delay_from_tracker_finds_a_known_delay_without_the_truth() -> None
 
 
 def test_a_declared_gyro_delay_puts_every_method_back_on_the_tracker_clock() -> None:
-    from dataclasses import replace
-
     session = simulate_head(6, profile="realistic", duration_s=20.0)
     assert session.truth is not None
     late = _gyro_late(session, 0.008)
@@ -333,8 +329,6 @@ def test_a_declared_gyro_delay_puts_every_method_back_on_the_tracker_clock() -> 
 
 
 def test_live_head_solver_honours_a_declared_gyro_delay_as_replay_does() -> None:
-    from dataclasses import replace
-
     from fusegraph.live import _HeadSolver
     from fusegraph.session import replay_in_arrival_order
 

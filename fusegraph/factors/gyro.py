@@ -131,11 +131,11 @@ class GyroInterval:
 
     def delta(self, bias: FloatArray | None = None) -> gtsam.Rot3:
         """Rotation from the interval start to the last sample, corrected to ``bias`` to first order."""
-        # a copy: deltaRij() is a view of the preintegration, which the next sample moves on (a stored partial
-        # rotation that aliased it became the whole interval's by the time a tracker sample used it)
-        delta = self.pim.deltaRij().compose(_IDENTITY_ROT)  # exact: products with 1 and 0
+        delta = self.pim.deltaRij()
         if bias is None or self.elapsed_s == 0.0:
-            return delta
+            # a copy: deltaRij() is a view of the preintegration, which the next sample moves on (a stored partial
+            # rotation that aliased it became the whole interval's by the time a tracker sample used it)
+            return delta.compose(_IDENTITY_ROT)  # exact: products with 1 and 0
         # d(deltaR)/d(bias) ~ -dt for the short intervals used here (a few samples)
         return delta.compose(gtsam.Rot3.Expmap(-(np.asarray(bias) - self.bias_hat) * self.elapsed_s))
 
