@@ -8,6 +8,8 @@ only slowly, this pins it at every keyframe when the body does not accelerate.
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -41,14 +43,21 @@ def declared_gravity(meta: Mapping[str, Any], noise: GravityNoise) -> GravityNoi
 
 
 def gravity_sigma_rad(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_m_s2: float = GRAVITY_M_S2) -> float:
-    departure = abs(float(np.linalg.norm(accel_body_m_s2)) - gravity_m_s2)
-    return float(np.deg2rad(noise.sigma_deg + noise.inflation_deg_per_m_s2 * departure))
+    a = np.asarray(accel_body_m_s2, dtype=float)
+    departure = abs(math.sqrt(a @ a) - gravity_m_s2)  # scalar math: one factor per keyframe, np.linalg.norm's checks cost more than the sum
+    return math.radians(noise.sigma_deg + noise.inflation_deg_per_m_s2 * departure)
+
+
+@functools.lru_cache(maxsize=16)
+def cauchy(k: float) -> gtsam.noiseModel.mEstimator.Cauchy:
+    """One shared Cauchy kernel per width (stateless in gtsam; every robust factor of a session uses the same)."""
+    return gtsam.noiseModel.mEstimator.Cauchy(k)
 
 
 def _gravity_model(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_m_s2: float) -> gtsam.noiseModel.Base:
     model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, gravity_sigma_rad(noise, accel_body_m_s2, gravity_m_s2))
     if noise.cauchy_k > 0:
-        model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(noise.cauchy_k), model)
+        model = gtsam.noiseModel.Robust.Create(cauchy(noise.cauchy_k), model)
     return model
 
 

@@ -14,6 +14,7 @@ sensors output the mean over the last period); the state at t_i includes sample 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import gtsam
@@ -75,11 +76,21 @@ def preintegration_params(noise: ImuNoise, rate_rad_s: float = 0.0, interval_s: 
     return params
 
 
+@functools.lru_cache(maxsize=64)
+def _isotropic3(sigma: float) -> gtsam.noiseModel.Isotropic:
+    """One shared noise model per sigma: every keyframe's motion prior has the same (a new one costs ~2 us of Python)."""
+    return gtsam.noiseModel.Isotropic.Sigma(3, sigma)
+
+
+_ZERO3 = np.zeros(3)
+_ZERO_BIAS = gtsam.imuBias.ConstantBias()
+
+
 def bias_walk_factor(bias_i: int, bias_j: int, dt_s: float, noise: ImuNoise) -> gtsam.BetweenFactorConstantBias:
     """Random walk of both biases between keyframes dt_s apart (accelerometer first, as gtsam orders them)."""
     a, g = noise.accel_bias_walk_m_s2_sqrt_s, noise.gyro_bias_walk_rad_s_sqrt_s
     sigmas = np.sqrt(max(dt_s, 1e-9)) * np.array([a, a, a, g, g, g])
-    return gtsam.BetweenFactorConstantBias(bias_i, bias_j, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+    return gtsam.BetweenFactorConstantBias(bias_i, bias_j, _ZERO_BIAS, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
 
 def bias_prior_factor(bias_key: int, noise: ImuNoise) -> gtsam.PriorFactorConstantBias:
@@ -89,12 +100,12 @@ def bias_prior_factor(bias_key: int, noise: ImuNoise) -> gtsam.PriorFactorConsta
 
 def position_prior_factor(pose_key: int, sigma_m: float) -> gtsam.GPSFactor:
     """Zero-mean position pseudo-measurement on a Pose3 (touches only its translation)."""
-    return gtsam.GPSFactor(pose_key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma_m))
+    return gtsam.GPSFactor(pose_key, _ZERO3, _isotropic3(float(sigma_m)))
 
 
 def velocity_prior_factor(velocity_key: int, sigma_m_s: float) -> gtsam.PriorFactorVector:
     """Zero-mean velocity pseudo-measurement (or a zero-velocity update with a tight sigma)."""
-    return gtsam.PriorFactorVector(velocity_key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma_m_s))
+    return gtsam.PriorFactorVector(velocity_key, _ZERO3, _isotropic3(float(sigma_m_s)))
 
 
 def still_samples(gyro_rad_s: np.ndarray, accel_m_s2: np.ndarray, priors: MotionPriors, gravity_m_s2: float = GRAVITY_M_S2) -> np.ndarray:

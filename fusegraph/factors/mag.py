@@ -16,6 +16,7 @@ departure from the reference, and a Cauchy kernel takes what slips through.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import gtsam
@@ -23,6 +24,7 @@ import numpy as np
 
 from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
+from .accel import cauchy
 
 #: Magnetic north in the ENU world frame.
 NORTH_ENU = np.array([0.0, 1.0, 0.0])
@@ -92,29 +94,28 @@ class FieldReference:
 
 def field_norm_dip(world_R_body: gtsam.Rot3, mag_body: FloatArray) -> tuple[float, float]:
     """Norm and dip of a body-frame field reading levelled with an attitude."""
-    m_world = world_R_body.rotate(np.asarray(mag_body, dtype=float))
-    return float(np.linalg.norm(m_world)), float(np.arctan2(-m_world[2], np.hypot(m_world[0], m_world[1])))
+    x, y, z = world_R_body.rotate(np.asarray(mag_body, dtype=float)).tolist()  # scalar math: numpy's per-call checks cost more
+    return math.sqrt(x * x + y * y + z * z), math.atan2(-z, math.hypot(x, y))
 
 
 def heading_sigma_rad(noise: MagNoise, reference: FieldReference, norm: float, dip_rad: float) -> float:
     """Heading sigma inflated by the field's departure from the reference (disturbance gating)."""
     departure = noise.norm_gain * abs(norm - reference.norm) / reference.norm + noise.dip_gain * abs(dip_rad - reference.dip_rad)
-    return float(np.deg2rad(noise.heading_sigma_deg) * (1.0 + departure))
+    return math.radians(noise.heading_sigma_deg) * (1.0 + departure)
 
 
 def heading_factor(pose_key: int, world_R_body: gtsam.Rot3, mag_body: FloatArray, sigma_rad: float, cauchy_k: float = 0.0) -> gtsam.AttitudeFactorPose3:
     """Heading-only factor: the field levelled with ``world_R_body`` points to magnetic north."""
-    m_world = world_R_body.rotate(np.asarray(mag_body, dtype=float))
-    horizontal = np.array([m_world[0], m_world[1], 0.0])
-    size = np.linalg.norm(horizontal)
+    x, y, _ = world_R_body.rotate(np.asarray(mag_body, dtype=float)).tolist()
+    size = math.hypot(x, y)
     if size < 1e-9:
         raise ValueError("the field is vertical: no heading information")
-    body_direction = world_R_body.unrotate(horizontal / size)
+    body_direction = world_R_body.unrotate(np.array([x / size, y / size, 0.0]))
     precisions = np.full(2, 1.0 / sigma_rad**2)
     precisions[_VERTICAL_COMPONENT] = 0.0
     model: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Precisions(precisions)
     if cauchy_k > 0:
-        model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(cauchy_k), model)
+        model = gtsam.noiseModel.Robust.Create(cauchy(cauchy_k), model)
     return gtsam.AttitudeFactorPose3(pose_key, _NORTH, model, gtsam.Unit3(body_direction))
 
 CATALOGUE = (

@@ -28,6 +28,7 @@ from ..factors.attitude import AttitudeTrack
 from ..factors.mag import MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
 from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, mag_noise_tuned
+from ..graphs.increment import GraphIncrement
 from ..progress import progress
 from ..session import Session, SessionError, SessionWarning
 from ..solvers.online import OnlineConfig, OnlineSmoother
@@ -207,12 +208,13 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     data = imu9(session)
     start = time.perf_counter()
     model = model_for(session, model, "batch")
-    builder, keyframes, kq, kb, residual = _solve_batch(session, data, model, max_iterations, None)
+    builder, increment = _build_batch(session, data, model)
+    keyframes, kq, kb, residual = _solve_batch(builder, increment, max_iterations, None)
     check = "ok"
     if np.isfinite(residual) and residual > DIVERGED_HEADING_DEG:
         online = run_online(session, model)
         seed = online.quat_wxyz[np.array(builder.keyframe_index)]
-        builder, keyframes, kq, kb, again = _solve_batch(session, data, model, max_iterations, seed)
+        keyframes, kq, kb, again = _solve_batch(builder, increment, max_iterations, seed)
         check = "repaired" if again <= DIVERGED_HEADING_DEG else "suspect"
         if check == "suspect":
             trial = session.meta.get("session", {}).get("trial")  # a dataset folder holds many trials: name the one
@@ -226,17 +228,22 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     return Estimate("batch", data.t.copy(), quats, None, runtime, extras)
 
 
-def _solve_batch(
-    session: Session, data: Imu9, model: Attitude9Model | None, max_iterations: int, seed_quat_wxyz: np.ndarray | None,
-) -> tuple[Attitude9Builder, int, np.ndarray, np.ndarray, float]:
-    """One batch solve: (builder, keyframes, keyframe quats, keyframe gyro biases, median heading residual deg).
-    ``seed_quat_wxyz`` (one per keyframe) replaces the initial attitudes (the repair from the online estimate)."""
+def _build_batch(session: Session, data: Imu9, model: Attitude9Model | None) -> tuple[Attitude9Builder, GraphIncrement]:
+    """The whole session's graph, heading factors deferred (``_solve_batch`` levels them)."""
     builder = Attitude9Builder(model_for(session, model), deferred_mag=True)
     builder.add_samples(data.t, data.gyro, data.accel, data.mag)
     tracker = attitude_tracker(session)
     if tracker is not None:
         builder.feed_tracker(tracker)
-    increment = builder.take()
+    return builder, builder.take()
+
+
+def _solve_batch(
+    builder: Attitude9Builder, increment: GraphIncrement, max_iterations: int, seed_quat_wxyz: np.ndarray | None,
+) -> tuple[int, np.ndarray, np.ndarray, float]:
+    """One batch solve of a built graph (left as it is, so a repair can solve it again): (keyframes, keyframe quats,
+    keyframe gyro biases, median heading residual deg). ``seed_quat_wxyz`` (one per keyframe) replaces the initial
+    attitudes (the repair from the online estimate)."""
     keyframes = len(builder.keyframe_t)
     order = gtsam.Ordering()
     for k in range(keyframes):
@@ -245,7 +252,7 @@ def _solve_batch(
     if builder.tracker_factors:
         order.push_back(TRACKER_WORLD)  # one variable tied to every keyframe: eliminated last
     base = increment.graph()
-    values = builder.complementary_initial(builder.tracker_seeded(increment.values))
+    values = builder.complementary_initial(builder.tracker_seeded(gtsam.Values(increment.values)))
     if seed_quat_wxyz is not None:
         for k, quat in enumerate(seed_quat_wxyz):
             if np.all(np.isfinite(quat)):
@@ -262,7 +269,7 @@ def _solve_batch(
     kq = np.array([quat_wxyz_from_rot3(r) for r in attitude])
     kb = np.array([values.atConstantBias(B(k)).gyroscope() for k in range(keyframes)])
     residuals = heading_residuals_deg(builder, attitude)
-    return builder, keyframes, kq, kb, float(np.median(residuals)) if len(residuals) else float("nan")
+    return keyframes, kq, kb, float(np.median(residuals)) if len(residuals) else float("nan")
 
 
 def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:
