@@ -203,12 +203,18 @@ class Attitude9Builder:
         self._bias = isam.calculateEstimateConstantBias(self.B(k))
         self._solved = True
         gyro_bias = np.asarray(self._bias.gyroscope())
+        rotation = pose.rotation()
+        quat = quat_wxyz_from_rot3(rotation)
+        if len(self.posterior_quat) == k:  # the usual case: one update per new keyframe
+            self.posterior_quat.append(quat)
+            self.posterior_gyro_bias.append(gyro_bias)
+            return rotation, gyro_bias
         while len(self.posterior_quat) <= k:
             self.posterior_quat.append(np.full(4, np.nan))
             self.posterior_gyro_bias.append(np.zeros(3))
-        self.posterior_quat[k] = quat_wxyz_from_rot3(pose.rotation())
+        self.posterior_quat[k] = quat
         self.posterior_gyro_bias[k] = gyro_bias
-        return pose.rotation(), gyro_bias
+        return rotation, gyro_bias
 
     def set_latest(self, world_R_body: gtsam.Rot3, bias: FloatArray) -> None:
         """Part of the solver protocol; ``read_latest`` already took the full state."""
@@ -273,10 +279,9 @@ class Attitude9Builder:
         period = self.model.keyframe_period_s
         start = 0
         while start < len(t):
-            due = t[start:] - self.keyframe_t[-1] >= period - 0.5 * dt[start:]
-            if not due.any():
+            j = _first_due(t, dt, start, self.keyframe_t[-1], period)
+            if j < 0:
                 break
-            j = start + int(np.argmax(due))
             self._interval.append((accel[start : j + 1], gyro[start : j + 1], dt[start : j + 1]))
             self._last_t, self._count, self._still_run = float(t[j]), count0 + j, int(still_run[j])
             self._close_keyframe(accel[j], None if mag is None else mag[j])
@@ -471,6 +476,21 @@ class Attitude9Builder:
             norm, dip = field_norm_dip(attitude[k], mag)
             out.append(self._heading(k, attitude[k], mag, norm, dip, robust))
         return out
+
+
+def _first_due(t: FloatArray, dt: FloatArray, start: int, keyframe_s: float, period_s: float) -> int:
+    """The first sample from ``start`` on that closes the keyframe after ``keyframe_s`` (the sample nearest ``period_s``
+    later: its time is past that less half its period), or -1. Looks ahead a chunk at a time: a whole session pushed at once (the batch) must
+    not compare every remaining sample per keyframe."""
+    for lo in range(start, len(t), _DUE_CHUNK):
+        hi = min(len(t), lo + _DUE_CHUNK)
+        due = t[lo:hi] - keyframe_s >= period_s - 0.5 * dt[lo:hi]
+        if due.any():
+            return lo + int(np.argmax(due))
+    return -1
+
+
+_DUE_CHUNK = 1024
 
 
 def fill_samples(
