@@ -16,7 +16,7 @@ from fusegraph.scenarios import simulate_head
 from fusegraph.session import Session
 from fusegraph.solvers.batch import solve_batch
 from fusegraph.solvers.online import OnlineConfig, OnlineSmoother
-from fusegraph.systems.head import METHODS, AttitudeNow, OnlineHeadTracker, RejectedSampleError, feed, run_batch, run_isam2, run_method
+from fusegraph.systems.head import METHODS, AttitudeNow, OnlineHeadTracker, RejectedSampleError, feed, feed_recorded, run_batch, run_isam2, run_method
 
 
 def noise_free_session(profile: str = "ideal", seed: int = 3):
@@ -68,6 +68,39 @@ def test_gauss_newton_batch_equals_levenberg_marquardt_with_its_covariances() ->
         # ~1/200 of them, so their relative differences are larger)
         np.testing.assert_allclose(cov, lm.covariances[key], rtol=0, atol=1e-4 * float(np.max(np.diag(cov))))
     assert capped.final_error == lm_capped.final_error > 2 * gn.final_error  # LM's one iteration, not GN's
+
+
+@pytest.mark.parametrize("overrides", [
+    {"profile": "realistic"},
+    {"profile": "realistic", "tracker_latency_assumed_s": 0.08, "sensors": ("gyro", "tracker", "accel"), "tracker_gap_s": (3.0, 4.5)},
+    {"profile": "ideal", "gyro_rate_hz": 285.7},
+])
+def test_recorded_feed_builds_the_arrival_order_graph(overrides: dict[str, object]) -> None:
+    """``feed_recorded`` (tracker and accelerometer first, the gyro as one block integrated in numpy) makes the graph that
+    ``feed`` makes in arrival order, sample by sample: the same keyframes, variables and initial values, and the same cost
+    at values away from the initial ones (factors compared through what they compute: their order differs)."""
+    session = simulate_head(5, duration_s=8.0, **overrides)  # type: ignore[arg-type]
+    model = head_model_for(session)
+    bias = np.array([0.02, -0.01, 0.03])  # integrated with a bias, as the batch does: the bias-correction paths run
+    built = []
+    for push in (feed, feed_recorded):
+        builder = HeadGraphBuilder(model, initial_bias=bias)
+        push(builder, session)
+        built.append((builder, builder.take()))
+    (by_sample, sampled), (by_block, blocked) = built
+    assert by_block.keyframe_t == by_sample.keyframe_t and by_block.tracker_used == by_sample.tracker_used > 0
+    assert by_block.too_late == by_sample.too_late and by_block.accel_used == by_sample.accel_used
+    assert sampled.graph().size() == blocked.graph().size()
+    assert sorted(sampled.values.keys()) == sorted(blocked.values.keys())
+    assert sampled.values.equals(blocked.values, 1e-12)
+    rng = np.random.default_rng(0)
+    moved = gtsam.Values(sampled.values)
+    delta = gtsam.VectorValues()
+    for key in moved.keys():
+        delta.insert(key, rng.normal(scale=0.01, size=len(moved.zeroVectors().at(key))))
+    moved = moved.retract(delta)
+    # numpy's and gtsam's products of the same 3x3 matrices round differently: ~1e-15 per interval
+    assert sampled.graph().error(moved) == pytest.approx(blocked.graph().error(moved), rel=1e-9)
 
 
 def test_noise_free_online_recovers_truth_after_bias_converges() -> None:

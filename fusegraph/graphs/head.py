@@ -14,6 +14,7 @@ time (nearest keyframe, corrected by the gyro rate for any offset), which the gy
 from __future__ import annotations
 
 import bisect
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 
@@ -32,11 +33,13 @@ from ..factors.gyro import (
     GyroCalibrationPrior,
     GyroInterval,
     GyroNoise,
+    IntegratedInterval,
     bias_prior_factor,
     bias_walk_factor,
     calibrated_bias_prior_factor,
     calibrated_bias_walk_factor,
     calibration_prior_factor,
+    integrate_intervals,
     preintegration_params,
 )
 from ..factors.latency import (
@@ -128,8 +131,9 @@ class HeadGraphBuilder:
         self._close_tolerance_s = 0.5 / self.model.gyro.sample_rate_hz
         self._pending = GraphIncrement()
         self._gyro_buffer: list[tuple[float, FloatArray]] = []
-        self._tracker_waiting: list[tuple[float, FloatArray]] = []
-        self._accel_waiting: list[tuple[float, FloatArray]] = []
+        # deques: a whole session's samples may wait here (``add_gyro_block`` attaches them at its end)
+        self._tracker_waiting: deque[tuple[float, FloatArray]] = deque()
+        self._accel_waiting: deque[tuple[float, FloatArray]] = deque()
         self._accel_keyframe = -1
         self.accel_used = 0
         """Accelerometer samples turned into gravity factors (one per keyframe, the one nearest it)."""
@@ -184,7 +188,8 @@ class HeadGraphBuilder:
         assert self._interval is not None
         self._interval.add(t, omega)
         if self._interval.elapsed_s >= self.model.keyframe_period_s - self._close_tolerance_s:
-            self._close_keyframe()
+            self._close_keyframe(self._interval)
+            self._interval = GyroInterval(self._params, self._latest_bias, self._interval.t_last, self._interval.omega_last)
         else:
             self._partials.setdefault(self.latest_keyframe, []).append((t, self._interval.delta(), omega))
         self._flush_waiting_tracker()
@@ -213,7 +218,7 @@ class HeadGraphBuilder:
     def _flush_waiting_accel(self) -> None:
         window = 0.25 * self.model.keyframe_period_s
         while self._accel_waiting and self._accel_waiting[0][0] <= self.keyframe_t[-1] + window:
-            t, accel = self._accel_waiting.pop(0)
+            t, accel = self._accel_waiting.popleft()
             i = bisect.bisect_left(self.keyframe_t, t - window)
             if i >= len(self.keyframe_t) or abs(self.keyframe_t[i] - t) > window or i <= self._accel_keyframe or i < self.oldest_allowed_keyframe:
                 continue  # between keyframes (by design, see add_accel), or its keyframe is gone
@@ -275,7 +280,7 @@ class HeadGraphBuilder:
             return
         # a fix stamped before the first gyro sample cannot be placed: counted, not hidden
         while self._tracker_waiting and self._tracker_waiting[0][0] < self._gyro_buffer[0][0] - tol:
-            self.too_late.append(self._tracker_waiting.pop(0)[0])
+            self.too_late.append(self._tracker_waiting.popleft()[0])
         if not self._tracker_waiting:
             return
         t_fix = self._tracker_waiting[0][0]
@@ -302,16 +307,75 @@ class HeadGraphBuilder:
         self._interval = GyroInterval(self._params, self._latest_bias, t0, omega0)
         # tracker samples older than the anchor can never be used: say so, do not drop silently
         while self._tracker_waiting and self._tracker_waiting[0][0] < t0 - self.model.snap_tolerance_s:
-            self.too_late.append(self._tracker_waiting.pop(0)[0])
+            self.too_late.append(self._tracker_waiting.popleft()[0])
         self._flush_waiting_tracker()
         for t, omega in later:
             self.add_gyro(t, omega)
 
-    def _close_keyframe(self) -> None:
-        """End interval k: new keyframe k+1, the interval's effective bias b(k) and its links."""
-        assert self._interval is not None and self._latest_rot is not None
+    def add_gyro_block(self, t: FloatArray, omega: FloatArray) -> None:
+        """Many gyro samples (times increasing), with the same factors and values as ``add_gyro`` for each one.
+
+        The whole keyframe intervals among them are integrated together (``factors.gyro.integrate_intervals``); samples
+        before the graph starts, those of the interval open at the call and the last, unfinished interval go through
+        ``add_gyro``. Tracker and accelerometer samples waiting for a keyframe are attached at the end: no solver
+        update can come in between, so they are placed as they would have been sample by sample (the batch pushes a
+        session's tracker samples first, then its gyro as one block)."""
+        t = np.asarray(t, dtype=float)
+        omega = np.asarray(omega, dtype=float)
+        i = 0
+        while i < len(t) and (self._interval is None or self._interval.t_last > self._interval.t_start):
+            self.add_gyro(float(t[i]), omega[i])  # until the graph has started and the open interval has closed
+            i += 1
+        if i < len(t):
+            assert self._interval is not None
+            opening = self._interval
+            ends = self._interval_ends(t[i:].tolist(), opening.t_start)
+            if ends:
+                last = i + ends[-1]
+                self._close_intervals(opening.t_start, opening.omega_last, t[i : last + 1], omega[i : last + 1], ends)
+                i = last + 1
+            for j in range(i, len(t)):
+                self.add_gyro(float(t[j]), omega[j])
+        self._flush_waiting_tracker()
+        if self._accel_waiting and self.started:
+            self._flush_waiting_accel()
+
+    def _interval_ends(self, times: list[float], t_keyframe: float) -> list[int]:
+        """Indices of the samples that close keyframes, from a keyframe at ``t_keyframe`` on (``add_gyro``'s rule)."""
+        ends = []
+        threshold = self.model.keyframe_period_s - self._close_tolerance_s
+        for j, t_j in enumerate(times):
+            if t_j - t_keyframe >= threshold:
+                ends.append(j)
+                t_keyframe = t_j
+        return ends
+
+    def _close_intervals(self, t_before: float, omega_before: FloatArray, t: FloatArray, omega: FloatArray, ends: list[int]) -> None:
+        """Close the keyframe intervals that end at samples ``ends`` of ``t`` (the first opened at ``t_before``)."""
+        bias_hat = self._latest_bias
+        integrals = integrate_intervals(self._params.getGyroscopeCovariance(), bias_hat, t_before, omega_before, t, omega, np.asarray(ends))
+        after = integrals.rotation_after
+        start = 0
+        for m, end in enumerate(ends):
+            k = self.latest_keyframe
+            partials = self._partials.setdefault(k, [])
+            for j in range(start, end):
+                partials.append((float(t[j]), gtsam.Rot3(after[j]), omega[j]))
+            t_start = t_before if m == 0 else float(t[ends[m - 1]])
+            t_last = float(t[end])
+            elapsed = t_last - t_start
+            rotation = gtsam.Rot3(after[end])
+            pim = gtsam.PreintegratedAhrsMeasurements(self._params, bias_hat, float(integrals.delta_t_s[m]), rotation,
+                                                      integrals.bias_jacobian[m], integrals.covariance[m])
+            mean_rate = integrals.angle_sum[m] / elapsed if elapsed > 0 else omega[end]
+            self._close_keyframe(IntegratedInterval(pim, bias_hat, t_start, t_last, omega[end], mean_rate, rotation))
+            start = end + 1
+        self._interval = GyroInterval(self._params, self._latest_bias, float(t[ends[-1]]), omega[ends[-1]])
+
+    def _close_keyframe(self, interval: GyroInterval | IntegratedInterval) -> None:
+        """End interval k: new keyframe k+1, the interval's effective bias b(k) and its links (the caller opens the next)."""
+        assert self._latest_rot is not None
         k = self.latest_keyframe
-        interval = self._interval
         gyro, calibration = self.model.gyro, self.model.gyro_calibration
         self._pending.add(k, interval.factor(X(k), X(k + 1), B(k)))
         self._pending.insert(B(k), self._latest_bias)
@@ -334,7 +398,6 @@ class HeadGraphBuilder:
         self._pending.insert(X(k + 1), self._latest_rot)
         self.keyframe_t.append(interval.t_last)
         self._keyframe_omega[k + 1] = interval.omega_last
-        self._interval = GyroInterval(self._params, self._latest_bias, interval.t_last, interval.omega_last)
         while self._partials and next(iter(self._partials)) < self.oldest_allowed_keyframe:
             del self._partials[next(iter(self._partials))]  # keys are in keyframe order
         # per-keyframe memory older than the online window goes (keys are in keyframe order); batch keeps all
@@ -350,7 +413,7 @@ class HeadGraphBuilder:
         """Attach every waiting tracker sample whose keyframe exists."""
         tol = self.model.snap_tolerance_s
         while self._tracker_waiting and self._tracker_waiting[0][0] - self.latency_applied_s <= self.keyframe_t[-1] + tol:
-            t, quat = self._tracker_waiting.pop(0)
+            t, quat = self._tracker_waiting.popleft()
             self._attach_tracker(t, quat)
 
     def _attach_tracker(self, t: float, quat_wxyz: FloatArray) -> None:

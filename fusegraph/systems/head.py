@@ -65,6 +65,21 @@ def feed(builder: HeadGraphBuilder, session: Session, on_gyro: Callable[[float],
             builder.add_accel(event.t, event.values)
 
 
+def feed_recorded(builder: HeadGraphBuilder, session: Session) -> None:
+    """Push a whole recorded session into the builder: every other sample in arrival order (tracker samples wait for
+    their keyframes), then the gyro as one block (``HeadGraphBuilder.add_gyro_block``). The graph is ``feed``'s: no solver
+    runs in between to change where a sample is placed; only the factors' order differs. ~1 s less Python per 10
+    minutes of 100 Hz gyro than a call per sample."""
+    others = replace(session, streams={name: stream for name, stream in session.streams.items() if stream.kind != "gyro"})
+    for event in replay_in_arrival_order(others):
+        if event.stream.kind == "attitude":
+            builder.add_tracker(event.t, event.values)
+        elif event.stream.kind == "accel":
+            builder.add_accel(event.t, event.values)
+    gyro = session.stream("gyro")
+    builder.add_gyro_block(gyro.t, gyro.values)
+
+
 def _with_latency(session: Session, model: HeadModel) -> Session:
     """Apply the model's assumed tracker latency (if set) to the replay."""
     if model.tracker_latency_s is None:
@@ -309,7 +324,7 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
     for _ in range(2 if model.latency is not None else 1):
         builder = HeadGraphBuilder(model, initial_bias=bias)
         builder.latency_applied_s = applied
-        feed(builder, _with_latency(session, model))
+        feed_recorded(builder, _with_latency(session, model))
         increment = builder.take()
         n_kf = len(builder.keyframe_t)
         kf_t = np.asarray(builder.keyframe_t)
