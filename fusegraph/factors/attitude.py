@@ -99,10 +99,12 @@ def error_state_factor(state_key: int, reading_key: int, error_key: int) -> gtsa
     return gtsam.AHRSFactor(state_key, reading_key, error_key, _IDENTITY_PIM)
 
 
-def gauss_markov_factor(prev_key: int, next_key: int, dt_s: float, sigma: float, tau_s: float) -> gtsam.LinearContainerFactor:
-    """Exact AR(1) transition e_next = phi * e_prev + w of a 3-vector first-order Markov process."""
+def gauss_markov_factor(prev_key: int, next_key: int, dt_s: float, sigma: float, tau_s: float,
+                        at_zero: gtsam.Values | None = None) -> gtsam.LinearContainerFactor:
+    """Exact AR(1) transition e_next = phi * e_prev + w of a 3-vector first-order Markov process (``at_zero``: see
+    ``linear_factor``)."""
     phi, drive_sigma = ar1_coefficients(dt_s, sigma, tau_s)
-    return linear_factor([(prev_key, -phi * _EYE3), (next_key, _EYE3)], drive_sigma)
+    return linear_factor([(prev_key, -phi * _EYE3), (next_key, _EYE3)], drive_sigma, at_zero=at_zero)
 
 
 def markov_prior_factor(key: int, sigma: float) -> gtsam.PriorFactorVector:

@@ -82,11 +82,14 @@ def calibration_prior_factor(cal_key: int, prior: GyroCalibrationPrior) -> gtsam
 
 
 def calibrated_bias_walk_factor(
-    beta_i: int, beta_j: int, cal_key: int, rate_i: FloatArray, rate_j: FloatArray, dt_s: float, noise: GyroNoise
+    beta_i: int, beta_j: int, cal_key: int, rate_i: FloatArray, rate_j: FloatArray, dt_s: float, noise: GyroNoise,
+    at_zero: gtsam.Values | None = None,
 ) -> gtsam.LinearContainerFactor:
-    """(beta_j - W_j c) - (beta_i - W_i c) ~ N(0, q dt): the bias walk seen through effective biases."""
+    """(beta_j - W_j c) - (beta_i - W_i c) ~ N(0, q dt): the bias walk seen through effective biases (``at_zero``: see
+    ``linear_factor``)."""
     sigma = noise.bias_rw_sigma * math.sqrt(max(dt_s, 1e-9))
-    return linear_factor([(beta_i, _MINUS_EYE3), (beta_j, _EYE3), (cal_key, rate_matrix(np.subtract(rate_i, rate_j)))], sigma)  # W is linear in omega
+    blocks = [(beta_i, _MINUS_EYE3), (beta_j, _EYE3), (cal_key, rate_matrix(np.subtract(rate_i, rate_j)))]  # W is linear in omega
+    return linear_factor(blocks, sigma, at_zero=at_zero)
 
 
 def calibrated_bias_prior_factor(beta_key: int, cal_key: int, rate: FloatArray, noise: GyroNoise) -> gtsam.LinearContainerFactor:

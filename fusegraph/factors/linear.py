@@ -33,13 +33,20 @@ def _zeros(n: int) -> FloatArray:
     return _ZEROS[n] if n in _ZEROS else np.zeros(n)
 
 
-def linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float, rhs: FloatArray | None = None) -> gtsam.LinearContainerFactor:
-    """sum_i A_i x_i - rhs ~ N(0, sigma^2 I) over vector variables, exact for any value (linearised at 0)."""
+def linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float, rhs: FloatArray | None = None,
+                  at_zero: gtsam.Values | None = None) -> gtsam.LinearContainerFactor:
+    """sum_i A_i x_i - rhs ~ N(0, sigma^2 I) over vector variables, exact for any value (linearised at 0).
+
+    ``at_zero``: values holding a zero vector for every key of ``blocks`` (others too): a builder that makes such factors
+    at a steady rate keeps one set instead of filling a new one per factor (~3 us each); the factor copies its own keys."""
     args: list[object] = []
-    at_zero = gtsam.Values()
+    fill = at_zero is None
+    if at_zero is None:
+        at_zero = gtsam.Values()
     for key, matrix in blocks:
         args += [key, matrix]
-        at_zero.insert(key, _zeros(matrix.shape[1]))
+        if fill:
+            at_zero.insert(key, _zeros(matrix.shape[1]))
     rows = blocks[0][1].shape[0]
     b = _zeros(rows) if rhs is None else np.asarray(rhs, dtype=float)
     jacobian = gtsam.JacobianFactor(*args, b, isotropic(rows, float(sigma)))  # type: ignore[call-overload]

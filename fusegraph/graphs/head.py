@@ -14,6 +14,7 @@ time (nearest keyframe, corrected by the gyro rate for any offset), which the gy
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
@@ -54,6 +55,9 @@ from ..geometry import FloatArray, rot3_from_quat_wxyz
 from ..session import Session
 from .increment import GraphIncrement
 from .ordering import nested_dissection
+
+_ZERO3 = np.zeros(3)
+_ZERO3.setflags(write=False)  # shared by every value that starts at zero (gtsam copies it)
 
 
 def X(k: int) -> int:
@@ -142,6 +146,10 @@ class HeadGraphBuilder:
         self._keyframe_omega: dict[int, FloatArray] = {}  # pruned with the marginalised keyframes
         # per keyframe, (time, rotation from the keyframe, rate) at each gyro sample inside its interval
         self._partials: dict[int, list[tuple[float, gtsam.Rot3, FloatArray]]] = {}
+        # a zero for each bias and tracker-error key, shared by the linear factors on them (``linear_factor``'s at_zero);
+        # (keyframe, key) in insertion order, so that online the marginalised ones can go
+        self._zero_at = gtsam.Values()
+        self._zero_keys: deque[tuple[int, int]] = deque()
         self._interval: GyroInterval | None = None
         self._last_error_kf: int | None = None
         self._latest_rot: gtsam.Rot3 | None = None
@@ -303,6 +311,7 @@ class HeadGraphBuilder:
             self._latency_t0 = t0
         if self.model.gyro_calibration is not None:
             self._pending.insert(C, np.zeros(9))
+            self._zero_at.insert(C, np.zeros(9))  # session-wide: never pruned
             self._pending.add(0, calibration_prior_factor(C, self.model.gyro_calibration))
         self._interval = GyroInterval(self._params, self._latest_bias, t0, omega0)
         # tracker samples older than the anchor can never be used: say so, do not drop silently
@@ -386,7 +395,9 @@ class HeadGraphBuilder:
             link = None if k == 0 else bias_walk_factor(B(k - 1), B(k), interval.elapsed_s, gyro)
         else:
             first = calibrated_bias_prior_factor(B(0), C, interval.mean_rate, gyro) if k == 0 else None
-            link = None if k == 0 else calibrated_bias_walk_factor(B(k - 1), B(k), C, self._previous_rate, interval.mean_rate, interval.elapsed_s, gyro)
+            self._zero(k, B(k))
+            link = None if k == 0 else calibrated_bias_walk_factor(B(k - 1), B(k), C, self._previous_rate, interval.mean_rate, interval.elapsed_s,
+                                                                   gyro, self._zero_at)
         if first is not None:
             self._pending.add(0, first)
         if link is not None:
@@ -404,6 +415,13 @@ class HeadGraphBuilder:
         for table in (self._applied, self._keyframe_omega):
             while table and next(iter(table)) < self.oldest_allowed_keyframe - 50:
                 del table[next(iter(table))]
+        while self._zero_keys and self._zero_keys[0][0] < self.oldest_allowed_keyframe - 50:
+            self._zero_at.erase(self._zero_keys.popleft()[1])
+
+    def _zero(self, k: int, key: int) -> None:
+        """Keyframe k's 3-vector ``key`` enters the shared zeros of the linear factors."""
+        self._zero_at.insert(key, _ZERO3)
+        self._zero_keys.append((k, key))
 
     def state_keys(self, k: int) -> tuple[int, int | None]:
         """Keys of keyframe k's attitude and of the newest effective gyro bias known at k."""
@@ -440,16 +458,16 @@ class HeadGraphBuilder:
             return
         # reading = X(k) * Exp(e): e is the tracker's slowly varying error or, with the latency as a
         # variable, the apparent error g = e - omega * (delta - applied) (see factors.latency)
-        white = float(np.deg2rad(noise.white_sigma_deg))
+        white = math.radians(noise.white_sigma_deg)
         self._pending.add(k, attitude_prior_factor(T(k), measured, white))
         if k == self._last_error_kf:
             return  # a second sample on this keyframe: its error state exists already
         self._pending.add(k, error_state_factor(X(k), T(k), E(k)))
         self._pending.insert(T(k), measured)
-        self._pending.insert(E(k), np.zeros(3))
-        rate = self._keyframe_omega[k] - self._latest_bias
+        self._pending.insert(E(k), _ZERO3)
+        self._zero(k, E(k))
         restart = self._last_error_kf is None or self._last_error_kf < self.oldest_allowed_keyframe
-        markov = float(np.deg2rad(noise.markov_sigma_deg))
+        markov = math.radians(noise.markov_sigma_deg)
         self._applied[k] = applied
         if self.model.latency is None:
             if restart:
@@ -460,9 +478,10 @@ class HeadGraphBuilder:
                 prev = self._last_error_kf
                 assert prev is not None
                 dt = self.keyframe_t[k] - self.keyframe_t[prev]
-                self._pending.add(prev, gauss_markov_factor(E(prev), E(k), dt, markov, noise.markov_tau_s))
+                self._pending.add(prev, gauss_markov_factor(E(prev), E(k), dt, markov, noise.markov_tau_s, self._zero_at))
         else:
             offset_key = self._offset_key(k)
+            rate = self._keyframe_omega[k] - self._latest_bias
             if not noise.is_markov:
                 self._pending.add(k, apparent_white_factor(E(k), offset_key, rate, applied))
             elif restart:
@@ -517,24 +536,30 @@ class HeadGraphBuilder:
         rest = gtsam.Rot3.Expmap((rate - self._latest_bias) * (t - t_from))
         return rest if delta is None else delta.compose(rest)
 
+#: Elimination rank of each per-keyframe variable within its keyframe (by symbol character); other keys are session-wide.
 _RANK = {"t": 0, "e": 1, "b": 2, "x": 3}
+
+_RANK_OF_CHR = np.full(256, -1)
+for _tag, _rank in _RANK.items():
+    _RANK_OF_CHR[ord(_tag)] = _rank
+_INDEX_BITS = 56  # a gtsam Symbol key: its character in the top 8 bits, its index below
 
 
 def time_ordering(keys: Iterable[int]) -> list[int]:
     """Elimination order for a whole head graph: nested dissection over keyframes (``graphs.ordering``),
     session-wide keys last. COLAMD treats the calibration key (in every bias factor) as a dense column and
-    took super-linear time here (60 s of data: 0.08 s, 240 s: 1.1 s)."""
-    by_keyframe: dict[int, list[tuple[int, int]]] = {}
-    shared: list[tuple[int, int, int]] = []
-    for key in keys:
-        symbol = gtsam.Symbol(key)
-        tag = chr(symbol.chr())
-        if tag in _RANK:
-            by_keyframe.setdefault(symbol.index(), []).append((_RANK[tag], key))
-        else:
-            shared.append((symbol.index(), _RANK.get(tag, 9), key))
-    steps = [[key for _, key in sorted(by_keyframe[i])] for i in sorted(by_keyframe)]
-    return nested_dissection(steps, [key for *_, key in sorted(shared)])
+    took super-linear time here (60 s of data: 0.08 s, 240 s: 1.1 s). Keys are split into character and index
+    with integer arithmetic on all of them at once (a ``gtsam.Symbol`` per key cost ~0.1 s on a 10-minute graph)."""
+    key_array = np.fromiter(keys, dtype=np.uint64)
+    index = (key_array & np.uint64((1 << _INDEX_BITS) - 1)).astype(np.int64)
+    rank = _RANK_OF_CHR[(key_array >> np.uint64(_INDEX_BITS)).astype(np.int64)]
+    per_keyframe = rank >= 0
+    order = np.lexsort((rank[per_keyframe], index[per_keyframe]))  # by keyframe, then rank within it
+    step_keys, step_index = key_array[per_keyframe][order], index[per_keyframe][order]
+    cuts = np.flatnonzero(np.diff(step_index)) + 1
+    steps = [part.tolist() for part in np.split(step_keys, cuts)] if len(step_keys) else []
+    shared = key_array[~per_keyframe][np.lexsort((key_array[~per_keyframe], index[~per_keyframe]))]
+    return nested_dissection(steps, shared.tolist())
 
 
 def head_model_for(session: Session, model: HeadModel | None = None) -> HeadModel:

@@ -329,7 +329,7 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
         n_kf = len(builder.keyframe_t)
         kf_t = np.asarray(builder.keyframe_t)
         for k, quat in enumerate(tracker_seeded_initial(session, kf_t, applied, dead_reckoned)):
-            increment.values.update(X(k), rot3_from_quat_wxyz(quat))
+            increment.values.update(j=X(k), rot3=rot3_from_quat_wxyz(quat))  # by keyword: no search of the ~46 overloads
         latency_key = builder.latency_key()
         marginal_keys = [X(k) for k in range(n_kf)] + ([latency_key] if latency_key is not None else [])
         result = solve_batch(increment.graph(), increment.values, marginal_keys, config, ordering=time_ordering(increment.values.keys()))
