@@ -13,6 +13,7 @@ b_{k+1} - b_k ~ N(0, q dt) is then linear in (beta_k, beta_{k+1}, c): an exact
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -201,7 +202,7 @@ class IntervalIntegrals:
 
 
 def integrate_intervals(gyro_covariance: FloatArray, bias_hat: FloatArray, t_before: float, omega_before: FloatArray,
-                        t: FloatArray, omega: FloatArray, ends: FloatArray) -> IntervalIntegrals:
+                        t: FloatArray, omega: FloatArray, ends: Sequence[int]) -> IntervalIntegrals:
     """What ``GyroInterval.add`` does sample by sample, for consecutive intervals at once.
 
     Samples ``t``/``omega`` follow the sample (``t_before``, ``omega_before``) that opens the first interval; interval m
@@ -214,12 +215,12 @@ def integrate_intervals(gyro_covariance: FloatArray, bias_hat: FloatArray, t_bef
     """
     t = np.asarray(t, dtype=float)
     omega = np.asarray(omega, dtype=float)
-    ends = np.asarray(ends, dtype=int)
-    starts = np.r_[0, ends[:-1] + 1]
-    lengths = ends - starts + 1
+    last = np.asarray(ends, dtype=int)
+    starts = np.r_[0, last[:-1] + 1]
+    lengths = last - starts + 1
     dt = np.diff(t, prepend=t_before)
     midpoint = 0.5 * (np.vstack([omega_before, omega[:-1]]) + omega)
-    m, steps = len(ends), int(lengths.max(initial=0))
+    m, steps = len(last), int(lengths.max(initial=0))
     rotation = np.broadcast_to(_EYE3, (m, 3, 3)).copy()
     jacobian = np.zeros((m, 3, 3))
     covariance = np.zeros((m, 3, 3))

@@ -362,7 +362,7 @@ class HeadGraphBuilder:
     def _close_intervals(self, t_before: float, omega_before: FloatArray, t: FloatArray, omega: FloatArray, ends: list[int]) -> None:
         """Close the keyframe intervals that end at samples ``ends`` of ``t`` (the first opened at ``t_before``)."""
         bias_hat = self._latest_bias
-        integrals = integrate_intervals(self._params.getGyroscopeCovariance(), bias_hat, t_before, omega_before, t, omega, np.asarray(ends))
+        integrals = integrate_intervals(self._params.getGyroscopeCovariance(), bias_hat, t_before, omega_before, t, omega, ends)
         after = integrals.rotation_after
         start = 0
         for m, end in enumerate(ends):
