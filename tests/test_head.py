@@ -103,6 +103,22 @@ def test_recorded_feed_builds_the_arrival_order_graph(overrides: dict[str, objec
     assert sampled.graph().error(moved) == pytest.approx(blocked.graph().error(moved), rel=1e-9)
 
 
+def test_graph_starts_on_the_first_gyro_sample_at_the_first_fix_when_the_gyro_starts_long_before() -> None:
+    """A gyro recording that begins 20 s before its tracker: keyframe 0 is the first gyro sample at (or within the snap
+    tolerance before) the first tracker sample, for the arrival-order and the recorded feed alike (the start is checked
+    on the newest buffered sample, so the wait costs nothing per gyro sample)."""
+    session = simulate_head(6, duration_s=24.0)
+    tracker = session.stream("tracker")
+    late = tracker.t >= 20.0
+    session = replace(session, streams={**session.streams, "tracker": replace(tracker, t=tracker.t[late], values=tracker.values[late])})
+    gyro_t = session.stream("gyro").t
+    expected = gyro_t[np.argmax(gyro_t >= tracker.t[late][0] - HeadModel().snap_tolerance_s)]
+    for push in (feed, feed_recorded):
+        builder = HeadGraphBuilder(head_model_for(session))
+        push(builder, session)
+        assert builder.keyframe_t[0] == expected and not builder.too_late
+
+
 def test_noise_free_online_recovers_truth_after_bias_converges() -> None:
     session = noise_free_session("ideal")
     estimate = run_isam2(session, TIGHT)

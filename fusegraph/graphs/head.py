@@ -292,9 +292,9 @@ class HeadGraphBuilder:
         if not self._tracker_waiting:
             return
         t_fix = self._tracker_waiting[0][0]
+        if self._gyro_buffer[-1][0] < t_fix - tol:
+            return  # gyro has not reached the fix yet (checked on the newest sample: this runs for every gyro sample until then)
         times = np.asarray([t for t, _ in self._gyro_buffer])
-        if times[-1] < t_fix - tol:
-            return  # gyro has not reached the fix yet
         i0 = int(np.argmax(times >= t_fix - tol))  # the first gyro sample at or after the fix
         t0, omega0 = self._gyro_buffer[i0]
         later = self._gyro_buffer[i0 + 1 :]
