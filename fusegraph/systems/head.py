@@ -31,7 +31,7 @@ from ..geometry import (
     rot3_from_quat_wxyz,
     rotvec_from_quat,
 )
-from ..graphs.head import B, HeadGraphBuilder, HeadModel, X, head_model_for, time_ordering
+from ..graphs.head import HeadGraphBuilder, HeadModel, X, head_model_for, time_ordering
 from ..metrics import AXES, AttitudeScore, mean_scores, score_attitude
 from ..progress import progress as progress_bar
 from ..session import Session, replay_in_arrival_order
@@ -336,7 +336,8 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
         if latency_key is not None:
             applied = float(result.values.atVector(latency_key)[0])
     kf_quat = np.array([quat_wxyz_from_rot3(result.values.atRot3(X(k))) for k in range(n_kf)])
-    kf_bias = np.array([result.values.atVector(B(min(k, n_kf - 2))) for k in range(n_kf)])
+    biases = gtsam.utilities.extractVectors(result.values, "b")  # b(0) .. b(n_kf - 2) in key order, in one call
+    kf_bias = np.vstack([biases, biases[-1:]])  # the last keyframe keeps the last interval's
     kf_cov = _hold_covariances(result.covariances, n_kf) if result.covariances else None
     quats, covs = interpolate_keyframes(gyro.t, gyro.values, kf_t, kf_quat, kf_bias, kf_cov)
     runtime = time.perf_counter() - start
