@@ -14,11 +14,12 @@ sensors output the mean over the last period); the state at t_i includes sample 
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
+
+from .linear import isotropic, zeros
 
 #: Standard gravity, m/s^2.
 GRAVITY_M_S2 = 9.81
@@ -76,13 +77,6 @@ def preintegration_params(noise: ImuNoise, rate_rad_s: float = 0.0, interval_s: 
     return params
 
 
-@functools.lru_cache(maxsize=64)
-def _isotropic3(sigma: float) -> gtsam.noiseModel.Isotropic:
-    """One shared noise model per sigma: every keyframe's motion prior has the same (a new one costs ~2 us of Python)."""
-    return gtsam.noiseModel.Isotropic.Sigma(3, sigma)
-
-
-_ZERO3 = np.zeros(3)
 _ZERO_BIAS = gtsam.imuBias.ConstantBias()
 
 
@@ -100,12 +94,12 @@ def bias_prior_factor(bias_key: int, noise: ImuNoise) -> gtsam.PriorFactorConsta
 
 def position_prior_factor(pose_key: int, sigma_m: float) -> gtsam.GPSFactor:
     """Zero-mean position pseudo-measurement on a Pose3 (touches only its translation)."""
-    return gtsam.GPSFactor(pose_key, _ZERO3, _isotropic3(float(sigma_m)))
+    return gtsam.GPSFactor(pose_key, zeros(3), isotropic(3, float(sigma_m)))
 
 
 def velocity_prior_factor(velocity_key: int, sigma_m_s: float) -> gtsam.PriorFactorVector:
     """Zero-mean velocity pseudo-measurement (or a zero-velocity update with a tight sigma)."""
-    return gtsam.PriorFactorVector(velocity_key, _ZERO3, _isotropic3(float(sigma_m_s)))
+    return gtsam.PriorFactorVector(velocity_key, zeros(3), isotropic(3, float(sigma_m_s)))
 
 
 def still_samples(gyro_rad_s: np.ndarray, accel_m_s2: np.ndarray, priors: MotionPriors, gravity_m_s2: float = GRAVITY_M_S2) -> np.ndarray:

@@ -29,7 +29,8 @@ for _zero in _ZEROS.values():
     _zero.setflags(write=False)  # shared by every factor (gtsam copies them)
 
 
-def _zeros(n: int) -> FloatArray:
+def zeros(n: int) -> FloatArray:
+    """A zero vector of length n, shared and read-only up to 12 (gtsam copies what it is given)."""
     return _ZEROS[n] if n in _ZEROS else np.zeros(n)
 
 
@@ -46,8 +47,8 @@ def linear_factor(blocks: list[tuple[int, FloatArray]], sigma: float, rhs: Float
     for key, matrix in blocks:
         args += [key, matrix]
         if fill:
-            at_zero.insert(key, _zeros(matrix.shape[1]))
+            at_zero.insert(key, zeros(matrix.shape[1]))
     rows = blocks[0][1].shape[0]
-    b = _zeros(rows) if rhs is None else np.asarray(rhs, dtype=float)
+    b = zeros(rows) if rhs is None else np.asarray(rhs, dtype=float)
     jacobian = gtsam.JacobianFactor(*args, b, isotropic(rows, float(sigma)))  # type: ignore[call-overload]
     return gtsam.LinearContainerFactor(jacobian, at_zero)

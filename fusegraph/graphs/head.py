@@ -51,13 +51,11 @@ from ..factors.latency import (
     offset_prior_factor,
     offset_walk_factor,
 )
+from ..factors.linear import zeros
 from ..geometry import FloatArray, rot3_from_quat_wxyz
 from ..session import Session
 from .increment import GraphIncrement
 from .ordering import nested_dissection
-
-_ZERO3 = np.zeros(3)
-_ZERO3.setflags(write=False)  # shared by every value that starts at zero (gtsam copies it)
 
 
 def X(k: int) -> int:
@@ -420,7 +418,7 @@ class HeadGraphBuilder:
 
     def _zero(self, k: int, key: int) -> None:
         """Keyframe k's 3-vector ``key`` enters the shared zeros of the linear factors."""
-        self._zero_at.insert(key, _ZERO3)
+        self._zero_at.insert(key, zeros(3))
         self._zero_keys.append((k, key))
 
     def state_keys(self, k: int) -> tuple[int, int | None]:
@@ -464,7 +462,7 @@ class HeadGraphBuilder:
             return  # a second sample on this keyframe: its error state exists already
         self._pending.add(k, error_state_factor(X(k), T(k), E(k)))
         self._pending.insert(T(k), measured)
-        self._pending.insert(E(k), _ZERO3)
+        self._pending.insert(E(k), zeros(3))
         self._zero(k, E(k))
         restart = self._last_error_kf is None or self._last_error_kf < self.oldest_allowed_keyframe
         markov = math.radians(noise.markov_sigma_deg)
