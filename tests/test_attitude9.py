@@ -118,6 +118,36 @@ def test_the_graph_does_not_depend_on_how_samples_are_blocked() -> None:
     assert whole.values.equals(blocked.values, 1e-12)
 
 
+def test_a_late_tracker_meets_the_same_gyro_in_blocks_or_sample_by_sample() -> None:
+    """Online, a late tracker sample is carried to its keyframe by the gyro samples kept for it (the last
+    ``RECENT_GYRO_S``, joined from the pushed blocks every ``_JOIN_BLOCKS`` or when a tracker sample comes): blocks of 7
+    and a sample at a time (a live feed) over 24 s make the same factors and values, and every reading is carried as
+    the batch builder, which keeps every sample, carries it."""
+    session = simulate_attitude9(3, duration_s=24.0, sensors=("gyro", "accel", "mag", "tracker"))
+    data, track = attitude9.imu9(session), attitude9.attitude_tracker(session)
+    assert data.mag is not None and track is not None
+    built = []
+    for size in (7, 1):
+        builder = Attitude9Builder()
+        for i in range(0, len(data.t), size):
+            j = min(i + size, len(data.t))
+            builder.add_samples(data.t[i:j], data.gyro[i:j], data.accel[i:j], data.mag[i:j])
+            builder.feed_tracker(track, float(data.t[j - 1]))
+        built.append((builder, builder.take()))
+    (blocks, by_blocks), (single, by_sample) = built
+    assert blocks.tracker_factors == single.tracker_factors > 0.9 * len(track.t) and blocks.tracker_dropped == single.tracker_dropped
+    assert by_blocks.values.equals(by_sample.values, 1e-12)
+    assert by_blocks.graph().error(by_blocks.values) == pytest.approx(by_sample.graph().error(by_blocks.values), rel=1e-12)
+    batch = Attitude9Builder(deferred_mag=True)
+    batch.add_samples(data.t, data.gyro, data.accel, data.mag)
+    batch.feed_tracker(track)
+    # online, the readings taken in the last latency (100 ms) have not arrived when the data ends: the newest keyframe
+    # holds another reading (each keyframe keeps its latest) or none
+    compared = [k for k in single.tracker_readings if k < max(single.tracker_readings)]
+    assert len(compared) >= len(batch.tracker_readings) - 2
+    assert all(batch.tracker_readings[k].equals(single.tracker_readings[k], 1e-12) for k in compared)
+
+
 def test_the_recording_declares_its_motion_and_the_default_is_chosen_on_broad() -> None:
     from dataclasses import replace
 

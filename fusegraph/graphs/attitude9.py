@@ -65,6 +65,8 @@ _FREE_TRANSLATION_SIGMA_M = 1e3
 #: Seconds of gyro samples an online builder keeps for a late tracker sample (``add_attitude``): older keyframes are gone
 #: from the solver's window (1 s plus up to a re-anchoring period) well before.
 RECENT_GYRO_S = 10.0
+#: Pushed blocks joined to the kept gyro samples at the latest after this many (a block may be one sample).
+_JOIN_BLOCKS = 64
 
 
 def mag_noise_from(settings: Mapping[str, float]) -> MagNoise:
@@ -173,9 +175,10 @@ class Attitude9Builder:
         self._solved = False
         self._keyframe_guess: list[gtsam.Rot3] = []  # each keyframe's attitude as first predicted
         self._keyframe_accel: list[FloatArray] = []  # mean specific force over each keyframe's interval (batch initial values)
-        # blocks of (times, gyro readings) a late tracker sample may need, joined into one pair of arrays when one comes
+        # the gyro samples a late tracker sample may need: one joined pair of arrays (times, readings), and the blocks
+        # pushed since it was joined (joined when a tracker sample comes, or every _JOIN_BLOCKS blocks)
+        self._recent_flat: tuple[FloatArray, FloatArray] = (np.empty(0), np.empty((0, 3)))
         self._recent: list[tuple[FloatArray, FloatArray]] = []
-        self._recent_flat: tuple[FloatArray, FloatArray] | None = None
         self.tracker_factors = 0
         """How many attitude-tracker samples became factors."""
         self.tracker_readings: dict[int, gtsam.Rot3] = {}
@@ -286,10 +289,8 @@ class Attitude9Builder:
         still_run = np.where(last_moving < 0, position + 1 + self._still_run, position - last_moving)
         count0 = self._count
         self._recent.append((t, gyro))
-        self._recent_flat = None
-        if not self.deferred_mag:  # online: blocks older than the solver's window are never needed (the batch keeps all)
-            while len(self._recent) > 1 and self._recent[1][0][0] < t[-1] - RECENT_GYRO_S:
-                del self._recent[0]
+        if len(self._recent) >= _JOIN_BLOCKS:  # bounded work and memory when no tracker sample comes (a live feed pushes single samples)
+            self._join_recent()
         period = self.model.keyframe_period_s
         start = 0
         while start < len(t):
@@ -472,8 +473,8 @@ class Attitude9Builder:
 
     def _gyro_rotation(self, t0: float, t1: float) -> gtsam.Rot3:
         """body(t0)_R_body(t1) from the bias-corrected gyro samples in (t0, t1] (sample i covers (t_{i-1}, t_i])."""
-        if self._recent_flat is None:
-            self._recent_flat = (np.concatenate([b[0] for b in self._recent]), np.concatenate([b[1] for b in self._recent]))
+        if self._recent:
+            self._join_recent()
         times, gyro = self._recent_flat
         i0 = int(np.searchsorted(times, t0 + 1e-9, side="left"))
         i1 = int(np.searchsorted(times, t1 + 1e-9, side="right"))
@@ -483,6 +484,16 @@ class Attitude9Builder:
             prev = times[i - 1] if i > 0 else times[i]
             out = out.compose(gtsam.Rot3.Expmap((gyro[i] - bias) * (times[i] - prev)))
         return out
+
+    def _join_recent(self) -> None:
+        """Join the pushed blocks to the kept samples; online, drop those older than ``RECENT_GYRO_S`` (the batch keeps all)."""
+        times = np.concatenate([self._recent_flat[0], *(block[0] for block in self._recent)])
+        gyro = np.concatenate([self._recent_flat[1], *(block[1] for block in self._recent)])
+        self._recent = []
+        if not self.deferred_mag:
+            keep = int(np.searchsorted(times, times[-1] - RECENT_GYRO_S, side="left"))
+            times, gyro = times[keep:], gyro[keep:]
+        self._recent_flat = (times, gyro)
 
     def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""
