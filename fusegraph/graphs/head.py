@@ -130,7 +130,7 @@ class HeadGraphBuilder:
         self._density_sq = self.model.gyro.density**2
         # a keyframe closes on the gyro sample nearest its period: stamps jitter (a live clock's correction, a
         # logger's rounding) by microseconds, and a sample 5 us early must not push the keyframe one sample on
-        self._close_tolerance_s = 0.5 / self.model.gyro.sample_rate_hz
+        self._close_after_s = self.model.keyframe_period_s - 0.5 / self.model.gyro.sample_rate_hz
         self._pending = GraphIncrement()
         self._gyro_buffer: list[tuple[float, FloatArray]] = []
         # deques: a whole session's samples may wait here (``add_gyro_block`` attaches them at its end)
@@ -193,7 +193,7 @@ class HeadGraphBuilder:
             return
         assert self._interval is not None
         self._interval.add(t, omega)
-        if self._interval.elapsed_s >= self.model.keyframe_period_s - self._close_tolerance_s:
+        if self._interval.elapsed_s >= self._close_after_s:
             self._close_keyframe(self._interval)
             self._interval = GyroInterval(self._params, self._latest_bias, self._interval.t_last, self._interval.omega_last)
         else:
@@ -350,9 +350,8 @@ class HeadGraphBuilder:
     def _interval_ends(self, times: list[float], t_keyframe: float) -> list[int]:
         """Indices of the samples that close keyframes, from a keyframe at ``t_keyframe`` on (``add_gyro``'s rule)."""
         ends = []
-        threshold = self.model.keyframe_period_s - self._close_tolerance_s
         for j, t_j in enumerate(times):
-            if t_j - t_keyframe >= threshold:
+            if t_j - t_keyframe >= self._close_after_s:
                 ends.append(j)
                 t_keyframe = t_j
         return ends

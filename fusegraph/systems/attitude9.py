@@ -209,12 +209,12 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     start = time.perf_counter()
     model = model_for(session, model, "batch")
     builder, increment = _build_batch(session, data, model)
-    keyframes, kq, kb, residual = _solve_batch(builder, increment, max_iterations, None)
+    kq, kb, residual = _solve_batch(builder, increment, max_iterations, None)
     check = "ok"
     if np.isfinite(residual) and residual > DIVERGED_HEADING_DEG:
         online = run_online(session, model)
         seed = online.quat_wxyz[np.array(builder.keyframe_index)]
-        keyframes, kq, kb, again = _solve_batch(builder, increment, max_iterations, seed)
+        kq, kb, again = _solve_batch(builder, increment, max_iterations, seed)
         check = "repaired" if again <= DIVERGED_HEADING_DEG else "suspect"
         if check == "suspect":
             trial = session.meta.get("session", {}).get("trial")  # a dataset folder holds many trials: name the one
@@ -224,7 +224,7 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
         residual = again
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), kq, kb, True)
     runtime = time.perf_counter() - start
-    extras = {"keyframes": keyframes, "check": check, "heading_residual_median_deg": residual, **_tracker_extras(builder)}
+    extras = {"keyframes": len(builder.keyframe_t), "check": check, "heading_residual_median_deg": residual, **_tracker_extras(builder)}
     return Estimate("batch", data.t.copy(), quats, None, runtime, extras)
 
 
@@ -240,9 +240,9 @@ def _build_batch(session: Session, data: Imu9, model: Attitude9Model | None) -> 
 
 def _solve_batch(
     builder: Attitude9Builder, increment: GraphIncrement, max_iterations: int, seed_quat_wxyz: np.ndarray | None,
-) -> tuple[int, np.ndarray, np.ndarray, float]:
-    """One batch solve of a built graph (left as it is, so a repair can solve it again): (keyframes, keyframe quats,
-    keyframe gyro biases, median heading residual deg). ``seed_quat_wxyz`` (one per keyframe) replaces the initial
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """One batch solve of a built graph (left as it is, so a repair can solve it again): (keyframe quats, keyframe gyro
+    biases, median heading residual deg). ``seed_quat_wxyz`` (one per keyframe) replaces the initial
     attitudes (the repair from the online estimate)."""
     keyframes = len(builder.keyframe_t)
     order = gtsam.Ordering()
@@ -269,7 +269,7 @@ def _solve_batch(
     kq = np.array([quat_wxyz_from_rot3(r) for r in attitude])
     kb = np.array([values.atConstantBias(B(k)).gyroscope() for k in range(keyframes)])
     residuals = heading_residuals_deg(builder, attitude)
-    return keyframes, kq, kb, float(np.median(residuals)) if len(residuals) else float("nan")
+    return kq, kb, float(np.median(residuals)) if len(residuals) else float("nan")
 
 
 def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:
