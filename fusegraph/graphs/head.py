@@ -81,6 +81,9 @@ def D(j: int = 0) -> int:
 #: Length of one segment of a drifting latency (one variable per segment), seconds.
 LATENCY_SEGMENT_S = 1.0
 
+#: Symbol letters of the per-keyframe variables (x, b, e, t; ``keyframe_of``).
+_KEYFRAME_CHARS = frozenset(ord(c) for c in "xbet")
+
 C = int(gtsam.symbol("c", 0))
 """Key of the gyro calibration c (K flattened row by row: scale factors and misalignment)."""
 
@@ -423,6 +426,13 @@ class HeadGraphBuilder:
     def state_keys(self, k: int) -> tuple[int, int | None]:
         """Keys of keyframe k's attitude and of the newest effective gyro bias known at k."""
         return X(k), (B(k - 1) if k >= 1 else None)
+
+    @staticmethod
+    def keyframe_of(key: int) -> int | None:
+        """The keyframe of a variable; None for the gyro calibration and the latency segments, which span many (the
+        online solver eliminates in time order with this: ``OnlineSmoother._time_order``)."""
+        symbol = gtsam.Symbol(key)
+        return int(symbol.index()) if symbol.chr() in _KEYFRAME_CHARS else None
 
     def _flush_waiting_tracker(self) -> None:
         """Attach every waiting tracker sample whose keyframe exists."""
