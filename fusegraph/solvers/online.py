@@ -6,6 +6,10 @@ than ``window_s`` before now: it linearises the factors that touch old keyframes
 estimate, eliminates the old variables (an exact Schur complement at that linearisation point),
 and starts a fresh iSAM2 from the kept factors plus that marginal as ``LinearContainerFactor``s.
 Memory stays bounded; the causal estimate is unchanged up to relinearisation of old states.
+
+Where the builder tells each variable's keyframe (``keyframe_of``), iSAM2 eliminates in keyframe order with the
+variables of no keyframe last (``OnlineSmoother._time_order``), so that an update re-eliminates only the keyframes
+its factors reach back to.
 """
 
 from __future__ import annotations
