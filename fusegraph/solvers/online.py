@@ -75,7 +75,10 @@ class OnlineConfig:
     """Refresh the bias marginal covariance every this many updates."""
     time_ordered: bool = True
     """Eliminate in keyframe order, variables of no keyframe last, where the builder tells a variable's keyframe
-    (``keyframe_of``; see ``OnlineSmoother._time_order``). False: iSAM2's default (the new factors' variables last)."""
+    (``keyframe_of``; see ``OnlineSmoother._time_order``). False: iSAM2's default (the new factors' variables last).
+    Each update then re-eliminates every keyframe back to the one its late samples reach, so the gain shrinks with the
+    latency: realistic head session (seed 7, 60 s, best of 3), tracker 0.1 s late 36.4x real time against 19.7x, 0.2 s
+    32.4x against 30.8x, 0.3 s 31.7x against 34.8x."""
 
 
 #: Sigma of the prior a rebuilt solver puts on every variable (tangent-space units: rad, rad/s, ...).
