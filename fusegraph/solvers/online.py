@@ -14,6 +14,7 @@ its factors reach back to.
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -60,8 +61,9 @@ class OnlineConfig:
     """iSAM2 relinearisation threshold (rad for rotations); 0.01 was 2x slower with the same accuracy here."""
     relinearize: bool = True
     """Let iSAM2 relinearise; re-anchoring relinearises the kept factors at the estimate anyway."""
-    update_every: int = 1
-    """Run iSAM2 once every this many new keyframes (the gyro carries the estimate in between)."""
+    update_every: int = 0
+    """Run iSAM2 once this many new keyframes have closed (the gyro carries the estimate in between; a late sample that
+    arrives between keyframes waits for the next due update); 0: whenever new factors come, a late sample too."""
     relinearize_skip: int = 1
     """Check for relinearisation every this many updates."""
     wildfire_threshold: float = 0.001
@@ -73,6 +75,9 @@ class OnlineConfig:
     reported an indeterminate system on a well-posed problem)."""
     bias_covariance_every: int = 10
     """Refresh the bias marginal covariance every this many updates."""
+    in_place: bool = True
+    """Where the elimination is time-ordered, marginalise old keyframes inside iSAM2 (``ISAM2.marginalizeLeaves``) in
+    blocks of ``reanchor_every`` keyframes instead of building a new solver (``OnlineSmoother._marginalize_in_place``)."""
     time_ordered: bool = True
     """Eliminate in keyframe order, variables of no keyframe last, where the builder tells a variable's keyframe
     (``keyframe_of``; see ``OnlineSmoother._time_order``). False: iSAM2's default (the new factors' variables last).
@@ -123,6 +128,12 @@ class OnlineSmoother:
         self._keys_by_keyframe: dict[int, list[int]] = {}
         self._free_keys: list[int] = []
         self._newest_keyed = -1
+        self._in_place = self._keyframe_of is not None and self.config.in_place
+        self._block = max(1, self.config.reanchor_every)
+        self._free_count_at_rebuild = 0
+        self._ordered = True  # every update since the last rebuild kept the tree in keyframe order (see update)
+        self.in_place_marginalisations = 0
+        """How many of the re-anchorings marginalised inside iSAM2 (the rest built a new solver)."""
 
     def _register(self, values: gtsam.Values) -> None:
         """File the new variables under their keyframes (see ``_time_order``)."""
@@ -145,7 +156,10 @@ class OnlineSmoother:
         links, tied the tree together: each update re-eliminated every keyframe since the last re-anchoring (57 variables
         on average over 20-30 s of a realistic head session, 0.47 ms per update; in time order 15 variables, 0.15 ms).
         Re-eliminating the keyframes from ``oldest`` on costs nothing extra (in time order they are on the path to the
-        root) and keeps every group number within the count of variables eliminated, as CCOLAMD requires.
+        root) and keeps every group number within the count of variables eliminated, as CCOLAMD requires. The variables
+        older than ``oldest`` get no group: given groups by keyframe block as well, an update that left some of them
+        alone built an ordering with variables outside it and crashed (gtsam 4.3). One that re-eliminates some of them
+        (a relinearisation, a clique reaching back) orders those freely; ``update`` notices.
         """
         if self._keyframe_of is None:
             return None, None
@@ -167,6 +181,8 @@ class OnlineSmoother:
         """File only the variables of ``kept`` (a re-anchored or rebuilt solver's)."""
         self._keys_by_keyframe, self._free_keys, self._newest_keyed = {}, [], -1
         self._register(kept)
+        self._free_count_at_rebuild = len(self._free_keys)
+        self._ordered = True
 
     def _new_isam(self, factorization: str | None = None) -> gtsam.ISAM2:
         params = gtsam.ISAM2Params()
@@ -181,7 +197,7 @@ class OnlineSmoother:
 
     def update(self, force: bool = False) -> bool:
         """Take the builder's new factors into iSAM2; False when there was nothing new (or not yet due)."""
-        if not force and self.config.update_every > 1 and self.builder.latest_keyframe - self._known_keyframe < self.config.update_every:
+        if not force and self.builder.latest_keyframe - self._known_keyframe < self.config.update_every:
             return False  # factors wait in the builder; the estimate is carried on by the gyro
         increment = self.builder.take()
         if not increment:
@@ -196,6 +212,12 @@ class OnlineSmoother:
         else:
             self._window.extend(increment.factors)
             self.reeliminated = result.getVariablesReeliminated()
+            if extra is not None and self.reeliminated > 2 * extra.size() - increment.values.size() + 1:
+                # gtsam counts the listed variables (the new factors' and the new ones among them) plus the existing ones
+                # it re-eliminated. One more is the keyframe before's last, sharing a clique with ``oldest``'s (nearly
+                # every update): alone, it goes first, in order. More may be older ones in gtsam's free order (a
+                # relinearisation, a clique reaching back): marginalising in place is no longer safe until a rebuild
+                self._ordered = False
         k = self.builder.latest_keyframe
         new_keyframe = k != self._known_keyframe
         self._keyframes_since_anchor += k - self._known_keyframe
@@ -298,8 +320,14 @@ class OnlineSmoother:
     def _reanchor(self) -> None:
         self._reanchor_due = False
         times = self.builder.keyframe_t
-        cutoff_t = times[-1] - self.config.window_s
-        anchor = int(np.searchsorted(times, cutoff_t))
+        anchor = bisect.bisect_left(times, times[-1] - self.config.window_s)
+        # in place while the tree is in keyframe order and no variable of no keyframe has come since the last rebuild (a
+        # drifting latency's next segment: iSAM2 cannot marginalise a root variable, a rebuild lets the old segments go)
+        if self._in_place and self._ordered and len(self._free_keys) == self._free_count_at_rebuild:
+            anchor -= anchor % self._block
+            if anchor > self.builder.oldest_allowed_keyframe:
+                self._marginalize_in_place(anchor)
+            return
         if anchor <= self.builder.oldest_allowed_keyframe:
             return
         values = self._isam.calculateEstimate()
@@ -346,6 +374,39 @@ class OnlineSmoother:
         self.builder.oldest_allowed_keyframe = anchor
         self._keyframes_since_anchor = 0
         self.reanchors += 1
+
+
+    def _marginalize_in_place(self, anchor: int) -> None:
+        """Marginalise the keyframes older than ``anchor`` (whole blocks, see ``_time_order``) inside iSAM2.
+
+        ``ISAM2.marginalizeLeaves`` folds them into linear factors on the kept variables, whose linearisation points it
+        then holds fixed. No new solver, no re-linearisation of the window, no full elimination: the tree keeps the size
+        of the window instead of growing between re-anchorings (each update's back-substitution visits every clique,
+        since the calibration variable in the root is re-eliminated every time). The window's factor list follows, with
+        the marginal factors tied to their linearisation points, so that a rebuild (``_recover``) or a later re-anchoring
+        that builds a new solver starts from the same information.
+        """
+        gone = gtsam.KeyList()
+        for k in sorted(k for k in self._keys_by_keyframe if k < anchor):
+            for key in self._keys_by_keyframe.pop(k):
+                gone.push_back(key)
+        slots = self._isam.getFactorsUnsafe().size()
+        self._isam.marginalizeLeaves(gone)
+        held = self._isam.getFactorsUnsafe()
+        theta = self._isam.getLinearizationPoint()
+        marginal: list[tuple[int, gtsam.NonlinearFactor]] = []
+        for i in range(slots, held.size()):  # gtsam appends the marginal factors after every factor it holds
+            if held.exists(i):
+                factor = held.at(i)  # a LinearContainerFactor without a linearisation point: linearize returns its factor
+                marginal.append((anchor, gtsam.LinearContainerFactor(factor.linearize(theta), _subset(theta, set(factor.keys())))))
+        keyframe_of = self._keyframe_of
+        assert keyframe_of is not None
+        # gone from iSAM2: every factor on a marginalised variable (those of no keyframe alone stay)
+        self._window = marginal + [(oldest, f) for oldest, f in self._window if oldest >= anchor or all(keyframe_of(key) is None for key in f.keys())]
+        self.builder.oldest_allowed_keyframe = anchor
+        self._keyframes_since_anchor = 0
+        self.reanchors += 1
+        self.in_place_marginalisations += 1
 
 
 def _subset(values: gtsam.Values, keys: set[int]) -> gtsam.Values:

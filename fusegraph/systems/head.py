@@ -153,12 +153,16 @@ def carried_over_delay(quat_wxyz: FloatArray, rate_rad_s: FloatArray, delay_s: f
     return quat_normalize(quat_multiply(quat_wxyz, quat_from_rotvec(np.asarray(rate_rad_s, dtype=float) * delay_s)))
 
 
-#: The head tracker's online solver: iSAM2 at every keyframe (40 ms, ``HeadModel.keyframe_period_s``), re-anchored every
-#: 2 s. On seeds 100-109 (120 s) the 40 ms keyframes updated at each gave the RMS of 20 ms keyframes updated at each
-#: (realistic 0.5851 / 0.5214 / 0.5024 against 0.5852 / 0.5214 / 0.5019 deg; ideal 0.1373 / 0.1337 / 0.1401 against
-#: 0.1373 / 0.1337 / 0.1400) at the speed of the former schedule, 20 ms keyframes updated every third (21.7x against
-#: 21.2x real time; that schedule cost +0.3-0.5 % RMS). Updating every second 40 ms keyframe: +0.7-1.3 % (seeds 100-102).
-HEAD_ONLINE = OnlineConfig(reanchor_every=50)
+#: The head tracker's online solver: iSAM2 once per 40 ms keyframe (``HeadModel.keyframe_period_s``; a tracker sample that
+#: arrives between keyframes waits for the next, at most 20 ms), old keyframes marginalised in place every 10 keyframes.
+#: On seeds 100-109 (120 s) the 40 ms keyframes gave the RMS of 20 ms ones (realistic 0.5851 / 0.5214 / 0.5024 against
+#: 0.5852 / 0.5214 / 0.5019 deg; ideal 0.1373 / 0.1337 / 0.1401 against 0.1373 / 0.1337 / 0.1400). Seeds 100-119 (60 s,
+#: mean RMS deg, speed): an update at every tracker sample, rebuilt every 50 keyframes, realistic 0.5845 / 0.5615 /
+#: 0.5746 at 36.6x real time, ideal 0.1363 / 0.1385 / 0.1416 at 62.8x; once per keyframe 0.5858 / 0.5629 / 0.5756 at
+#: 47.8x, ideal 0.1372 / 0.1395 / 0.1425 at 80.2x (+0.2 % realistic, +0.6 % ideal, the largest seed +0.7 % / +1.1 %); in
+#: place every 2 / 5 / 10 / 25 keyframes 53.0 / 54.4 / 55.1 / 50.7x at 0.5872 / 0.5634 / 0.5760 (every 10; the others
+#: within 0.0007 deg), ideal 84.1x, RMS unchanged to 0.0001 deg. Every second keyframe: +0.7-1.3 % (seeds 100-102).
+HEAD_ONLINE = OnlineConfig(reanchor_every=10, update_every=1)
 
 
 class OnlineHeadTracker:
@@ -302,6 +306,7 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
         "latency_s": None if latency_estimate is None else latency_estimate[0],
         "latency_sigma_s": None if latency_estimate is None else latency_estimate[1],
         "reanchors": live.solver.reanchors,
+        "in_place": live.solver.in_place_marginalisations,
         "too_late": len(live.builder.too_late),
         "tracker_used": live.builder.tracker_used,
         "bias_final": live.solver.latest_bias.tolist(),
