@@ -9,7 +9,9 @@ Memory stays bounded; the causal estimate is unchanged up to relinearisation of 
 
 Where the builder tells each variable's keyframe (``keyframe_of``), iSAM2 eliminates in keyframe order with the
 variables of no keyframe last (``OnlineSmoother._time_order``), so that an update re-eliminates only the keyframes
-its factors reach back to.
+its factors reach back to; the old keyframes, then leaves of the tree, are marginalised inside iSAM2 instead
+(``ISAM2.marginalizeLeaves``, ``OnlineSmoother._marginalize_in_place``): no new solver, no full elimination, a tree the
+size of the window.
 """
 
 from __future__ import annotations
@@ -56,7 +58,8 @@ class OnlineConfig:
     window_s: float = 0.5
     """Keyframes younger than this (before now) stay as variables; must exceed the largest latency."""
     reanchor_every: int = 100
-    """Re-anchor after this many new keyframes (100 = 2 s at 50 Hz): a small tree keeps updates fast."""
+    """Re-anchor after this many new keyframes (100 = 2 s at 50 Hz): a small tree keeps updates fast. Marginalising in
+    place (``in_place``), the old keyframes go in blocks of this many (block k: keyframes k * reanchor_every on)."""
     relinearize_threshold: float = 0.1
     """iSAM2 relinearisation threshold (rad for rotations); 0.01 was 2x slower with the same accuracy here."""
     relinearize: bool = True
