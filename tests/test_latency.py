@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gtsam
 import numpy as np
 import pytest
@@ -81,3 +83,18 @@ def test_stationary_stretch_leaves_the_latency_to_its_prior() -> None:
         # so a little is "learnt": the sigma shrinks somewhat, the estimate stays well inside the prior)
         assert estimate.extras["latency_s"] == pytest.approx(0.1, abs=0.015)
         assert 0.5 * 0.03 < estimate.extras["latency_sigma_s"] <= 0.03
+
+
+def test_a_drifting_latency_rebuilds_the_online_solver_as_its_segments_come() -> None:
+    """A drifting latency adds a session-wide variable every second (``LATENCY_SEGMENT_S``), which iSAM2 cannot
+    marginalise (it sits at the root): the re-anchoring after each new one rebuilds the solver, the others marginalise
+    in place (11 of 19 here), and the estimate is the fixed-latency model's (0.13992 s against 0.13980 s)."""
+    session = simulate_head(
+        7, profile="ideal", duration_s=8.0, tracker_latency_s=0.14, tracker_latency_assumed_s=0.1,
+        gyro_white_sigma_rad_s=0.003, gyro_bias_rw_sigma=1e-4, tracker_white_sigma_deg=0.1, tracker_drop_fraction=0.0,
+    )
+    tracker = session.stream("tracker")
+    drifting = replace(session, streams={**session.streams, "tracker": replace(tracker, meta={**tracker.meta, "latency_rw_s_per_sqrt_s": 1e-4})})
+    online = run_isam2(drifting)
+    assert 0 < online.extras["in_place"] < online.extras["reanchors"]
+    assert online.extras["latency_s"] == pytest.approx(0.14, abs=2e-3)

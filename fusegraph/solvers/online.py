@@ -32,7 +32,8 @@ class IncrementalBuilder(Protocol):
 
     Optional, looked up by name: ``read_latest(isam, k)`` (states that are not a Rot3 and a Vector3), ``feedback``
     (estimates the builder needs back), ``linear_keys`` (variables never to relinearise) and ``keyframe_of(key)``
-    (the keyframe of a variable, None for one of no keyframe: iSAM2 then eliminates in time order, ``_time_order``).
+    (the keyframe of a variable, None for one of no keyframe: iSAM2 then eliminates in time order, ``_time_order``, and
+    old keyframes can be marginalised in place, ``_marginalize_in_place``).
     """
 
     keyframe_t: list[float]
@@ -217,9 +218,9 @@ class OnlineSmoother:
             self.reeliminated = result.getVariablesReeliminated()
             if extra is not None and self.reeliminated > 2 * extra.size() - increment.values.size() + 1:
                 # gtsam counts the listed variables (the new factors' and the new ones among them) plus the existing ones
-                # it re-eliminated. One more is the keyframe before's last, sharing a clique with ``oldest``'s (nearly
-                # every update): alone, it goes first, in order. More may be older ones in gtsam's free order (a
-                # relinearisation, a clique reaching back): marginalising in place is no longer safe until a rebuild
+                # it re-eliminated. One more (496 of 499 updates of a realistic head session) is an older variable in a
+                # clique with ``oldest``'s: alone, it goes first, older than all it precedes. Two or more older ones are
+                # in gtsam's free order (a relinearisation does it): marginalising in place is unsafe until a rebuild
                 self._ordered = False
         k = self.builder.latest_keyframe
         new_keyframe = k != self._known_keyframe
@@ -377,7 +378,6 @@ class OnlineSmoother:
         self.builder.oldest_allowed_keyframe = anchor
         self._keyframes_since_anchor = 0
         self.reanchors += 1
-
 
     def _marginalize_in_place(self, anchor: int) -> None:
         """Marginalise the keyframes older than ``anchor`` (whole blocks, see ``_time_order``) inside iSAM2.
