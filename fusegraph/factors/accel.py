@@ -8,7 +8,6 @@ only slowly, this pins it at every keyframe when the body does not accelerate.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -20,6 +19,7 @@ import numpy as np
 from ..catalogue import KeySpec, Magnitude, SensorKind
 from ..geometry import FloatArray
 from .imu import GRAVITY_M_S2
+from .linear import robust
 
 _UP = gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
 
@@ -48,17 +48,8 @@ def gravity_sigma_rad(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_
     return math.radians(noise.sigma_deg + noise.inflation_deg_per_m_s2 * departure)
 
 
-@functools.lru_cache(maxsize=16)
-def cauchy(k: float) -> gtsam.noiseModel.mEstimator.Cauchy:
-    """One shared Cauchy kernel per width (stateless in gtsam; every robust factor of a session uses the same)."""
-    return gtsam.noiseModel.mEstimator.Cauchy(k)
-
-
 def _gravity_model(noise: GravityNoise, accel_body_m_s2: FloatArray, gravity_m_s2: float) -> gtsam.noiseModel.Base:
-    model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, gravity_sigma_rad(noise, accel_body_m_s2, gravity_m_s2))
-    if noise.cauchy_k > 0:
-        model = gtsam.noiseModel.Robust.Create(cauchy(noise.cauchy_k), model)
-    return model
+    return robust(gtsam.noiseModel.Isotropic.Sigma(2, gravity_sigma_rad(noise, accel_body_m_s2, gravity_m_s2)), noise.cauchy_k)
 
 
 def gravity_factor_rot3(rot_key: int, accel_body_m_s2: FloatArray, noise: GravityNoise, gravity_m_s2: float = GRAVITY_M_S2) -> gtsam.AttitudeFactorRot3:

@@ -22,6 +22,7 @@ import numpy as np
 from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
 from ..tuned import value
+from .linear import robust
 
 # gtsam's camera frame: z forward, x right, y down; ours (head): x forward, y left, z up
 HEAD_R_CAMERA = gtsam.Rot3(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]))
@@ -60,9 +61,7 @@ class SceneCamera:
 def gaze_factor(pose_key: int, point_key: int, uv: FloatArray, keyframe_R_sample: gtsam.Rot3, camera: SceneCamera) -> gtsam.GenericProjectionFactorCal3_S2:
     """The gaze pixel of a sample taken ``keyframe_R_sample`` (gyro rotation) after the keyframe."""
     measured = np.array([float(uv[0]), -float(uv[1])])  # gtsam's v points down
-    model: gtsam.noiseModel.Base = gtsam.noiseModel.Isotropic.Sigma(2, camera.pixel_sigma)
-    if camera.cauchy_k > 0:
-        model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(camera.cauchy_k), model)
+    model = robust(gtsam.noiseModel.Isotropic.Sigma(2, camera.pixel_sigma), camera.cauchy_k)
     body_P_sensor = gtsam.Pose3(keyframe_R_sample.compose(HEAD_R_CAMERA), np.zeros(3))
     return gtsam.GenericProjectionFactorCal3_S2(measured, model, pose_key, point_key, camera.calibration(), body_P_sensor)
 
@@ -87,7 +86,7 @@ def fixation_tuned(study: str = "gaze_fixation") -> FixationNoise:
 
 def fixation_walk(prev_key: int, next_key: int, dt_s: float, noise: FixationNoise) -> gtsam.BetweenFactorPoint3:
     sigma = noise.drift_m_per_sqrt_s * np.sqrt(max(dt_s, 1e-6))
-    model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(noise.cauchy_k), gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+    model = robust(gtsam.noiseModel.Isotropic.Sigma(3, sigma), noise.cauchy_k)
     return gtsam.BetweenFactorPoint3(prev_key, next_key, np.zeros(3), model)
 
 

@@ -24,6 +24,17 @@ def isotropic(dim: int, sigma: float) -> gtsam.noiseModel.Isotropic:
     return gtsam.noiseModel.Isotropic.Sigma(dim, sigma)
 
 
+@functools.lru_cache(maxsize=16)
+def cauchy(k: float) -> gtsam.noiseModel.mEstimator.Cauchy:
+    """One shared Cauchy kernel per width (stateless in gtsam; every robust factor of a session uses the same)."""
+    return gtsam.noiseModel.mEstimator.Cauchy(k)
+
+
+def robust(model: gtsam.noiseModel.Base, cauchy_k: float) -> gtsam.noiseModel.Base:
+    """``model`` under a Cauchy kernel of width ``cauchy_k`` sigmas (the shared ``cauchy``); ``model`` itself for 0."""
+    return gtsam.noiseModel.Robust.Create(cauchy(cauchy_k), model) if cauchy_k > 0 else model
+
+
 _ZEROS = {n: np.zeros(n) for n in range(1, 13)}
 for _zero in _ZEROS.values():
     _zero.setflags(write=False)  # shared by every factor (gtsam copies them)

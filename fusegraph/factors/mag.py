@@ -24,7 +24,7 @@ import numpy as np
 
 from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
-from .accel import cauchy
+from .linear import robust
 
 #: Magnetic north in the ENU world frame.
 NORTH_ENU = np.array([0.0, 1.0, 0.0])
@@ -114,9 +114,7 @@ def heading_factor(pose_key: int, world_R_body: gtsam.Rot3, mag_body: FloatArray
     precisions = np.full(2, 1.0 / sigma_rad**2)
     precisions[_VERTICAL_COMPONENT] = 0.0
     model: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Precisions(precisions)
-    if cauchy_k > 0:
-        model = gtsam.noiseModel.Robust.Create(cauchy(cauchy_k), model)
-    return gtsam.AttitudeFactorPose3(pose_key, _NORTH, model, gtsam.Unit3(body_direction))
+    return gtsam.AttitudeFactorPose3(pose_key, _NORTH, robust(model, cauchy_k), gtsam.Unit3(body_direction))
 
 CATALOGUE = (
     SensorKind(

@@ -22,6 +22,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
+from ..factors.linear import robust
 from ..frontends.association import assign_ranges, assign_receivers, locate
 from ..geometry import FloatArray
 from ..scenarios.ultrasonic import RangeEpochs
@@ -583,7 +584,7 @@ def smooth_tracks(epochs: RangeEpochs, run: TrackingRun, speed_sigma_m_s: float 
     for key, position in zip(receiver_keys, epochs.receivers, strict=True):
         values.insert(key, position)
         graph.add(gtsam.NonlinearEqualityPoint3(key, position))
-    noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy(cauchy_k), gtsam.noiseModel.Isotropic.Sigma(1, epochs.range_sigma_m))
+    noise = robust(gtsam.noiseModel.Isotropic.Sigma(1, epochs.range_sigma_m), cauchy_k)
     have = np.all(np.isfinite(run.positions), axis=2)
     keys = np.array([[int(gtsam.symbol(chr(ord("A") + j), k)) for j in range(n)] for k in range(k_count)]) if n <= 26 else None
     if keys is None:
