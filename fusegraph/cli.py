@@ -181,8 +181,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "the same rule: the grid printed here, scored on TUNING seeds 100-119 (reports score 0-9), or on real data by "
                          "leave-one-trial-out with the cross-validated figure beside the in-sample one. With --write the chosen values go "
                          "to fusegraph/tuned.toml (with the seeds or trials and the score), which the reports and benches read. "
-                         f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag, broad_motion, broad_bias (BROAD trials; the "
-                         "last three per --solver, written as broad_mag / broad_mag_batch ...).",
+                         f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag, broad_motion, broad_bias, broad_online "
+                         "(BROAD trials; broad_mag, broad_motion, broad_bias per --solver, written as broad_mag / broad_mag_batch ...; "
+                         "broad_online: the online solver's relinearisation checks).",
                          epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune head_ekf --write --workers 2\n"
                          "  fusegraph tune broad_mag --solver batch --write\n  fusegraph tune broad_motion --workers 2",
                          formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -45,7 +45,8 @@ def tuned(study: str) -> dict[str, Any]:
 
 SYSTEM_STUDIES: dict[str, tuple[str, ...]] = {
     "head": ("head_ekf", "head_ekf_method1", "head_ekf_kalman", "head_no_gyro"),
-    "attitude9": ("broad_ekf", "broad_mag", "broad_mag_batch", "broad_motion", "broad_motion_batch", "broad_bias", "broad_bias_batch"),
+    "attitude9": ("broad_ekf", "broad_mag", "broad_mag_batch", "broad_motion", "broad_motion_batch", "broad_bias", "broad_bias_batch",
+                  "broad_online"),
     "gaze": ("gaze_ekf", "gaze_fixation", "gaze_fixation_batch"),
     "bicycle": ("bicycle_ekf", "bicycle_no_removal"),
     "walking": ("walking_fixes",),

@@ -166,6 +166,13 @@ Online chose the grid's lowest walks (1e-5 and 1e-6: over a three-minute trial t
 the accelerometer's on two edges of this grid (a step beyond them is not measured yet)."""
 
 
+BROAD_ONLINE_GRID: Mapping[str, Sequence[float]] = {"relinearize_skip": (1.0, 2.0, 5.0, 10.0)}
+"""The online solver's own setting tried by ``broad_online`` (the model as the other studies chose): how many iSAM2 updates
+apart it checks which variables to relinearise (gtsam's default 10). Every check relinearised ~21 variables on BROAD (the
+window's positions and velocities drift past the 0.05 threshold), each re-eliminating the whole window (trial 21: 25
+variables per update at a check every update, 15 at every 10th)."""
+
+
 def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     """The 9-axis model with one grid point of a BROAD study applied to the solver's tuned model."""
     from dataclasses import replace
@@ -174,6 +181,8 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     from .systems.attitude9 import broad_model, with_bias, with_motion
 
     base = broad_model(solver)
+    if study == "broad_online":
+        return base
     if study == "broad_mag":
         return replace(base, mag=mag_noise_from(point))
     return with_bias(base, point) if study == "broad_bias" else with_motion(base, point)
@@ -188,10 +197,13 @@ def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
 
     session = load_broad(Path(path))
     movement = session.stream("movement").values[:, 0]
-    run = attitude9.run_online if solver == "online" else attitude9.run_batch
     out = {}
     for name, point in grid_settings(BROAD_GRIDS[study]).items():
-        estimate = run(session, _broad_model(study, point, solver))
+        model = _broad_model(study, point, solver)
+        if study == "broad_online":
+            estimate = attitude9.run_online(session, model, attitude9.online_config(point))
+        else:
+            estimate = (attitude9.run_online if solver == "online" else attitude9.run_batch)(session, model)
         out[name] = broad_errors(estimate.quat_wxyz, session.truth.values, movement).total  # type: ignore[union-attr]
     return out
 
@@ -199,8 +211,9 @@ def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
 def broad_graph_logo(study: str, directory: str | None = None, solver: str = "online", workers: int = 1) -> dict[str, Any]:
     """Our graph's settings of one BROAD study (``broad_mag``: heading sigma, disturbance gains, Cauchy width;
     ``broad_motion``: the velocity prior, gyro and accelerometer noise, gravity sigma and its inflation; ``broad_bias``: the
-    accelerometer bias's prior and walk, the gyro bias's walk) chosen by leave-one-trial-out on the
-    BROAD trials for ``solver`` (online or batch), the other study's settings as tuned: total RMSE, degrees."""
+    accelerometer bias's prior and walk, the gyro bias's walk; ``broad_online``: the online solver's relinearisation
+    checks) chosen by leave-one-trial-out on the BROAD trials for ``solver`` (online or batch), the other study's settings
+    as tuned: total RMSE, degrees."""
     from .datasets.broad import DEFAULT_DIR, trial_paths
 
     paths = [str(p) for p in trial_paths(directory or DEFAULT_DIR)]
@@ -213,8 +226,10 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
 
 
 BROAD_GRIDS: dict[str, Mapping[str, Sequence[float]]] = {"broad_ekf": BROAD_EKF_GRID, "broad_mag": BROAD_MAG_GRID, "broad_motion": BROAD_MOTION_GRID,
-                                                          "broad_bias": BROAD_BIAS_GRID}
+                                                          "broad_bias": BROAD_BIAS_GRID, "broad_online": BROAD_ONLINE_GRID}
 """The BROAD studies' grids by name."""
+BROAD_PER_SOLVER = ("broad_mag", "broad_motion", "broad_bias")
+"""The BROAD studies that tune the online and the batch estimate each (``--solver``; the batch's written as ``<study>_batch``)."""
 
 
 # ------------------------------------------------------------------------------------- studies
@@ -375,7 +390,8 @@ STUDIES: dict[str, Study] = {
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.tuning", description=__doc__)
     parser.add_argument("study",
-                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias (leave-one-trial-out on BROAD)")
+                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias / broad_online "
+                        "(leave-one-trial-out on BROAD)")
     parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias: which estimate they tune")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     parser.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml (what the reports read)")
@@ -384,6 +400,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.study not in (*STUDIES, *BROAD_GRIDS):
         raise ValueError(f"unknown study {args.study!r} (have: {', '.join([*STUDIES, *BROAD_GRIDS])})")
     if args.study in BROAD_GRIDS:
+        if args.solver == "batch" and args.study not in BROAD_PER_SOLVER:
+            raise ValueError(f"{args.study} has no batch variant (--solver batch is for {', '.join(BROAD_PER_SOLVER)})")
         result = broad_ekf_logo() if args.study == "broad_ekf" else broad_graph_logo(args.study, solver=args.solver, workers=args.workers)
         for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
             print(f"{setting:<44} in-sample mean total RMSE {score:7.2f} deg")
@@ -391,7 +409,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for trial, held in result["held_out"].items():
             print(f"  held out {trial:<40} chosen {held['chosen']:<40} {held['score']:7.2f} deg")
         if args.write:
-            name = f"{args.study}_batch" if args.study != "broad_ekf" and args.solver == "batch" else args.study
+            name = f"{args.study}_batch" if args.study in BROAD_PER_SOLVER and args.solver == "batch" else args.study
             chosen = grid_settings(BROAD_GRIDS[args.study])[result["chosen"]]
             unit = "deg, mean total RMSE" + (f" of the {args.solver} estimate" if args.study != "broad_ekf" else "") + " (leave-one-trial-out)"
             entries = {**chosen, "trials": sorted(result["held_out"]), "in_sample": round(result["in_sample"], 4),
