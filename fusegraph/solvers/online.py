@@ -136,6 +136,7 @@ class OnlineSmoother:
         self._block = max(1, self.config.reanchor_every)
         self._free_count_at_rebuild = 0
         self._ordered = True  # every update since the last rebuild kept the tree in keyframe order (see update)
+        self._registered = 0  # variables filed (the tree's)
         self.in_place_marginalisations = 0
         """How many of the re-anchorings marginalised inside iSAM2 (the rest built a new solver)."""
 
@@ -143,6 +144,7 @@ class OnlineSmoother:
         """File the new variables under their keyframes (see ``_time_order``)."""
         if self._keyframe_of is None:
             return
+        self._registered += values.size()
         for key in values.keys():
             k = self._keyframe_of(key)
             if k is None:
@@ -183,7 +185,7 @@ class OnlineSmoother:
 
     def _forget_keys(self, kept: gtsam.Values) -> None:
         """File only the variables of ``kept`` (a re-anchored or rebuilt solver's)."""
-        self._keys_by_keyframe, self._free_keys, self._newest_keyed = {}, [], -1
+        self._keys_by_keyframe, self._free_keys, self._newest_keyed, self._registered = {}, [], -1, 0
         self._register(kept)
         self._free_count_at_rebuild = len(self._free_keys)
         self._ordered = True
@@ -216,11 +218,13 @@ class OnlineSmoother:
         else:
             self._window.extend(increment.factors)
             self.reeliminated = result.getVariablesReeliminated()
-            if extra is not None and self.reeliminated > 2 * extra.size() - increment.values.size() + 1:
+            listed = 2 * extra.size() - increment.values.size() if extra is not None else 0
+            if extra is not None and (self.reeliminated > listed + 1 or self.reeliminated >= self._registered):
                 # gtsam counts the listed variables (the new factors' and the new ones among them) plus the existing ones
                 # it re-eliminated. One more (496 of 499 updates of a realistic head session) is an older variable in a
                 # clique with ``oldest``'s: alone, it goes first, older than all it precedes. Two or more older ones are
-                # in gtsam's free order (a relinearisation does it): marginalising in place is unsafe until a rebuild
+                # in gtsam's free order (a relinearisation does it): marginalising in place is unsafe until a rebuild.
+                # So is a whole tree re-eliminated (gtsam's batch step, when most of it is affected: a small tree)
                 self._ordered = False
         k = self.builder.latest_keyframe
         new_keyframe = k != self._known_keyframe
@@ -395,6 +399,7 @@ class OnlineSmoother:
                 gone.push_back(key)
         slots = self._isam.getFactorsUnsafe().size()
         self._isam.marginalizeLeaves(gone)
+        self._registered -= gone.size()
         held = self._isam.getFactorsUnsafe()
         theta = self._isam.getLinearizationPoint()
         marginal: list[tuple[int, gtsam.NonlinearFactor]] = []
