@@ -101,6 +101,8 @@ class SolverFailureError(RuntimeError):
 class OnlineSmoother:
     """iSAM2 over a builder's factors; ``update()`` after each step, estimates of the newest keyframe."""
 
+    _newest_keyed: int  # the filing of the window's variables (``_forget_keys``)
+
     def __init__(self, builder: IncrementalBuilder, config: OnlineConfig | None = None):
         self.builder = builder
         self.config = config or OnlineConfig()
@@ -128,15 +130,8 @@ class OnlineSmoother:
         self.reeliminated = 0
         """Variables the last update re-eliminated (-1 when it failed and the solver was rebuilt)."""
         self._keyframe_of = getattr(builder, "keyframe_of", None) if self.config.time_ordered else None
-        # the window's variables by keyframe (and those of no keyframe), for the time-ordered elimination (``_time_order``)
-        self._keys_by_keyframe: dict[int, list[int]] = {}
-        self._free_keys: list[int] = []
-        self._newest_keyed = -1
         self._in_place = self._keyframe_of is not None and self.config.in_place
-        self._block = max(1, self.config.reanchor_every)
-        self._free_count_at_rebuild = 0
-        self._ordered = True  # every update since the last rebuild kept the tree in keyframe order (see update)
-        self._registered = 0  # variables filed (the tree's)
+        self._forget_keys(gtsam.Values())
         self.in_place_marginalisations = 0
         """How many of the re-anchorings marginalised inside iSAM2 (the rest built a new solver)."""
 
@@ -184,11 +179,15 @@ class OnlineSmoother:
         return groups, extra
 
     def _forget_keys(self, kept: gtsam.Values) -> None:
-        """File only the variables of ``kept`` (a re-anchored or rebuilt solver's)."""
-        self._keys_by_keyframe, self._free_keys, self._newest_keyed, self._registered = {}, [], -1, 0
+        """File only the variables of ``kept`` (a new, re-anchored or rebuilt solver's)."""
+        # the window's variables by keyframe (and those of no keyframe), for the time-ordered elimination (``_time_order``)
+        self._keys_by_keyframe: dict[int, list[int]] = {}
+        self._free_keys: list[int] = []
+        self._newest_keyed = -1
+        self._registered = 0  # variables filed (the tree's)
         self._register(kept)
         self._free_count_at_rebuild = len(self._free_keys)
-        self._ordered = True
+        self._ordered = True  # every update since the last rebuild kept the tree in keyframe order (see update)
 
     def _new_isam(self, factorization: str | None = None) -> gtsam.ISAM2:
         params = gtsam.ISAM2Params()
@@ -218,14 +217,14 @@ class OnlineSmoother:
         else:
             self._window.extend(increment.factors)
             self.reeliminated = result.getVariablesReeliminated()
-            listed = 2 * extra.size() - increment.values.size() if extra is not None else 0
-            if extra is not None and (self.reeliminated > listed + 1 or self.reeliminated >= self._registered):
+            if self._in_place and extra is not None:
                 # gtsam counts the listed variables (the new factors' and the new ones among them) plus the existing ones
                 # it re-eliminated. One more (496 of 499 updates of a realistic head session) is an older variable in a
                 # clique with ``oldest``'s: alone, it goes first, older than all it precedes. Two or more older ones are
                 # in gtsam's free order (a relinearisation does it): marginalising in place is unsafe until a rebuild.
                 # So is a whole tree re-eliminated (gtsam's batch step, when most of it is affected: a small tree)
-                self._ordered = False
+                listed = 2 * extra.size() - increment.values.size()
+                self._ordered &= self.reeliminated <= listed + 1 and self.reeliminated < self._registered
         k = self.builder.latest_keyframe
         new_keyframe = k != self._known_keyframe
         self._keyframes_since_anchor += k - self._known_keyframe
@@ -332,7 +331,7 @@ class OnlineSmoother:
         # in place while the tree is in keyframe order and no variable of no keyframe has come since the last rebuild (a
         # drifting latency's next segment: iSAM2 cannot marginalise a root variable, a rebuild lets the old segments go)
         if self._in_place and self._ordered and len(self._free_keys) == self._free_count_at_rebuild:
-            anchor -= anchor % self._block
+            anchor -= anchor % max(1, self.config.reanchor_every)  # whole blocks (see ``reanchor_every``)
             if anchor > self.builder.oldest_allowed_keyframe:
                 self._marginalize_in_place(anchor)
             return
