@@ -255,13 +255,13 @@ def test_a_diverged_batch_is_repaired_from_the_causal_estimate(monkeypatch: pyte
 
     session = simulate_attitude9(4, duration_s=15.0, disturbance_uT=0.0)
 
-    def turned(self: Attitude9Builder, values: gtsam.Values, gain: float = 0.1) -> gtsam.Values:
+    def turned(self: Attitude9Builder, values: gtsam.Values) -> gtsam.Values:
         for k in range(len(self.keyframe_t)):
             pose = values.atPose3(self.X(k))
             values.update(self.X(k), gtsam.Pose3(gtsam.Rot3.Rz(np.deg2rad(170.0)).compose(pose.rotation()), pose.translation()))
         return values
 
-    monkeypatch.setattr(graph.Attitude9Builder, "complementary_initial", turned)
+    monkeypatch.setattr(graph.Attitude9Builder, "inertial_initial", turned)
     estimate = attitude9.run_batch(session)
     assert estimate.extras["check"] == "repaired", estimate.extras
     assert _score(estimate, session).total < 1.0

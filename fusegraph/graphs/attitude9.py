@@ -15,6 +15,7 @@ attitude (``heading_factors``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
@@ -169,7 +170,8 @@ class Attitude9Builder:
         self._still_run = 0  # consecutive still samples
         self._solved = False
         self._keyframe_guess: list[gtsam.Rot3] = []  # each keyframe's attitude as first predicted
-        self._keyframe_accel: list[FloatArray] = []  # mean specific force over each keyframe's interval (batch initial values)
+        # mean specific force over the interval before each keyframe, in the previous keyframe's frame (batch initial values)
+        self._keyframe_accel: list[FloatArray] = []
         # the gyro samples a late tracker sample may need: one joined pair of arrays (times, readings), and the blocks
         # pushed since it was joined (joined when a tracker sample comes, or every _JOIN_BLOCKS blocks)
         self._recent_flat: tuple[FloatArray, FloatArray] = (np.empty(0), np.empty((0, 3)))
@@ -339,8 +341,8 @@ class Attitude9Builder:
         else:
             interval_accel, interval_gyro, interval_dt = (np.concatenate(blocks) for blocks in zip(*self._interval, strict=True))
         self._interval = []
-        self._keyframe_accel.append(interval_accel.sum(axis=0) / len(interval_accel))  # the mean, without np.mean's ~8 us of checks
         pim = self._preintegrate(interval_accel, interval_gyro, interval_dt)
+        self._keyframe_accel.append(pim.deltaVij() / pim.deltaTij())  # rotated sample by sample: the body may turn a lot in 0.2 s
         predicted = pim.predict(self._nav, self._bias)
         if not self._solved:
             # no posterior yet (batch): keep the attitude, not the accelerometer's drifting double integral
@@ -422,7 +424,7 @@ class Attitude9Builder:
     def heading_passes(self) -> tuple[bool, ...]:
         """Robust flags of the batch's heading passes (each levels the field with the previous attitude).
 
-        Without a tracker: Gaussian then Cauchy (the first levels with dead reckoning). With a tracker, a
+        Without a tracker: Gaussian then Cauchy (the first levels with ``inertial_initial``'s attitude). With a tracker, a
         Gaussian pass would let a disturbed stretch pull the one alignment every keyframe shares, so both
         are robust (the second levels with the first's tilt: a tilt error e becomes ~e*tan(dip) of heading).
         """
@@ -440,30 +442,50 @@ class Attitude9Builder:
             values.update(self.X(k), gtsam.Pose3(world_R_tracker.compose(measured), values.atPose3(self.X(k)).translation()))
         return values
 
-    def complementary_initial(self, values: gtsam.Values, gain: float = 0.1) -> gtsam.Values:
-        """Batch initial values from a complementary filter over the keyframes: the gyro's relative rotations
-        pulled each keyframe by ``gain`` toward the TRIAD of the interval's mean specific force and the field.
+    def inertial_initial(self, values: gtsam.Values) -> gtsam.Values:
+        """Batch initial attitudes from a filter in the gyro's own frame (the idea of VQF, Laidig & Seel 2023, Sec. 3):
+        each keyframe's specific force, turned into the frame the gyro alone integrates from the start, is low-passed
+        there with a 3 s time constant (VQF's published default ``tauAcc``) and the tilt is corrected so that the mean
+        points up; the heading is pulled to the levelled field with a Kalman gain, the field's sigma from the heading
+        factor's own model (disturbances count less) against the drift of an unknown gyro bias (its prior sigma).
 
-        Dead reckoning from a zero bias drifts in tilt and heading (BROAD trial 08: 33 deg by mid-trial,
-        78 deg at the end). The heading factor's error is a projection on the sphere around north that falls
-        again beyond 90 deg: started there, the batch slid to the flipped heading (95 deg total RMSE).
-        A gain of 0.1 per keyframe is a ~2 s time constant: long enough to average out translational
-        accelerations and short disturbances, short enough to stop any drift.
+        Why: a translating hand's acceleration over one 0.2 s interval can be as large as gravity (BROAD trial 15: the
+        interval's mean specific force 13 deg off vertical at the median, 100 deg at the 95th percentile); in the inertial
+        frame the velocity stays bounded, so over seconds the mean specific force is gravity. The complementary filter
+        this replaced (keyframe TRIAD targets at gain 0.1) started 30-67 deg off on BROAD's fast and disturbed trials and
+        Levenberg-Marquardt needed up to 19 iterations to get back; the batch optimum does not depend on the start.
         """
-        if not self.mag_readings or self.tracker_readings:
+        if self.tracker_readings or not self.keyframe_t:
             return values
-        levelled = [(k, mag) for k, mag in self.mag_readings if k < len(self._keyframe_accel)]
-        matrices = triad(np.array([self._keyframe_accel[k] for k, _ in levelled]).reshape(-1, 3), np.array([mag for _, mag in levelled]).reshape(-1, 3))
-        targets = {k: matrix for (k, _), matrix in zip(levelled, matrices, strict=True)}
-        dead = [values.atPose3(self.X(k)).rotation() for k in range(len(self.keyframe_t))]
-        current = dead[0]
-        for k in range(len(dead)):
-            if k > 0:
-                current = current.compose(dead[k - 1].between(dead[k]))
-            if k in targets:
-                current = current.compose(gtsam.Rot3.Expmap(gain * gtsam.Rot3.Logmap(current.between(gtsam.Rot3(targets[k])))))
+        model = self.model
+        gyro_frame = [values.atPose3(self.X(k)).rotation() for k in range(len(self.keyframe_t))]  # the gyro alone, zero bias
+        fields = dict(self.mag_readings)
+        world_R_gyro = gtsam.Rot3()  # the start's TRIAD is keyframe 0's attitude already
+        mean_force = gyro_frame[0].rotate(self._keyframe_accel[0])
+        heading_var = np.deg2rad(model.initial_attitude_sigma_deg) ** 2
+        drift_var = model.imu.gyro_bias_prior_rad_s**2
+        for k in range(1, len(self.keyframe_t)):
+            dt = self.keyframe_t[k] - self.keyframe_t[k - 1]
+            force = gyro_frame[k - 1].rotate(self._keyframe_accel[k])
+            mean_force = mean_force + min(1.0, dt / _INERTIAL_TAU_S) * (force - mean_force)
+            up = world_R_gyro.rotate(mean_force)
+            axis = np.array([up[1], -up[0], 0.0])  # up x z: the tilt error's axis
+            sin = math.hypot(up[0], up[1])
+            if sin > 1e-12:
+                world_R_gyro = gtsam.Rot3.Rodrigues(axis * (math.atan2(sin, up[2]) / sin)).compose(world_R_gyro)
+            attitude = world_R_gyro.compose(gyro_frame[k])
+            heading_var += drift_var * dt * dt
+            mag = fields.get(k)
+            if mag is not None and self.reference is not None:
+                norm, dip = field_norm_dip(attitude, mag)
+                sigma = heading_sigma_rad(model.mag, self.reference, norm, dip)
+                gain = heading_var / (heading_var + sigma * sigma)
+                heading_var *= 1.0 - gain
+                x, y, _ = attitude.rotate(mag).tolist()
+                world_R_gyro = gtsam.Rot3.Rz(gain * math.atan2(x, y)).compose(world_R_gyro)  # turns the field toward north
+                attitude = world_R_gyro.compose(gyro_frame[k])
             pose = values.atPose3(self.X(k))
-            values.update(j=self.X(k), pose3=gtsam.Pose3(current, pose.translation()))  # by keyword: no search of the ~46 overloads
+            values.update(j=self.X(k), pose3=gtsam.Pose3(attitude, pose.translation()))  # by keyword: no search of the ~46 overloads
         return values
 
     def _gyro_rotation(self, t0: float, t1: float) -> gtsam.Rot3:
@@ -512,6 +534,9 @@ def _first_due(t: FloatArray, dt: FloatArray, start: int, keyframe_s: float, per
 
 
 _DUE_CHUNK = 1024
+
+#: Time constant of the batch initial values' low-pass of the specific force in the gyro's frame, s (VQF's ``tauAcc``).
+_INERTIAL_TAU_S = 3.0
 
 
 def fill_samples(

@@ -5,8 +5,8 @@ late: ``latency_s``) joins the same graph: online, each sample enters when it ar
 is estimated (one constant rotation), so it need not be aligned with ENU. The baselines ignore it.
 
 Methods: ``online`` (iSAM2, causal: each sample's attitude uses nothing after it), ``batch`` (the same
-factors smoothed over the whole session, in two passes: the first levels the magnetometer with dead
-reckoning and a Gaussian heading noise, the second with the first's attitude and the Cauchy kernel),
+factors smoothed over the whole session, in two passes: the first levels the magnetometer with the
+initial values' attitude (a filter in the gyro's frame) and a Gaussian heading noise, the second with the first's attitude and the Cauchy kernel),
 ``ekf`` (the founding papers' 9-axis EKF on roll/pitch/yaw), ``vqf`` and ``vqf_offline`` (the peer).
 """
 
@@ -260,7 +260,7 @@ def _solve_batch(
     if builder.tracker_factors:
         order.push_back(TRACKER_WORLD)  # one variable tied to every keyframe: eliminated last
     base = increment.graph()
-    values = builder.complementary_initial(builder.tracker_seeded(gtsam.Values(increment.values)))
+    values = builder.inertial_initial(builder.tracker_seeded(gtsam.Values(increment.values)))
     if seed_quat_wxyz is not None:
         for k, quat in enumerate(seed_quat_wxyz):
             if np.all(np.isfinite(quat)):
