@@ -16,7 +16,7 @@ attitude (``heading_factors``).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 import gtsam
@@ -252,11 +252,15 @@ class Attitude9Builder:
 
     # ------------------------------------------------------------------ measurements
 
-    def add_samples(self, t: FloatArray, gyro_rad_s: FloatArray, accel_m_s2: FloatArray, mag_raw: FloatArray | None) -> None:
+    def add_samples(self, t: FloatArray, gyro_rad_s: FloatArray, accel_m_s2: FloatArray, mag_raw: FloatArray | None,
+                    on_keyframe: Callable[[float], None] | None = None) -> None:
         """Push synchronous samples (rows) in time order; keyframes close as their time comes.
 
         The block is handled in numpy (times, rests, where keyframes close); Python runs once per keyframe. A time
-        that does not increase raises before any sample of the block is taken."""
+        that does not increase raises before any sample of the block is taken. ``on_keyframe(t_s)`` is called as each
+        keyframe is made (the first on the first sample), with its factors pending: a replay pushes a whole session
+        at once and updates its solver there, which is the same as pushing it keyframe by keyframe without the
+        numpy work per block."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         gyro = np.atleast_2d(np.asarray(gyro_rad_s, dtype=float))
         accel = np.atleast_2d(np.asarray(accel_m_s2, dtype=float))
@@ -269,6 +273,8 @@ class Attitude9Builder:
             self._still_run = self._still_run + 1 if still[0] else 0
             self._start(float(t[0]), accel[0], None if mag is None else mag[0])
             first = 1
+            if on_keyframe is not None:
+                on_keyframe(float(t[0]))
         if first >= len(t):
             return
         t, gyro, accel, still = t[first:], gyro[first:], accel[first:], still[first:]
@@ -297,6 +303,8 @@ class Attitude9Builder:
             self._interval.append((accel[start : j + 1], gyro[start : j + 1], dt[start : j + 1]))
             self._last_t, self._count, self._still_run = float(t[j]), count0 + j, int(still_run[j])
             self._close_keyframe(accel[j], None if mag is None else mag[j])
+            if on_keyframe is not None:
+                on_keyframe(self._last_t)
             start = j + 1
         if start < len(t):
             self._interval.append((accel[start:], gyro[start:], dt[start:]))
@@ -503,12 +511,13 @@ class Attitude9Builder:
         return out
 
     def _join_recent(self) -> None:
-        """Join the pushed blocks to the kept samples; online, drop those older than ``RECENT_GYRO_S`` (the batch keeps all)."""
+        """Join the pushed blocks to the kept samples; online, drop those older than ``RECENT_GYRO_S`` before the newest
+        sample taken (a block pushed whole may reach far beyond it; the batch keeps all)."""
         times = np.concatenate([self._recent_flat[0], *(block[0] for block in self._recent)])
         gyro = np.concatenate([self._recent_flat[1], *(block[1] for block in self._recent)])
         self._recent = []
         if not self.deferred_mag:
-            keep = int(np.searchsorted(times, times[-1] - RECENT_GYRO_S, side="left"))
+            keep = int(np.searchsorted(times, min(times[-1], self._last_t) - RECENT_GYRO_S, side="left"))
             times, gyro = times[keep:], gyro[keep:]
         self._recent_flat = (times, gyro)
 

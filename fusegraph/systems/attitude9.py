@@ -126,16 +126,20 @@ def run_online(session: Session, model: Attitude9Model | None = None, config: On
     builder = Attitude9Builder(model_for(session, model))
     solver = OnlineSmoother(builder, config or ONLINE_CONFIG)
     start = time.perf_counter()
-    period = builder.model.keyframe_period_s
-    dt = float(np.median(np.diff(data.t)))
-    block = max(1, int(round(period / dt)))  # any block size gives the same graph; one keyframe's worth is cheapest
     tracker = attitude_tracker(session)
-    bar = progress(range(0, len(data.t), block), desc="online", enabled=None if show_progress else False)
-    for i in bar:
-        j = i + block
-        builder.add_samples(data.t[i:j], data.gyro[i:j], data.accel[i:j], None if data.mag is None else data.mag[i:j])
-        if tracker is not None:  # the tracker samples that have arrived by the newest gyro sample
-            builder.feed_tracker(tracker, float(data.t[min(j, len(data.t)) - 1]))
+    expected = int((data.t[-1] - data.t[0]) / builder.model.keyframe_period_s) + 1
+    bar = progress(iter(int, 1), total=expected, desc="online keyframes", enabled=None if show_progress else False)  # a counter
+
+    def step(now_s: float) -> None:  # at each new keyframe: the tracker samples that have arrived by then, then iSAM2
+        if tracker is not None:
+            builder.feed_tracker(tracker, now_s)
+        solver.update()
+        next(bar)
+
+    # one push: the builder calls ``step`` as each keyframe closes, as a live feed would between its blocks
+    builder.add_samples(data.t, data.gyro, data.accel, data.mag, on_keyframe=step)
+    if tracker is not None:  # samples after the last keyframe: the tracker's that arrived by the end
+        builder.feed_tracker(tracker, float(data.t[-1]))
         solver.update()
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), np.array(builder.posterior_quat), np.array(builder.posterior_gyro_bias), False)
     runtime = time.perf_counter() - start
