@@ -118,6 +118,24 @@ def test_the_graph_does_not_depend_on_how_samples_are_blocked() -> None:
     assert whole.values.equals(blocked.values, 1e-12)
 
 
+def test_a_long_push_finds_each_closing_sample_as_the_look_ahead_does() -> None:
+    """``_first_due`` by binary search over t + dt/2 (a long push) answers as the chunked look-ahead, also where
+    the sample times jitter (a real logger's) and a keyframe's time falls exactly on the rule's boundary."""
+    from fusegraph.graphs.attitude9 import _first_due
+
+    rng = np.random.default_rng(7)
+    for jitter in (0.0, 0.2):
+        dt = (1.0 / 286.5) * (1.0 + jitter * rng.uniform(-1.0, 1.0, 5000))
+        t = np.cumsum(dt)
+        due_s = t + 0.5 * dt
+        assert (np.diff(due_s) > 0).all()
+        starts = rng.integers(0, 4900, 300)
+        for start in starts:
+            keyframe_s = float(t[start - 1]) if start > 0 else float(t[0])
+            for period in (0.2, 0.05, float(t[min(start + 40, 4999)] - keyframe_s)):  # the last: on the boundary
+                assert _first_due(t, dt, int(start), keyframe_s, period, due_s) == _first_due(t, dt, int(start), keyframe_s, period)
+
+
 def test_a_late_tracker_meets_the_same_gyro_in_blocks_or_sample_by_sample() -> None:
     """Online, a late tracker sample is carried to its keyframe by the gyro samples kept for it (the last
     ``RECENT_GYRO_S``, joined from the pushed blocks every ``_JOIN_BLOCKS`` or when a tracker sample comes): blocks of 7

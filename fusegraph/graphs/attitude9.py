@@ -147,6 +147,8 @@ class Attitude9Builder:
         self.model = model or Attitude9Model()
         self.prefix = prefix
         """Key prefix: '' gives x/v/b keys; another letter ('t' -> 'T'...) lets two bodies share a graph."""
+        letters = ("x", "v", "b") if not prefix else (prefix.upper(), prefix.lower(), chr(ord(prefix.upper()) + 1))
+        self._key0 = tuple(int(gtsam.symbol(letter, 0)) for letter in letters)
         self.deferred_mag = deferred_mag
         self._pending = GraphIncrement()
         self.keyframe_t: list[float] = []
@@ -185,17 +187,19 @@ class Attitude9Builder:
         """Tracker samples older than the online window or before the first keyframe (not used)."""
 
     # ------------------------------------------------------------------ keys
+    # gtsam's Symbol is (letter << 56) | index: keyframe k's key is its letter's key 0 plus k, integer arithmetic
+    # instead of a call into gtsam (a dozen keys per keyframe)
     def X(self, k: int) -> int:
         """This body's pose key at keyframe k."""
-        return X(k) if not self.prefix else int(gtsam.symbol(self.prefix.upper(), k))
+        return self._key0[0] + k
 
     def V(self, k: int) -> int:
         """This body's velocity key at keyframe k."""
-        return V(k) if not self.prefix else int(gtsam.symbol(self.prefix.lower(), k))
+        return self._key0[1] + k
 
     def B(self, k: int) -> int:
         """This body's bias key at keyframe k."""
-        return B(k) if not self.prefix else int(gtsam.symbol(chr(ord(self.prefix.upper()) + 1), k))
+        return self._key0[2] + k
 
     # ------------------------------------------------------------------ protocol of the online solver
 
@@ -295,9 +299,14 @@ class Attitude9Builder:
         if len(self._recent) >= _JOIN_BLOCKS:  # bounded work and memory when no tracker sample comes (a live feed pushes single samples)
             self._join_recent()
         period = self.model.keyframe_period_s
+        due_s = None
+        if len(t) > _DUE_CHUNK:  # a long push (a replay, the batch): one binary search per keyframe
+            due_s = t + 0.5 * dt
+            if not (due_s[1:] > due_s[:-1]).all():  # very uneven steps: the look-ahead
+                due_s = None
         start = 0
         while start < len(t):
-            j = _first_due(t, dt, start, self.keyframe_t[-1], period)
+            j = _first_due(t, dt, start, self.keyframe_t[-1], period, due_s)
             if j < 0:
                 break
             self._interval.append((accel[start : j + 1], gyro[start : j + 1], dt[start : j + 1]))
@@ -359,9 +368,9 @@ class Attitude9Builder:
         add(k - 1, gtsam.ImuFactor(self.X(k - 1), self.V(k - 1), self.X(k), self.V(k), self.B(k - 1), pim))
         add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), pim.deltaTij(), model.imu))
         # an infinite sigma drops the pseudo-measurement (a vehicle travels; the start pose fixes the gauge)
-        if np.isfinite(model.motion.position_sigma_m):
+        if math.isfinite(model.motion.position_sigma_m):
             add(k, position_prior_factor(self.X(k), model.motion.position_sigma_m))
-        if np.isfinite(model.motion.velocity_sigma_m_s):
+        if math.isfinite(model.motion.velocity_sigma_m_s):
             add(k, velocity_prior_factor(self.V(k), model.motion.velocity_sigma_m_s))
         rest_samples = int(round(model.motion.rest_window_s / max(pim.deltaTij(), 1e-9) * (self._count - self.keyframe_index[-1])))
         if self._still_run >= max(rest_samples, 1):
@@ -530,10 +539,16 @@ class Attitude9Builder:
         return out
 
 
-def _first_due(t: FloatArray, dt: FloatArray, start: int, keyframe_s: float, period_s: float) -> int:
+def _first_due(t: FloatArray, dt: FloatArray, start: int, keyframe_s: float, period_s: float, due_s: FloatArray | None = None) -> int:
     """The first sample from ``start`` on that closes the keyframe after ``keyframe_s`` (the sample nearest ``period_s``
-    later: its time is past that less half its period), or -1. Looks ahead a chunk at a time: a whole session pushed at once (the batch) must
-    not compare every remaining sample per keyframe."""
+    later: its time is past that less half its period), or -1. ``due_s`` (t + dt/2, increasing; a long push computes
+    it once): a binary search, its answer checked against the rule itself. Else, or when the check fails (rounding at
+    the boundary), looks ahead a chunk at a time: a whole session pushed at once must not compare every remaining
+    sample per keyframe."""
+    if due_s is not None:
+        j = max(start, int(due_s.searchsorted(keyframe_s + period_s)))
+        if j < len(t) and t[j] - keyframe_s >= period_s - 0.5 * dt[j] and (j == start or t[j - 1] - keyframe_s < period_s - 0.5 * dt[j - 1]):
+            return j
     for lo in range(start, len(t), _DUE_CHUNK):
         hi = min(len(t), lo + _DUE_CHUNK)
         due = t[lo:hi] - keyframe_s >= period_s - 0.5 * dt[lo:hi]
