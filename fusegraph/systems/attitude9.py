@@ -6,8 +6,8 @@ is estimated (one constant rotation), so it need not be aligned with ENU. The ba
 
 Methods: ``online`` (iSAM2, causal: each sample's attitude uses nothing after it), ``batch`` (the same
 factors smoothed over the whole session, in two passes: the first levels the magnetometer with the
-initial values' attitude (a filter in the gyro's frame) and a Gaussian heading noise, the second with the first's attitude and the Cauchy kernel),
-``ekf`` (the founding papers' 9-axis EKF on roll/pitch/yaw), ``vqf`` and ``vqf_offline`` (the peer).
+initial values' attitude (a filter in the gyro's frame) and a Gaussian heading noise, the second with
+the first's attitude and the Cauchy kernel), ``ekf`` (the founding papers' 9-axis EKF on roll/pitch/yaw), ``vqf`` and ``vqf_offline`` (the peer).
 """
 
 from __future__ import annotations
