@@ -147,8 +147,8 @@ class Attitude9Builder:
         self.model = model or Attitude9Model()
         self.prefix = prefix
         """Key prefix: '' gives x/v/b keys; another letter ('t' -> 'T'...) lets two bodies share a graph."""
-        letters = ("x", "v", "b") if not prefix else (prefix.upper(), prefix.lower(), chr(ord(prefix.upper()) + 1))
-        self._key0 = tuple(int(gtsam.symbol(letter, 0)) for letter in letters)
+        letters = (prefix.upper(), prefix.lower(), chr(ord(prefix.upper()) + 1)) if prefix else ()
+        self._key0 = tuple(int(gtsam.symbol(c, 0)) for c in letters) if prefix else (X(0), V(0), B(0))
         self.deferred_mag = deferred_mag
         self._pending = GraphIncrement()
         self.keyframe_t: list[float] = []

@@ -330,13 +330,22 @@ class OnlineSmoother:
         anchor = bisect.bisect_left(times, times[-1] - self.config.window_s)
         # in place while the tree is in keyframe order and no variable of no keyframe has come since the last rebuild (a
         # drifting latency's next segment: iSAM2 cannot marginalise a root variable, a rebuild lets the old segments go)
-        if self._in_place and self._ordered and len(self._free_keys) == self._free_count_at_rebuild:
+        in_place = self._in_place and self._ordered and len(self._free_keys) == self._free_count_at_rebuild
+        if in_place:
             anchor -= anchor % max(1, self.config.reanchor_every)  # whole blocks (see ``reanchor_every``)
-            if anchor > self.builder.oldest_allowed_keyframe:
-                self._marginalize_in_place(anchor)
-            return
         if anchor <= self.builder.oldest_allowed_keyframe:
             return
+        if in_place:
+            self._marginalize_in_place(anchor)
+            self.in_place_marginalisations += 1
+        else:
+            self._anchor_new_solver(anchor)
+        self.builder.oldest_allowed_keyframe = anchor
+        self._keyframes_since_anchor = 0
+        self.reanchors += 1
+
+    def _anchor_new_solver(self, anchor: int) -> None:
+        """A new iSAM2 from the window's factors from ``anchor`` on and the old ones' marginal at the estimate."""
         values = self._isam.calculateEstimate()
         old = gtsam.NonlinearFactorGraph()
         kept: list[tuple[int, gtsam.NonlinearFactor]] = []
@@ -378,9 +387,6 @@ class OnlineSmoother:
             self._window = prior + kept
         except RuntimeError as exc:  # the re-anchored system near-singular for Cholesky: rebuilt as a failed update is
             self._rebuild(prior + kept, new_values, exc, f"re-anchoring at keyframe {anchor}", f"re-anchoring at keyframe {anchor}")
-        self.builder.oldest_allowed_keyframe = anchor
-        self._keyframes_since_anchor = 0
-        self.reanchors += 1
 
     def _marginalize_in_place(self, anchor: int) -> None:
         """Marginalise the keyframes older than ``anchor`` (whole blocks, see ``_time_order``) inside iSAM2.
@@ -410,10 +416,6 @@ class OnlineSmoother:
         assert keyframe_of is not None
         # gone from iSAM2: every factor on a marginalised variable (those of no keyframe alone stay)
         self._window = marginal + [(oldest, f) for oldest, f in self._window if oldest >= anchor or all(keyframe_of(key) is None for key in f.keys())]
-        self.builder.oldest_allowed_keyframe = anchor
-        self._keyframes_since_anchor = 0
-        self.reanchors += 1
-        self.in_place_marginalisations += 1
 
 
 def _subset(values: gtsam.Values, keys: set[int]) -> gtsam.Values:
