@@ -44,8 +44,8 @@ def _seeds_arg(text: str) -> list[int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .evaluation.tuning import STUDIES
     from .systems.presets import PRESETS
-    from .tuning import STUDIES
 
     parser = argparse.ArgumentParser(
         prog="fusegraph",
@@ -374,7 +374,7 @@ def system_docs() -> list[tuple[str, str, tuple[Any, ...], tuple[str, ...]]]:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .runner import describe, format_many, run_many, run_session, session_dirs
+    from .evaluation.runner import describe, format_many, run_many, run_session, session_dirs
 
     paths = session_dirs(args.session)
     if len(paths) == 1 and (Path(args.session[0]) / "session.toml").is_file():
@@ -411,8 +411,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
 def _seeds_block(seeds: Any, system: str) -> dict[str, Any]:
     """The seeds a report scores, the tuning seeds no setting was chosen outside of (a warning when they meet) and the
     settings every method of the system runs with (``tuned.toml``: values, the seeds they were chosen on, the score)."""
+    from .evaluation.tuning import TUNING_SEEDS
     from .tuned import settings_of
-    from .tuning import TUNING_SEEDS
 
     chosen = [int(x) for x in seeds]
     if set(chosen) & set(TUNING_SEEDS):
@@ -435,7 +435,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
         return 0
     if args.system != "head":
-        from .runner import format_generic_report, generic_report
+        from .evaluation.runner import format_generic_report, generic_report
 
         if args.latency_true is not None or args.latency_assumed is not None or args.profile != "realistic":
             raise ValueError(f"report {args.system}: --latency-true/--latency-assumed/--profile apply to head only")
@@ -445,7 +445,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         found.update(_seeds_block(chosen, args.system))
         print(json.dumps(found, indent=2) if args.json else format_generic_report(found))
         if args.plot:
-            from .runner import solve_session
+            from .evaluation.runner import solve_session
             from .systems.presets import PRESETS
 
             preset = PRESETS[args.system]
@@ -472,7 +472,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
     """The paper's Fig. 3/4 for one seed: reference, tracker, Method II and iSAM2 per axis."""
-    from .plots import plot_attitude_axes
+    from .report.plots import plot_attitude_axes
     from .scenarios import simulate_head
     from .systems import head
 
@@ -504,7 +504,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         print(json.dumps(found, indent=2) if args.json else format_bench_live(found))
         return 0
     if args.system == "head-recorded":
-        from .systems import head_recorded
+        from .evaluation import head_recorded
 
         trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
         found = head_recorded.bench_head_recorded(args.directory, workers=args.workers, trials=trials,
@@ -514,7 +514,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             print(f"wrote {head_recorded.plot_head_recorded(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
         return 0
     if args.system == "gaze-recorded":
-        from .systems import gaze_recorded
+        from .evaluation import gaze_recorded
 
         recorded = gaze_recorded.analyse_gaze_recording(args.directory, use_mag=args.use_mag)
         found = gaze_recorded.gaze_recorded_json(recorded)
@@ -575,7 +575,7 @@ def _bench_broad(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from .view import view
+    from .report.view import view
 
     for path in view(args.source, args.out, args.solver, args.truth):
         print(f"wrote {path}")
@@ -583,7 +583,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
-    from .tuning import main as tune_main
+    from .evaluation.tuning import main as tune_main
 
     argv = [args.study, "--solver", args.solver, "--workers", str(args.workers)] + (["--write"] if args.write else [])
     if args.seeds:
@@ -614,7 +614,7 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     import os
     from dataclasses import replace
 
-    from . import ablation
+    from .evaluation import ablation
 
     study = ablation.load_study(args.study) if args.study else ablation.Study(system=args.system, seeds=tuple(range(5)))
     vary = dict(study.vary)

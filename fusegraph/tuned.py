@@ -1,7 +1,7 @@
 """The settings chosen by ``fusegraph tune`` (``tuned.toml`` beside this module, shipped in the package).
 
 Every free setting of a baseline that its paper does not fix, and every free setting of our graphs,
-is chosen by one rule (``fusegraph.tuning``: a stated grid on tuning seeds 100-119, or
+is chosen by one rule (``fusegraph.evaluation.tuning``: a stated grid on tuning seeds 100-119, or
 leave-one-trial-out on the BROAD recordings) and written here by ``fusegraph tune STUDY --write``.
 The code reads its defaults from this file, so a report always runs with what the last study chose,
 and the file says on what (``seeds`` or ``trials``) and with what score.

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from fusegraph.ablation import METRIC_COLUMNS, Study, _result_or_failure, read_rows, run_study, summarize, summary_table
+from fusegraph.evaluation.ablation import METRIC_COLUMNS, Study, _result_or_failure, read_rows, run_study, summarize, summary_table
 
 SMALL = Study(system="head", drops=(("tracker",), ("gyro",)), vary=(("latency", (0.05, 0.1)),), seeds=(0, 1), solvers=("ekf", "online"),
               duration_s=2.0, profile="ideal")
@@ -86,7 +86,7 @@ def test_a_dead_worker_becomes_a_failed_row() -> None:
 
 @pytest.mark.parametrize("path", sorted(Path(__file__).resolve().parents[1].joinpath("examples").glob("*.toml")))
 def test_example_studies_parse(path: Path) -> None:
-    from fusegraph.ablation import load_study
+    from fusegraph.evaluation.ablation import load_study
 
     study = load_study(path)
     assert study.runs(), path

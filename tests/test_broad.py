@@ -59,7 +59,7 @@ def test_real_trials_load_and_truth_scores_zero() -> None:
 @requires_shared_data("broad")
 def test_vqf_reproduces_the_reference_figures_on_the_shared_trials() -> None:
     pytest.importorskip("vqf")
-    from fusegraph.solvers.peers import run_vqf
+    from fusegraph.baselines.peers import run_vqf
 
     online, offline = [], []
     for path in trial_paths(DEFAULT_DIR):

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from fusegraph.baselines.ekf9 import run_ekf9
 from fusegraph.factors.imu import GRAVITY_M_S2 as GRAVITY
 from fusegraph.geometry import euler_zyx_from_quat, matrix_from_quat, quat_from_euler_zyx, wrap_angle
-from fusegraph.solvers.ekf9 import run_ekf9
 
 FIELD_ENU = np.array([0.0, 20.0, -40.0])  # uT: north and down, a 63 deg dip like central Europe
 

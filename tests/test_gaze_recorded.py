@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from conftest import requires_shared_data
 
+from fusegraph.evaluation.gaze_recorded import dispersion_deg, fixations, gaze_time_offset
 from fusegraph.factors.gaze import SceneCamera
 from fusegraph.geometry import matrix_from_quat, quat_from_rotvec
 from fusegraph.scenarios.gaze import GazeScenarioConfig, GazeSession
-from fusegraph.systems.gaze_recorded import dispersion_deg, fixations, gaze_time_offset
 
 
 def _vor_session(delay_s: float, seed: int = 0) -> tuple[GazeSession, np.ndarray]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fusegraph.baselines.ekf import HeadEkf, HeadEkfConfig, run_head_ekf
 from fusegraph.geometry import euler_rate_matrix, euler_zyx_from_quat, quat_conjugate, quat_from_euler_zyx, quat_multiply, rotvec_from_quat
-from fusegraph.solvers.ekf import HeadEkf, HeadEkfConfig, run_head_ekf
 
 
 def _constant_rotation(duration_s: float = 10.0, rate_hz: float = 100.0, tracker_hz: float = 50.0):
@@ -70,7 +70,7 @@ def test_euler_angles_round_trip_in_the_helpers() -> None:
 
 
 def test_rate_jacobian_matches_central_differences() -> None:
-    from fusegraph.solvers.ekf import _d_rate_d_angles
+    from fusegraph.baselines.ekf import _d_rate_d_angles
 
     rng = np.random.default_rng(3)
     for _ in range(20):

@@ -7,9 +7,9 @@ import pytest
 from conftest import requires_shared_data
 
 from fusegraph.estimate import Estimate
+from fusegraph.evaluation.head_recorded import EULER_DOMAIN_DEG, _score, scored_samples
 from fusegraph.geometry import quat_conjugate, quat_from_euler_zyx, quat_multiply, rotvec_from_quat
 from fusegraph.session import KIND_COLUMNS, Session, Stream
-from fusegraph.systems.head_recorded import EULER_DOMAIN_DEG, _score, scored_samples
 
 
 def _session(elevation_deg: np.ndarray) -> Session:
@@ -44,7 +44,7 @@ def test_scoring_keeps_to_the_euler_domain_and_flags_a_filter_that_leaves_it() -
 @requires_shared_data("broad")
 def test_broad_trial_becomes_a_late_50_hz_tracker_with_the_declared_errors() -> None:
     from fusegraph.datasets.broad import DEFAULT_DIR, trial_paths
-    from fusegraph.systems.head_recorded import head_session_from_broad
+    from fusegraph.evaluation.head_recorded import head_session_from_broad
 
     path = trial_paths(DEFAULT_DIR)[-1]  # an attached-magnet trial: occlusions as well as motion
     session = head_session_from_broad(path)
@@ -73,8 +73,8 @@ def test_online_head_survives_a_covariance_that_cholesky_calls_indeterminate() -
     from dataclasses import replace
 
     from fusegraph.datasets.broad import DEFAULT_DIR
+    from fusegraph.evaluation.head_recorded import head_session_from_broad
     from fusegraph.systems import head
-    from fusegraph.systems.head_recorded import head_session_from_broad
 
     session = head_session_from_broad(DEFAULT_DIR / "06_undisturbed_fast_rotation_A.mat")
     first = {name: replace(s, t=s.t[s.t < 3.0], values=s.values[s.t < 3.0]) for name, s in session.streams.items()}

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fusegraph.baselines.stonesoup_peer import StoneSoupConfig, _stonesoup, run_stonesoup
 from fusegraph.scenarios.ultrasonic import simulate_ultrasonic
-from fusegraph.solvers.stonesoup_peer import StoneSoupConfig, _stonesoup, run_stonesoup
 from fusegraph.systems.ultrasonic import _head, score_run
 
 

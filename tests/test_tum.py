@@ -9,7 +9,7 @@ import pytest
 
 from fusegraph import SessionError
 from fusegraph.geometry import quat_normalize
-from fusegraph.tum import read_tum, write_tum
+from fusegraph.report.tum import read_tum, write_tum
 
 
 def sample_trajectory(n: int = 50) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

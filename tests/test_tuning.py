@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from fusegraph.tuning import STUDIES, TEST_SEEDS, TUNING_SEEDS, Study, format_study, run_study
+from fusegraph.evaluation.tuning import STUDIES, TEST_SEEDS, TUNING_SEEDS, Study, format_study, run_study
 
 
 def test_study_ranks_the_grid_and_refuses_test_seeds() -> None:
@@ -24,7 +24,7 @@ def test_the_gaze_ekf_study_scores_a_setting() -> None:
 
 
 def test_leave_one_group_out_scores_each_group_with_a_setting_chosen_without_it() -> None:
-    from fusegraph.tuning import leave_one_group_out
+    from fusegraph.evaluation.tuning import leave_one_group_out
 
     # "b" is best on average only because of group 3; held out, group 3 is scored with "a"
     scores = {"a": {"1": 1.0, "2": 1.0, "3": 5.0}, "b": {"1": 2.0, "2": 2.0, "3": 0.0}}
@@ -47,8 +47,8 @@ def test_tune_command_refuses_test_seeds_and_unknown_studies(capsys: pytest.Capt
 def test_every_chosen_value_in_tuned_toml_is_a_point_of_its_study_grid() -> None:
     """The values the code reads come from the grid `fusegraph tune` prints (a grid edited without re-running
     the study, or a value typed in by hand, fails here)."""
+    from fusegraph.evaluation.tuning import BROAD_GRIDS, BROAD_PER_SOLVER
     from fusegraph.tuned import tuned
-    from fusegraph.tuning import BROAD_GRIDS, BROAD_PER_SOLVER
 
     grids = {name: study.grid for name, study in STUDIES.items()}
     grids.update(BROAD_GRIDS)
@@ -93,7 +93,7 @@ def test_write_tuned_replaces_one_study_and_keeps_the_others(tmp_path) -> None: 
 def test_a_broad_study_chooses_by_leave_one_trial_out_in_one_or_two_processes(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
     from conftest import SHARED_DATA
 
-    from fusegraph import tuning
+    from fusegraph.evaluation import tuning
     from fusegraph.tuned import tuned
 
     source = SHARED_DATA / "broad"
@@ -117,7 +117,7 @@ def test_a_broad_study_chooses_by_leave_one_trial_out_in_one_or_two_processes(tm
 
 
 def test_a_broad_bias_point_changes_the_bias_model_only() -> None:
-    from fusegraph import tuning
+    from fusegraph.evaluation import tuning
     from fusegraph.systems.attitude9 import broad_model
 
     point = {"accel_bias_prior_m_s2": 0.02, "accel_bias_walk_m_s2_sqrt_s": 1e-4, "gyro_bias_walk_rad_s_sqrt_s": 1e-4}

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from conftest import requires_shared_data
 
+from fusegraph.baselines.combinatorial import combinatorial_epoch
 from fusegraph.frontends.association import assign_ranges, locate, trilaterate
 from fusegraph.scenarios.ultrasonic import ceiling_board, simulate_ultrasonic
-from fusegraph.solvers.combinatorial import combinatorial_epoch
 from fusegraph.systems.ultrasonic import RangeEpochs, UltrasonicTracker, crossing_epochs, identity_map, run_fusegraph, score_run
 
 RECEIVERS = ceiling_board()

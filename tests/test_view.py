@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from fusegraph.cli import main
+from fusegraph.report.tum import read_tum
 from fusegraph.scenarios import simulate_head
 from fusegraph.session import save_session
-from fusegraph.tum import read_tum
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +40,8 @@ def test_view_of_a_session_writes_every_file(head_session: Path, tmp_path: Path,
 def test_open3d_renders_headless_when_installed(head_session: Path, tmp_path: Path) -> None:
     pytest.importorskip("open3d", exc_type=ImportError)
     from fusegraph import load_session
+    from fusegraph.report.view import head_scene, write_head_scene
     from fusegraph.systems.head import run_batch
-    from fusegraph.view import head_scene, write_head_scene
 
     session = load_session(head_session)
     assert session.truth is not None

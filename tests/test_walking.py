@@ -12,6 +12,7 @@ from conftest import SHARED_DATA, assert_jacobians_match, requires_shared_data
 
 from fusegraph.datasets import steps_oxford
 from fusegraph.datasets.plaza import load_plaza
+from fusegraph.evaluation import plaza
 from fusegraph.factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose
 from fusegraph.factors.ranging import RangeNoise, range_factor
 from fusegraph.frontends import pdr
@@ -19,7 +20,7 @@ from fusegraph.graphs.planar import PlanarGraph, X, poses_of
 from fusegraph.scenarios.walking import simulate_calibration_walk, simulate_walking
 from fusegraph.solvers.batch import solve_python_loop
 from fusegraph.solvers.online import OnlineConfig, OnlineSmoother
-from fusegraph.systems import plaza, walking
+from fusegraph.systems import walking
 
 
 @pytest.fixture(scope="module")

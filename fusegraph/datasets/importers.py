@@ -62,7 +62,7 @@ def import_recording(fmt: str, source: str | Path, out: str | Path) -> list[Path
 
 def plaza_session(name: str) -> Session:
     """A Plaza run as a wheel-odometry walking session (see the module docstring)."""
-    from ..systems.plaza import ODOMETRY, RANGES, _beacon_table
+    from ..evaluation.plaza import ODOMETRY, RANGES, _beacon_table
     from .plaza import RECORDINGS, load_plaza
 
     if name not in RECORDINGS:

@@ -286,7 +286,7 @@ def _solve_batch(
 
 def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:
     """The founding papers' 9-axis EKF on roll/pitch/yaw (the same magnetometer calibration)."""
-    from ..solvers.ekf9 import Ekf9Config, run_ekf9
+    from ..baselines.ekf9 import Ekf9Config, run_ekf9
 
     data = imu9(session)
     if data.mag is None:
@@ -299,7 +299,7 @@ def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:
 
 def run_vqf(session: Session, offline: bool = False) -> Estimate:
     """The peer VQF (default parameters) on the same calibrated magnetometer as ours."""
-    from ..solvers.peers import run_vqf as peer
+    from ..baselines.peers import run_vqf as peer
 
     if "mag" in session.streams:
         cal = model_for(session).mag_calibration
@@ -393,7 +393,7 @@ def plot_broad(result: dict[str, Any], path: str | Path) -> Path:
     """Grouped bars of the total and the inclination RMSE per trial and method (log scale), as a PNG."""
     import matplotlib.pyplot as plt
 
-    from ..plots import grouped_bars, save_figure
+    from ..report.plots import grouped_bars, save_figure
 
     trials = list(result["trials"])
     methods = list(result["mean"])

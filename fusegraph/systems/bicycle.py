@@ -20,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..baselines.ekf9 import Ekf9Config, run_ekf9
 from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, euler_zyx_from_quat, matrix_from_quat, quat_wxyz_from_rot3
 from ..graphs.attitude9 import fill_samples
@@ -28,7 +29,6 @@ from ..metrics import euler_errors
 from ..scenarios.bicycle import BicycleScenarioConfig, BicycleSession, simulate_bicycle
 from ..session import Session
 from ..solvers.batch import solve_python_loop
-from ..solvers.ekf9 import Ekf9Config, run_ekf9
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from ..tuned import value
 
@@ -194,7 +194,7 @@ def bicycle_report(seeds: tuple[int, ...] = (0, 1, 2), plot: str | None = None, 
 
 def plot_bicycle(s: BicycleSession, estimates: dict[str, FloatArray], path: str) -> None:
     """Like the paper's figure: thigh pitch and roll, truth and each method, braking shaded."""
-    from ..plots import plt, save_figure  # headless pyplot
+    from ..report.plots import plt, save_figure  # headless pyplot
 
     truth = np.degrees(euler_zyx_from_quat(s.thigh_quat_wxyz))
     fig, axes = plt.subplots(2, 1, figsize=(12, 7), sharex=True)

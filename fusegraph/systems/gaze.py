@@ -23,6 +23,7 @@ from typing import Any, Protocol
 import gtsam
 import numpy as np
 
+from ..baselines.ekf_gaze import GazeEkfConfig, run_gaze_ekf_full
 from ..factors.attitude import AttitudeTrack
 from ..factors.gaze import FixationNoise, SceneCamera, depth_prior, fixation_tuned, fixation_walk, gaze_factor, wall_plane_prior
 from ..factors.imu import MotionPriors
@@ -31,7 +32,6 @@ from ..geometry import FloatArray, quat_wxyz_from_rot3
 from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
 from ..scenarios.gaze import GazeScenarioConfig, GazeSession, simulate_gaze
 from ..session import Session, SessionError
-from ..solvers.ekf_gaze import GazeEkfConfig, run_gaze_ekf_full
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from .attitude9 import attitude_tracker
 
@@ -415,7 +415,7 @@ def gaze_report(seeds: tuple[int, ...] = (0,), plot: str | None = None, noise_ro
 
 def plot_gaze(session: GazeSession, estimates: dict[str, FloatArray], path: str) -> None:
     """Like the paper's figure: gaze point X and Z on the wall over time, truth and each method."""
-    from ..plots import plt, save_figure  # headless pyplot
+    from ..report.plots import plt, save_figure  # headless pyplot
 
     fig, axes = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
     for c, (ax, name) in enumerate(zip(axes, ("X (horizontal)", "Z (vertical)"), strict=True)):

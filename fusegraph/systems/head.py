@@ -18,6 +18,7 @@ from typing import Any, Concatenate, ParamSpec
 import gtsam
 import numpy as np
 
+from ..baselines.ekf import HeadEkfConfig, run_head_ekf
 from ..estimate import Estimate
 from ..factors.gyro import GyroNoise, integrate_gyro
 from ..geometry import (
@@ -36,7 +37,6 @@ from ..metrics import AXES, AttitudeScore, mean_scores, score_attitude
 from ..progress import progress as progress_bar
 from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
-from ..solvers.ekf import HeadEkfConfig, run_head_ekf
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from ..tuned import tuned, value
 

@@ -160,7 +160,7 @@ def _head_simulate(seed: int, duration_s: float | None = None, **options: Any) -
 
 def _attitude_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
     """Attitude axes with 3-sigma bands against the truth (or the first estimate without truth)."""
-    from ..plots import plot_attitude_axes
+    from ..report.plots import plot_attitude_axes
 
     attitude = [e for e in estimates if isinstance(e, Estimate)]
     truth = session.truth
@@ -174,7 +174,7 @@ def _attitude_picture(session: Session, estimates: list[Result], out: Path) -> l
 
 
 def _head_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
-    from ..view import head_scene, write_head_scene
+    from ..report.view import head_scene, write_head_scene
 
     written = _attitude_picture(session, estimates, out)
     first = estimates[0]
@@ -240,7 +240,7 @@ def _gaze_picture(session: Session, estimates: list[Result], out: Path) -> list[
     """The gaze point on the wall (X right, Z up), each estimate against the truth."""
     import matplotlib.pyplot as plt
 
-    from ..plots import save_figure
+    from ..report.plots import save_figure
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 5))
     truth = session.truth
@@ -359,7 +359,7 @@ def _walking_picture(session: Session, estimates: list[Result], out: Path) -> li
     """The walk per floor (top views), each estimate against the truth."""
     import matplotlib.pyplot as plt
 
-    from ..plots import save_figure
+    from ..report.plots import save_figure
 
     height = float(session.meta.get("building", {}).get("floor_height_m", 3.5))
     truth = session.truth
@@ -431,7 +431,7 @@ def _ultrasonic_picture(session: Session, estimates: list[Result], out: Path) ->
     import matplotlib.pyplot as plt
 
     from ..datasets.ultrasonic_session import epochs_from_session
-    from ..plots import save_figure
+    from ..report.plots import save_figure
     from .ultrasonic import identity_map
 
     epochs = epochs_from_session(session)

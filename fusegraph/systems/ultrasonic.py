@@ -357,7 +357,7 @@ def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: Fl
 
 def run_combinatorial(epochs: RangeEpochs, transmitters: int, config: object | None = None) -> TrackingRun:
     """The paper's search at every epoch (no tracking: each epoch stands alone)."""
-    from ..solvers.combinatorial import CombinatorialConfig, combinatorial_epoch
+    from ..baselines.combinatorial import CombinatorialConfig, combinatorial_epoch
 
     cfg = config if isinstance(config, CombinatorialConfig) else CombinatorialConfig()
     positions, labels, times = [], [], []
@@ -407,9 +407,9 @@ def bench_ultrasonic(
     ``peers``: Stone Soup's trackers (``stonesoup_gnn``, ``stonesoup_jpda``, with their tuned settings) on the first
     ``peer_s`` seconds (Stone Soup needs ~1 s per epoch at N = 12), beside ``fusegraph_peer_window``: fusegraph's causal
     run scored on the same epochs."""
+    from ..baselines.stonesoup_peer import run_stonesoup, tuned_config
     from ..progress import progress
     from ..scenarios.ultrasonic import simulate_ultrasonic
-    from ..solvers.stonesoup_peer import run_stonesoup, tuned_config
 
     sim: dict[str, dict[str, dict[str, float]]] = {}
     jobs = [(n, seed) for n in transmitter_counts for seed in seeds]
@@ -495,7 +495,7 @@ def _head(epochs: RangeEpochs, seconds: float) -> RangeEpochs:
 def plot_ultrasonic(epochs: RangeEpochs, run: TrackingRun, path: str | Path) -> None:
     """Top view of every transmitter (truth and estimate), each one's error over time, and the REST
     model's probability beside the truth's rests."""
-    from ..plots import plt, save_figure  # headless pyplot
+    from ..report.plots import plt, save_figure  # headless pyplot
 
     assert epochs.positions is not None
     truth = epochs.positions

@@ -385,7 +385,7 @@ def calibrated_speed_model(seed: int, config: WalkingScenarioConfig | None = Non
 
 def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None) -> dict[str, object]:
     """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape."""
-    from . import plaza as plaza_system
+    from ..evaluation import plaza as plaza_system
 
     # the activity confusion on the independent (pendulum) gait, whose signals do not follow the detector's rules;
     # the first generator's figure beside it, and the positioning runs on that generator's walk as before
@@ -424,7 +424,7 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
 
 def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> None:
     """Top view and height over time of the truth and every method, fixes marked (wrong ones as x)."""
-    from ..plots import plt, save_figure  # headless pyplot
+    from ..report.plots import plt, save_figure  # headless pyplot
 
     fig, (top, height) = plt.subplots(1, 2, figsize=(15, 6), gridspec_kw={"width_ratios": [1.3, 1]})
     top.plot(session.truth_xyz_m[:, 0], session.truth_xyz_m[:, 1], "k-", lw=2, alpha=0.4, label="truth")

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from .progress import progress
+from ..progress import progress
 
 #: ``--vary`` names for the head system -> fields of the head scenario.
 HEAD_PARAMETERS: dict[str, str] = {
@@ -49,7 +49,7 @@ COLUMNS = ("key", "system", "variant", "drop", "params", "seed", "solver", "prof
 
 def _baseline_solver(system: str) -> str:
     """The paper's baseline of a system as a solver name."""
-    from .systems.presets import PRESETS
+    from ..systems.presets import PRESETS
 
     solvers = PRESETS[system].solvers
     return "ekf" if "ekf" in solvers else next(s for s in solvers if s not in ("online", "batch"))
@@ -91,7 +91,7 @@ class Study:
     """Sensor error profile of the scenario."""
 
     def __post_init__(self) -> None:
-        from .systems.presets import PRESETS
+        from ..systems.presets import PRESETS
 
         if self.system not in PRESETS:
             raise ValueError(f"no system {self.system!r} (available: {', '.join(PRESETS)})")
@@ -146,7 +146,7 @@ def load_study(path: str | Path) -> Study:
         table = tomllib.loads(path.read_text())["study"]
     except (OSError, tomllib.TOMLDecodeError, KeyError) as exc:
         raise ValueError(f"{path}: cannot read a [study] table ({exc})") from None
-    from .cli import parse_seeds
+    from ..cli import parse_seeds
 
     seeds = table.get("seeds", [0])
     return Study(
@@ -177,8 +177,8 @@ def execute(spec: Mapping[str, Any]) -> dict[str, Any]:
             row["run_s"] = time.perf_counter() - start
             return row
         estimate, truth_t, truth_q = _solve_head(spec)
-        from .estimate import Estimate
-        from .metrics import score_attitude
+        from ..estimate import Estimate
+        from ..metrics import score_attitude
 
         assert isinstance(estimate, Estimate)
         score = score_attitude(estimate, truth_t, truth_q)
@@ -206,9 +206,9 @@ def _solve_generic(spec: Mapping[str, Any]) -> tuple[dict[str, float], float]:
     """Any system: simulate through its preset, drop streams, set catalogued keys, solve, score (flattened metrics)."""
     from dataclasses import replace
 
-    from .catalogue import sensor_catalogue
+    from ..catalogue import sensor_catalogue
+    from ..systems.presets import PRESETS, flatten
     from .runner import solve_session
-    from .systems.presets import PRESETS, flatten
 
     preset = PRESETS[spec["system"]]
     options: dict[str, Any] = {}
@@ -240,8 +240,8 @@ def _solve_generic(spec: Mapping[str, Any]) -> tuple[dict[str, float], float]:
 
 
 def _solve_head(spec: Mapping[str, Any]) -> tuple[Any, Any, Any]:
-    from .scenarios.head import simulate_head
-    from .systems import head
+    from ..scenarios.head import simulate_head
+    from ..systems import head
 
     overrides = {HEAD_PARAMETERS[k]: v for k, v in spec["params"].items()}
     session = simulate_head(int(spec["seed"]), profile=spec["profile"], duration_s=float(spec["duration_s"]), **overrides)
@@ -405,7 +405,7 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SummaryRow]:
     """Mean and 95 % confidence interval (Student t over seeds) of each metric per variant and solver."""
     from scipy import stats
 
-    from .systems.presets import PRESETS
+    from ..systems.presets import PRESETS
 
     groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
     for row in rows:

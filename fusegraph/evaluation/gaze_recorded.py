@@ -221,9 +221,9 @@ class RecordedGaze:
 
 def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = False) -> RecordedGaze:
     """Offset, fixations and every method's head attitude on the eye-tracker recording in ``directory``."""
+    from ..baselines.ekf_gaze import GazeEkfConfig
     from ..datasets.tobii import DEFAULT_DIR, load_tobii
-    from ..solvers.ekf_gaze import GazeEkfConfig
-    from . import gaze
+    from ..systems import gaze
 
     recording = load_tobii(directory or DEFAULT_DIR)
     session = gaze.from_session(recording)
@@ -300,7 +300,7 @@ def plot_gaze_recorded(run: RecordedGaze, path: str | Path) -> Path:
     world gaze angle from its fixation's mean direction. PNG."""
     import matplotlib.pyplot as plt
 
-    from ..plots import save_figure
+    from ..report.plots import save_figure
 
     speed, head, ok = world_gaze_speed(run.session, run.offset_s)
     found = run.fixations

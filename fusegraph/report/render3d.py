@@ -1,8 +1,8 @@
-"""Headless open3d render of saved geometry, run in a child process: ``python -m fusegraph.render3d``.
+"""Headless open3d render of saved geometry, run in a child process: ``python -m fusegraph.report.render3d``.
 
 open3d's offscreen renderer (Filament) hangs when a process creates it more than once or twice, so
 every render gets a fresh process that exits without running the renderer's destructor.
-Usage: ``python -m fusegraph.render3d POINTS.ply MESH.glb OUT.png``.
+Usage: ``python -m fusegraph.report.render3d POINTS.ply MESH.glb OUT.png``.
 """
 
 from __future__ import annotations

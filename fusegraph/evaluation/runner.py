@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from .estimate import Result
-from .session import Session, SessionError, load_session
-from .systems.presets import PRESETS, Preset, flatten, preset_for
+from ..estimate import Result
+from ..session import Session, SessionError, load_session
+from ..systems.presets import PRESETS, Preset, flatten, preset_for
 
 
 @dataclass
@@ -115,7 +115,7 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
 
     ``scheduler``: None = local processes, ``local`` = a Dask LocalCluster, ``tcp://host:port`` = an existing cluster.
     """
-    from .progress import progress
+    from ..progress import progress
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -174,7 +174,7 @@ def generic_report(system: str, seeds: Sequence[int], duration_s: float | None =
 
     JSON: ``{"system", "seeds", "duration_s", "methods": {solver: {"metrics": {...}, "x_realtime": x}}, "per_seed": ...}``.
     """
-    from .progress import progress
+    from ..progress import progress
 
     preset = PRESETS[system]
     names = list(solvers or preset.solvers)

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .estimate import Estimate
-from .geometry import FloatArray, matrix_from_quat
-from .metrics import body_errors
-from .session import Session
+from ..estimate import Estimate
+from ..geometry import FloatArray, matrix_from_quat
+from ..metrics import body_errors
+from ..session import Session
 
 METRES_PER_SECOND = 0.5
 FRAME_EVERY_S = 0.5
@@ -128,12 +128,12 @@ RENDER_TIMEOUT_S = 120.0
 
 
 def _render_open3d(points_path: Path, mesh_path: Path, raw_png: Path) -> FloatArray:
-    """Render in a child process (see ``fusegraph.render3d``); the image as an array."""
+    """Render in a child process (see ``fusegraph.report.render3d``); the image as an array."""
     import subprocess
 
     import matplotlib.image
 
-    command = [sys.executable, "-m", "fusegraph.render3d", str(points_path), str(mesh_path), str(raw_png)]
+    command = [sys.executable, "-m", "fusegraph.report.render3d", str(points_path), str(mesh_path), str(raw_png)]
     done = subprocess.run(command, capture_output=True, text=True, timeout=RENDER_TIMEOUT_S)
     if done.returncode != 0 or not raw_png.is_file():
         last = (done.stderr.strip().splitlines() or ["no output"])[-1]
@@ -200,7 +200,7 @@ SOLVER_METHODS = {"online": "isam2", "batch": "batch", "ekf": "method2"}
 
 def view_session(session: Session, out: Path, solver: str) -> list[Path]:
     """Any system's session: run the solver, write its estimate (CSV; TUM for attitudes) and the preset's picture."""
-    from .runner import solve_session
+    from ..evaluation.runner import solve_session
     from .tum import write_tum
 
     outcome = solve_session(session, solver)
@@ -218,15 +218,15 @@ def view(path: str | Path, out_dir: str | Path, solver: str = "batch", truth_pat
     ``path`` is a session directory (the solver runs first) or an estimate CSV written by
     ``fusegraph run`` (then ``truth_path``, a TUM file or a session directory, adds the truth).
     """
+    from ..session import SessionError, load_session
     from .plots import plot_attitude_axes
-    from .session import SessionError, load_session
     from .tum import read_tum, write_tum
 
     source, out = Path(path), Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     truth_t = truth_q = None
     if (source / "session.toml").is_file():
-        from .systems import head
+        from ..systems import head
 
         session = load_session(source)
         if session.system != "head":

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .geometry import FloatArray, quat_normalize
-from .session import SessionError
+from ..geometry import FloatArray, quat_normalize
+from ..session import SessionError
 
 
 def write_tum(path: str | Path, t: FloatArray, quat_wxyz: FloatArray, position_m: FloatArray | None = None, comment: str = "") -> Path:

@@ -13,9 +13,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from .estimate import Estimate  # noqa: E402
-from .geometry import FloatArray, euler_zyx_from_quat, wrap_angle  # noqa: E402
-from .metrics import AXES  # noqa: E402
+from ..estimate import Estimate  # noqa: E402
+from ..geometry import FloatArray, euler_zyx_from_quat, wrap_angle  # noqa: E402
+from ..metrics import AXES  # noqa: E402
 
 
 def plot_attitude_axes(

@@ -30,14 +30,14 @@ from typing import Any
 
 import numpy as np
 
+from ..baselines.ekf import HeadEkfConfig
 from ..datasets.broad import DEFAULT_DIR, load_broad, trial_paths
 from ..estimate import Estimate
 from ..geometry import FloatArray, euler_zyx_from_quat, quat_from_rotvec, quat_multiply, quat_normalize
 from ..metrics import AXES, euler_errors
 from ..scenarios.head import HeadScenarioConfig, tracker_errors
 from ..session import KIND_COLUMNS, Session, Stream
-from ..solvers.ekf import HeadEkfConfig
-from . import head
+from ..systems import head
 
 METHODS = ("tracker", "method2", "method2_paper_values", "isam2", "batch")
 """Rows of the table and keys of the JSON, in order (the targets use ``tracker, method2, isam2, batch``)."""
@@ -271,7 +271,7 @@ def _choose(runs: dict[str, TrialRuns], method: str, stems: list[str], scored_wi
     a grid point that failed on a trial (not finite, or gtsam refused the system) scoring as far off there.
     ``scored_with``: the methods whose mean RMS scores a grid point (the graph's gyro declaration is one property of
     the sensor that online and batch share: chosen once for both)."""
-    from ..tuning import leave_one_group_out
+    from .tuning import leave_one_group_out
 
     inside = [stem for stem in stems if method != "method2" or all(r.invalid is None for r in runs[stem].grids[method].values())]
     tuning_trials = inside if len(inside) >= 2 else stems
@@ -292,7 +292,7 @@ def bench_head_recorded(
 ) -> dict[str, Any]:
     """Every BROAD trial in ``directory`` as a head session through every method; the JSON of
     ``fusegraph bench head-recorded`` (see the module docstring). ``trials``: file-name prefixes to keep."""
-    from ..cluster import completed
+    from .cluster import completed
 
     paths = [p for p in trial_paths(directory or DEFAULT_DIR) if not trials or any(p.stem.startswith(t) for t in trials)]
     if len(paths) < 2:
@@ -403,7 +403,7 @@ def plot_head_recorded(result: dict[str, Any], path: str | Path) -> Path:
     """Bars of the RMS per axis, trial and method (log scale), excluded figures left out, as a PNG."""
     import matplotlib.pyplot as plt
 
-    from ..plots import grouped_bars, save_figure
+    from ..report.plots import grouped_bars, save_figure
 
     trials = list(result["trials"])
     labels = [t.split("_", 1)[0] for t in trials] + ["mean"]

@@ -2,7 +2,7 @@
 
 Reports and benches score seeds 0-9 (``TEST_SEEDS``); every setting that a paper leaves open (a
 baseline's noise figures) or that we choose (a graph's kernel) is picked here on seeds 100-119
-(``TUNING_SEEDS``), which no report prints. ``python -m fusegraph.tuning NAME`` reruns a study and
+(``TUNING_SEEDS``), which no report prints. ``python -m fusegraph.evaluation.tuning NAME`` reruns a study and
 prints its table; with ``--write`` the chosen values go to ``fusegraph/tuned.toml`` (``fusegraph.tuned``), which the
 code reads its defaults from.
 """
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from .tuned import write_tuned
+from ..tuned import write_tuned
 
 TUNING_SEEDS: tuple[int, ...] = tuple(range(100, 120))
 """Seeds every free setting is chosen on."""
@@ -118,9 +118,9 @@ def grid_settings(grid: Mapping[str, Sequence[float]]) -> dict[str, dict[str, fl
 def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     """The 9-axis EKF's open settings (gyro noise; the accelerometer-noise inflation with | |a| - g |, which no
     paper has) chosen by leave-one-trial-out on the BROAD trials: total RMSE, degrees."""
-    from .datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
-    from .solvers.ekf9 import Ekf9Config, run_ekf9
-    from .systems.attitude9 import imu9, model_for
+    from ..baselines.ekf9 import Ekf9Config, run_ekf9
+    from ..datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
+    from ..systems.attitude9 import imu9, model_for
 
     grid = grid_settings(BROAD_EKF_GRID)
     scores: dict[str, dict[str, float]] = {name: {} for name in grid}
@@ -181,8 +181,8 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     """The 9-axis model with one grid point of a BROAD study applied to the solver's tuned model."""
     from dataclasses import replace
 
-    from .graphs.attitude9 import mag_noise_from
-    from .systems.attitude9 import broad_model, with_bias, with_motion
+    from ..graphs.attitude9 import mag_noise_from
+    from ..systems.attitude9 import broad_model, with_bias, with_motion
 
     base = broad_model(solver)
     if study == "broad_online":
@@ -194,8 +194,8 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
 
 def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
     """Every grid point of a BROAD study on one trial (``job``: path, study, solver): total RMSE, degrees."""
-    from .datasets.broad import broad_errors, load_broad
-    from .systems import attitude9
+    from ..datasets.broad import broad_errors, load_broad
+    from ..systems import attitude9
 
     path, study, solver = job
 
@@ -218,7 +218,7 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     accelerometer bias's prior and walk, the gyro bias's walk; ``broad_online``: the online solver's relinearisation
     checks) chosen by leave-one-trial-out on the BROAD trials for ``solver`` (online or batch), the other study's settings
     as tuned: total RMSE, degrees."""
-    from .datasets.broad import DEFAULT_DIR, trial_paths
+    from ..datasets.broad import DEFAULT_DIR, trial_paths
 
     paths = [str(p) for p in trial_paths(directory or DEFAULT_DIR)]
     per_trial = _in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers)
@@ -243,33 +243,33 @@ BROAD_PER_SOLVER = ("broad_mag", "broad_motion", "broad_bias")
 def _simulated(scenario: str, seed: int) -> Any:
     """A tuning seed's simulation, made once for the whole grid (every cell scores the same sessions)."""
     if scenario == "gaze":
-        from .scenarios.gaze import simulate_gaze
+        from ..scenarios.gaze import simulate_gaze
 
         return simulate_gaze(seed)
     if scenario == "bicycle":
-        from .scenarios.bicycle import simulate_bicycle
+        from ..scenarios.bicycle import simulate_bicycle
 
         return simulate_bicycle(seed)
     if scenario == "ultrasonic":
-        from .scenarios.ultrasonic import simulate_ultrasonic
-        from .systems.ultrasonic import _head
+        from ..scenarios.ultrasonic import simulate_ultrasonic
+        from ..systems.ultrasonic import _head
 
         return _head(simulate_ultrasonic(seed, transmitters=STONESOUP_TUNING_N, duration_s=20.0), 1.0)
     if scenario == "head":
-        from .scenarios.head import simulate_head
+        from ..scenarios.head import simulate_head
 
         return simulate_head(seed, duration_s=10.0)
-    from .scenarios.walking import simulate_walking
-    from .systems import walking
+    from ..scenarios.walking import simulate_walking
+    from ..systems import walking
 
     walk = simulate_walking(seed)
     return walk, walking.analyse(walk, walking.calibrated_speed_model(seed))[2]
 
 
 def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
-    from .solvers.ekf9 import Ekf9Config
-    from .solvers.ekf_gaze import GazeEkfConfig, run_gaze_ekf
-    from .systems.gaze import rms_mm
+    from ..baselines.ekf9 import Ekf9Config
+    from ..baselines.ekf_gaze import GazeEkfConfig, run_gaze_ekf
+    from ..systems.gaze import rms_mm
 
     s = _simulated("gaze", seed)
     head = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_inflation=setting["accel_inflation"])
@@ -280,8 +280,8 @@ def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
 
 
 def _gaze_fixation_score(setting: dict[str, Any], seed: int, solver: str = "online") -> float:
-    from .factors.gaze import FixationNoise
-    from .systems.gaze import GazeModel, rms_mm, run_batch, run_online
+    from ..factors.gaze import FixationNoise
+    from ..systems.gaze import GazeModel, rms_mm, run_batch, run_online
 
     s = _simulated("gaze", seed)
     fixation = FixationNoise(drift_m_per_sqrt_s=setting["drift_m_per_sqrt_s"], cauchy_k=setting["cauchy_k"])
@@ -295,8 +295,8 @@ GAZE_FIXATION_GRID = {"drift_m_per_sqrt_s": (0.005, 0.01, 0.02, 0.04), "cauchy_k
 
 def _bicycle_ekf_score(setting: dict[str, Any], seed: int, method: str = "paper_pipeline") -> float:
     """Hypot of the braking pitch and roll RMS of one EKF baseline (``paper_pipeline`` or ``no_removal``) with these sigmas."""
-    from .solvers.ekf9 import Ekf9Config
-    from .systems.bicycle import RUNNERS, braking_rms_deg
+    from ..baselines.ekf9 import Ekf9Config
+    from ..systems.bicycle import RUNNERS, braking_rms_deg
 
     s = _simulated("bicycle", seed)
     config = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_sigma_m_s2=setting["accel_sigma_m_s2"], accel_inflation=0.0)
@@ -311,7 +311,7 @@ BICYCLE_EKF_GRID = {"gyro_sigma_rad_s": (0.001, 0.003, 0.01, 0.03, 0.1), "accel_
 def _walking_fixes_score(setting: dict[str, Any], seed: int) -> float:
     from dataclasses import replace
 
-    from .systems import walking
+    from ..systems import walking
 
     walk, events = _simulated("walking", seed)
     noise = replace(walking.FIX_NOISE, kernel_width=setting["kernel_width"])
@@ -322,7 +322,7 @@ def _walking_fixes_score(setting: dict[str, Any], seed: int) -> float:
 def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
     from dataclasses import replace
 
-    from .systems.head import run_isam2, score_attitude, without_gyro
+    from ..systems.head import run_isam2, score_attitude, without_gyro
 
     session = _simulated("head", seed)
     tracker_only, model = without_gyro(session)
@@ -333,8 +333,8 @@ def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
 
 
 def _stonesoup_score(setting: dict[str, Any], seed: int, method: str) -> float:
-    from .solvers.stonesoup_peer import StoneSoupConfig, run_stonesoup
-    from .systems.ultrasonic import score_run
+    from ..baselines.stonesoup_peer import StoneSoupConfig, run_stonesoup
+    from ..systems.ultrasonic import score_run
 
     epochs = _simulated("ultrasonic", seed)
     run = run_stonesoup(epochs, STONESOUP_TUNING_N, method, StoneSoupConfig(**setting))
@@ -348,8 +348,8 @@ per epoch here, so the study runs on seeds 100-104 of the tuning seeds)."""
 
 
 def _head_ekf_score(setting: dict[str, Any], seed: int, mode: str = "method2") -> float:
-    from .metrics import score_attitude
-    from .systems.head import ekf_config_from, run_ekf
+    from ..metrics import score_attitude
+    from ..systems.head import ekf_config_from, run_ekf
 
     session = _simulated("head", seed)
     assert session.truth is not None
@@ -392,7 +392,7 @@ STUDIES: dict[str, Study] = {
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m fusegraph.tuning", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m fusegraph.evaluation.tuning", description=__doc__)
     parser.add_argument("study",
                         help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias / broad_online "
                         "(leave-one-trial-out on BROAD)")
