@@ -422,11 +422,13 @@ def _seeds_block(seeds: Any, system: str) -> dict[str, Any]:
 
 def _cmd_report(args: argparse.Namespace) -> int:
     if args.system in ("bicycle", "gaze"):
-        from .systems import bicycle, gaze
+        from .evaluation import bicycle, gaze
+        from .report.bicycle import format_bicycle_table
+        from .report.gaze import format_gaze_table
 
         if args.duration is not None or args.profile != "realistic":
             raise ValueError(f"report {args.system}: its scenario is fixed (40 s, the realistic profile); --duration and --profile do not apply")
-        make, table = {"bicycle": (bicycle.bicycle_report, bicycle.format_bicycle_table), "gaze": (gaze.gaze_report, gaze.format_gaze_table)}[args.system]
+        make, table = {"bicycle": (bicycle.bicycle_report, format_bicycle_table), "gaze": (gaze.gaze_report, format_gaze_table)}[args.system]
         seeds = tuple(args.seeds)
         found = make(seeds, plot=str(args.plot) if args.plot else None)
         found.update(_seeds_block(seeds, args.system))
@@ -456,7 +458,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
             written[0].replace(args.plot)
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
         return 0
-    from .systems import head
+    from .evaluation import head
 
     duration = 10.0 if args.duration is None else args.duration
     report = head.head_report(args.seeds, args.profile, duration, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed)
@@ -472,6 +474,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
     """The paper's Fig. 3/4 for one seed: reference, tracker, Method II and iSAM2 per axis."""
+    from .evaluation.head import LABELS
     from .report.plots import plot_attitude_axes
     from .scenarios import simulate_head
     from .systems import head
@@ -480,14 +483,14 @@ def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
     assert session.truth is not None
     estimates = [head.run_method(session, m) for m in ("tracker", "method2", "isam2")]
     title = f"head tracking, {profile} profile, seed {seed}: tracker (100 ms late), Method II, fusegraph iSAM2 (causal)"
-    return plot_attitude_axes(session.truth.t, session.truth.values, estimates, path, title, head.LABELS)
+    return plot_attitude_axes(session.truth.t, session.truth.values, estimates, path, title, LABELS)
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "broad":
         return _bench_broad(args)
     if args.system == "soak":
-        from .systems.head import head_soak
+        from .evaluation.head import head_soak
 
         soak = head_soak(3600.0 if args.duration == 600.0 else args.duration)
         if args.json:
@@ -524,28 +527,30 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         return 0
     if args.system == "walking":
         from .datasets import steps_oxford
-        from .systems import walking
+        from .evaluation import walking
+        from .report.walking import format_walking_table
 
         oxford = None if args.oxford == "none" else (steps_oxford.DEFAULT_DIR if args.oxford == "default" else Path(args.oxford))
         if oxford is not None and not Path(oxford).is_dir():
             raise FileNotFoundError(f"Oxford recordings not found at {oxford} (use --oxford DIR or --oxford none)")
         seed = (args.seeds or (0,))[0]
         walk = walking.bench_walking(seed, oxford, plaza=not args.no_plaza, plot=args.plot)
-        print(json.dumps(walk, indent=2) if args.json else walking.format_walking_table(walk))
+        print(json.dumps(walk, indent=2) if args.json else format_walking_table(walk))
         return 0
     if args.system == "ultrasonic":
-        from .systems import ultrasonic
+        from .evaluation import ultrasonic
+        from .report.ultrasonic import format_ultrasonic_table
 
         counts = tuple(int(x) for x in args.transmitters.split(","))
         found = ultrasonic.bench_ultrasonic(
             counts, tuple(args.seeds or (0, 1, 2)), duration_s=20.0 if args.duration == 600.0 else args.duration,
             uwb_dir=None if args.uwb == "none" else args.uwb, plot=args.plot,
         )
-        print(json.dumps(found, indent=2) if args.json else ultrasonic.format_ultrasonic_table(found))
+        print(json.dumps(found, indent=2) if args.json else format_ultrasonic_table(found))
         return 0
     if args.directory is not None:
         raise ValueError("bench head takes no directory (it simulates its session)")
-    from .systems import head
+    from .evaluation import head
 
     result = head.head_bench(args.duration, args.repeat, profile=args.profile)
     if args.json:
@@ -560,17 +565,19 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _bench_broad(args: argparse.Namespace) -> int:
+    from .evaluation.broad import bench_broad
+    from .report.broad import format_broad_table, plot_broad
     from .systems import attitude9
 
     methods = tuple(m.strip() for m in args.methods.split(",")) if args.methods else tuple(attitude9.METHODS)
     trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
-    result = attitude9.bench_broad(args.directory, methods, trials)
+    result = bench_broad(args.directory, methods, trials)
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        print(attitude9.format_broad_table(result))
+        print(format_broad_table(result))
     if args.plot:
-        print(f"wrote {attitude9.plot_broad(result, args.plot)}", file=sys.stderr if args.json else sys.stdout)
+        print(f"wrote {plot_broad(result, args.plot)}", file=sys.stderr if args.json else sys.stdout)
     return 0
 
 

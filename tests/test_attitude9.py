@@ -257,7 +257,9 @@ def test_online_estimate_is_causal() -> None:
 @requires_shared_data("broad")
 def test_bench_on_the_attached_magnet_trial() -> None:
     pytest.importorskip("vqf")
-    result = attitude9.bench_broad(trials=("32",), methods=("vqf", "online"), show_progress=False)
+    from fusegraph.evaluation.broad import bench_broad
+
+    result = bench_broad(trials=("32",), methods=("vqf", "online"), show_progress=False)
     (stem,) = result["trials"]
     assert stem.startswith("32_")
     row = result["trials"][stem]

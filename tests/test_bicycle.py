@@ -51,7 +51,9 @@ def test_stand_ride_has_no_translation() -> None:
 
 
 def test_report_rows_tell_every_method_its_sigmas_halved_and_doubled() -> None:
-    runners = bicycle._report_runners(noise_rows=True)
+    from fusegraph.evaluation.bicycle import _report_runners
+
+    runners = _report_runners(noise_rows=True)
     methods = ("no_removal", "paper_pipeline", "online", "batch")
     assert set(runners) == set(methods) | {f"{m}_noise_x{k:g}" for m in methods for k in (0.5, 2.0)}
     doubled = bicycle.PAPER_EKF.with_noise_scaled(2.0)

@@ -89,9 +89,13 @@ def test_online_is_causal(session: gaze.GazeSession) -> None:
 
 
 def test_report_rows_tell_every_method_its_sigmas_halved_and_doubled(session: gaze.GazeSession) -> None:
-    runners = gaze._report_runners(noise_rows=True)
+    from fusegraph.evaluation.gaze import _report_runners
+
+    runners = _report_runners(noise_rows=True)
     assert set(runners) == {"ekf", "online", "batch"} | {f"{m}_noise_x{k:g}" for m in ("ekf", "online", "batch") for k in (0.5, 2.0)}
-    scaled, model, ekf = gaze.noise_scaled(session, 2.0)
+    from fusegraph.evaluation.gaze import noise_scaled
+
+    scaled, model, ekf = noise_scaled(session, 2.0)
     base_model, base_ekf = gaze.GazeModel(), gaze.GazeEkfConfig()
     assert scaled.config.camera.pixel_sigma == 2.0 * session.config.camera.pixel_sigma
     assert model.head.imu.gyro_noise_rad_s_sqrt_hz == 2.0 * base_model.head.imu.gyro_noise_rad_s_sqrt_hz

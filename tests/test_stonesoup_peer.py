@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from fusegraph.baselines.stonesoup_peer import StoneSoupConfig, _stonesoup, run_stonesoup
+from fusegraph.evaluation.ultrasonic import _head
 from fusegraph.scenarios.ultrasonic import simulate_ultrasonic
-from fusegraph.systems.ultrasonic import _head, score_run
+from fusegraph.systems.ultrasonic import score_run
 
 
 def test_receiver_range_model_and_its_jacobian() -> None:

@@ -7,9 +7,10 @@ import pytest
 from conftest import requires_shared_data
 
 from fusegraph.baselines.combinatorial import combinatorial_epoch
+from fusegraph.evaluation.ultrasonic import crossing_epochs
 from fusegraph.frontends.association import assign_ranges, locate, trilaterate
 from fusegraph.scenarios.ultrasonic import ceiling_board, simulate_ultrasonic
-from fusegraph.systems.ultrasonic import RangeEpochs, UltrasonicTracker, crossing_epochs, identity_map, run_fusegraph, score_run
+from fusegraph.systems.ultrasonic import RangeEpochs, UltrasonicTracker, identity_map, run_fusegraph, score_run
 
 RECEIVERS = ceiling_board()
 
@@ -151,7 +152,7 @@ def test_uwb_figures_do_not_depend_on_where_the_run_starts() -> None:
     import dataclasses
 
     from fusegraph.datasets.uwb_lias import load_uwb_lias
-    from fusegraph.systems.uwb import _rmse, _track, clock_offset_from_ranges
+    from fusegraph.evaluation.uwb import _rmse, _track, clock_offset_from_ranges
 
     rec = load_uwb_lias().between(0.0, 90.0)
     offsets, scores = [], []
@@ -224,7 +225,8 @@ def test_a_start_on_borrowed_distances_settles_before_rest_averages_it(settle_s:
     """Seed 5, N = 12: the prior-free start puts two resting transmitters 4-5 cm off, each on the other's
     distances at one receiver column. Carried by the moving models for 0.5 s the tracks re-read their
     positions from the ranges; with REST at once they stay held off (the reason for ``settle_s``)."""
-    from fusegraph.systems.ultrasonic import TrackerConfig, _head
+    from fusegraph.evaluation.ultrasonic import _head
+    from fusegraph.systems.ultrasonic import TrackerConfig
 
     epochs = _head(simulate_ultrasonic(5, transmitters=12, duration_s=20.0), 1.5)
     run = run_fusegraph(epochs, 12, TrackerConfig(settle_s=settle_s))

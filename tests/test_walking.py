@@ -224,8 +224,9 @@ def test_pendulum_gait_moves_like_a_pelvis() -> None:
 def test_bench_confusion_is_scored_on_the_independent_gait() -> None:
     """The detector meets the pendulum gait's walk (its own walker's calibration) and every true activity
     gets a row; how well it does is the bench's figure, not asserted here."""
+    from fusegraph.evaluation.walking import calibrated_speed_model
     from fusegraph.scenarios.walking import WalkingScenarioConfig
-    from fusegraph.systems.walking import analyse, calibrated_speed_model, confusion
+    from fusegraph.systems.walking import analyse, confusion
 
     config = WalkingScenarioConfig(gait="pendulum")
     walk = simulate_walking(1, config)

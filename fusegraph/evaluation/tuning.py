@@ -252,7 +252,7 @@ def _simulated(scenario: str, seed: int) -> Any:
         return simulate_bicycle(seed)
     if scenario == "ultrasonic":
         from ..scenarios.ultrasonic import simulate_ultrasonic
-        from ..systems.ultrasonic import _head
+        from .ultrasonic import _head
 
         return _head(simulate_ultrasonic(seed, transmitters=STONESOUP_TUNING_N, duration_s=20.0), 1.0)
     if scenario == "head":
@@ -261,9 +261,10 @@ def _simulated(scenario: str, seed: int) -> Any:
         return simulate_head(seed, duration_s=10.0)
     from ..scenarios.walking import simulate_walking
     from ..systems import walking
+    from .walking import calibrated_speed_model
 
     walk = simulate_walking(seed)
-    return walk, walking.analyse(walk, walking.calibrated_speed_model(seed))[2]
+    return walk, walking.analyse(walk, calibrated_speed_model(seed))[2]
 
 
 def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
@@ -322,7 +323,8 @@ def _walking_fixes_score(setting: dict[str, Any], seed: int) -> float:
 def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
     from dataclasses import replace
 
-    from ..systems.head import run_isam2, score_attitude, without_gyro
+    from ..metrics import score_attitude
+    from ..systems.head import run_isam2, without_gyro
 
     session = _simulated("head", seed)
     tracker_only, model = without_gyro(session)

@@ -16,8 +16,6 @@ import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
-from typing import Any
 
 import gtsam
 import numpy as np
@@ -319,92 +317,3 @@ METHODS: dict[str, Callable[[Session], Estimate]] = {
 """Every method of the 9-axis comparison, in the bench's column order."""
 
 
-def bench_broad(
-    directory: str | Path | None = None,
-    methods: Sequence[str] = tuple(METHODS),
-    trials: Sequence[str] = (),
-    model: Attitude9Model | None = None,
-    show_progress: bool = True,
-) -> dict[str, Any]:
-    """Every BROAD trial in ``directory``, every method, in one run: RMSE (deg) and speed per trial and mean.
-
-    ``trials`` keeps the files whose name starts with one of these prefixes (e.g. ``"01"``); all by default.
-    The same ``model`` (one parameter set) serves every trial; the truth is used only to score.
-    """
-    from ..datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
-
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        raise ValueError(f"unknown method(s) {', '.join(unknown)} (have: {', '.join(METHODS)})")
-    paths = [p for p in trial_paths(directory or DEFAULT_DIR) if not trials or any(p.stem.startswith(x) for x in trials)]
-    if not paths:
-        raise ValueError(f"{directory or DEFAULT_DIR}: no BROAD trial (*.mat) matches")
-    runs: dict[str, Callable[[Session], Estimate]] = dict(METHODS)
-    if model is not None:
-        runs.update(online=lambda s: run_online(s, model), batch=lambda s: run_batch(s, model), ekf=lambda s: run_ekf(s, model))
-    out: dict[str, Any] = {"trials": {}, "mean": {}}
-    jobs = [(path, method) for path in paths for method in methods]
-    session: Session | None = None
-    for path, method in progress(jobs, desc="bench broad", enabled=None if show_progress else False):
-        if session is None or session.path is None or session.meta["session"]["trial"] != path.stem:
-            session = load_broad(path)
-        assert session.truth is not None
-        estimate = runs[method](session)
-        movement = session.stream("movement").values[:, 0]
-        errors = broad_errors(estimate.quat_wxyz, session.truth.values, movement)
-        duration = float(session.stream("gyro").t[-1] - session.stream("gyro").t[0])
-        out["trials"].setdefault(path.stem, {})[method] = {
-            "total": errors.total,
-            "heading": errors.heading,
-            "inclination": errors.inclination,
-            "x_realtime": duration / estimate.runtime_s,
-        }
-    for method in methods:
-        rows = [trial[method] for trial in out["trials"].values()]
-        out["mean"][method] = {key: float(np.mean([r[key] for r in rows])) for key in ("total", "heading", "inclination", "x_realtime")}
-    return out
-
-
-def format_broad_table(result: dict[str, Any]) -> str:
-    """The bench as text: per trial and mean, total/heading/inclination RMSE (deg) and x real time."""
-    methods = list(result["mean"])
-    head = f"{'trial':<34}" + "".join(f"{m:>26}" for m in methods)
-    sub = f"{'':<34}" + "".join(f"{'tot  head  incl   x rt':>26}" for _ in methods)
-    lines = [head, sub]
-
-    def cells(row: dict[str, dict[str, float]]) -> str:
-        return "".join(f"{row[m]['total']:>7.2f}{row[m]['heading']:>6.2f}{row[m]['inclination']:>6.2f}{row[m]['x_realtime']:>7.0f}" for m in methods)
-
-    for stem, row in result["trials"].items():
-        lines.append(f"{stem[:34]:<34}" + cells(row))
-    lines.append(f"{'mean':<34}" + cells(result["mean"]))
-    mean = result["mean"]
-    ratios = []
-    for ours, peer in (("online", "vqf"), ("batch", "vqf_offline")):
-        if ours in mean and peer in mean:
-            ratios.append(
-                f"{ours}/{peer}: total {mean[ours]['total'] / mean[peer]['total']:.2f}, inclination "
-                f"{mean[ours]['inclination'] / mean[peer]['inclination']:.2f}, speed {mean[ours]['x_realtime'] / mean[peer]['x_realtime']:.3f}"
-            )
-    return "\n".join(lines + ["RMSE in degrees (BROAD metric, movement phases, no alignment); x rt = times faster than real time"] + ratios)
-
-
-def plot_broad(result: dict[str, Any], path: str | Path) -> Path:
-    """Grouped bars of the total and the inclination RMSE per trial and method (log scale), as a PNG."""
-    import matplotlib.pyplot as plt
-
-    from ..report.plots import grouped_bars, save_figure
-
-    trials = list(result["trials"])
-    methods = list(result["mean"])
-    fig, axes = plt.subplots(2, 1, figsize=(max(8, 1.1 * len(trials) + 2), 7), sharex=True)
-    labels = [t.split("_", 1)[0] + "\n" + t.split("_", 1)[-1].replace("undisturbed_", "").replace("disturbed_", "")[:18] for t in trials] + ["mean"]
-    for ax, key in zip(axes, ("total", "inclination"), strict=True):
-        grouped_bars(ax, labels, {m: [result["trials"][t][m][key] for t in trials] + [result["mean"][m][key]] for m in methods})
-    axes[0].set_ylabel("total RMSE (deg)")
-    axes[1].set_ylabel("inclination RMSE (deg)")
-    axes[0].set_yscale("log")
-    axes[1].set_yscale("log")
-    axes[0].legend(ncol=len(methods), fontsize=8)
-    fig.suptitle("BROAD: orientation error per trial (log scale)")
-    return save_figure(fig, path, dpi=120)

@@ -14,19 +14,15 @@ BROAD EKF's inflation with | |a| - g |, which would hide most of the braking fro
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
-from dataclasses import replace
-
 import numpy as np
 
 from ..baselines.ekf9 import Ekf9Config, run_ekf9
 from ..factors.imu import GRAVITY_M_S2
-from ..geometry import FloatArray, euler_zyx_from_quat, matrix_from_quat, quat_wxyz_from_rot3
+from ..geometry import FloatArray, matrix_from_quat, quat_wxyz_from_rot3
 from ..graphs.attitude9 import fill_samples
 from ..graphs.bicycle import BicycleModel, CoupledBuilder
 from ..metrics import euler_errors
-from ..scenarios.bicycle import BicycleScenarioConfig, BicycleSession, simulate_bicycle
+from ..scenarios.bicycle import BicycleScenarioConfig, BicycleSession
 from ..session import Session
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig, OnlineSmoother
@@ -132,95 +128,4 @@ def braking_rms_deg(quat: FloatArray, s: BicycleSession) -> dict[str, float]:
 
 RUNNERS = {"no_removal": run_no_removal, "paper_pipeline": run_pipeline, "online": run_online, "batch": run_batch}
 
-NOISE_FACTORS = (0.5, 2.0)
-"""The report's wrong-declaration rows: every sensor sigma told x0.5 and x2 (``<method>_noise_x0.5``, ``_x2``)."""
 
-
-def _noisy_runner(method: str, factor: float) -> Callable[[BicycleSession], FloatArray]:
-    """A method told every sensor sigma ``factor`` times its figure (the EKFs' tuned figures, the graph's declarations)."""
-
-    def run(s: BicycleSession) -> FloatArray:
-        if method in ("no_removal", "paper_pipeline"):
-            config = NO_REMOVAL_EKF if method == "no_removal" else PAPER_EKF
-            return RUNNERS[method](s, config.with_noise_scaled(factor))  # type: ignore[operator]
-        model = BicycleModel()
-        scaled = replace(model, frame=model.frame.with_noise_scaled(factor), thigh=model.thigh.with_noise_scaled(factor))
-        return RUNNERS[method](s, scaled)  # type: ignore[operator]
-
-    return run
-
-
-def _report_runners(noise_rows: bool) -> dict[str, Callable[[BicycleSession], FloatArray]]:
-    runners: dict[str, Callable[[BicycleSession], FloatArray]] = dict(RUNNERS)  # type: ignore[arg-type]
-    if noise_rows:
-        runners.update({f"{m}_noise_x{k:g}": _noisy_runner(m, k) for m in METHODS for k in NOISE_FACTORS})
-    return runners
-
-
-def bicycle_report(seeds: tuple[int, ...] = (0, 1, 2), plot: str | None = None, noise_rows: bool = True) -> dict[str, object]:
-    """``fusegraph report bicycle``: braking-phase thigh pitch/roll RMS per method (RMS over seeds), speed; the stand ride too.
-    With ``noise_rows`` also every method told its sensor sigmas x0.5 and x2 (``NOISE_FACTORS``), on the downhill ride."""
-    out: dict[str, object] = {}
-    for ride in ("downhill", "stand"):
-        runners = _report_runners(noise_rows and ride == "downhill")
-        sq: dict[str, list[float]] = {m: [0.0, 0.0, 0.0, 0.0] for m in runners}
-        first: dict[str, FloatArray] = {}
-        session0 = None
-        for seed in seeds:
-            s = simulate_bicycle(seed, BicycleScenarioConfig(ride=ride))
-            session0 = session0 or s
-            for name, run in runners.items():
-                start = time.perf_counter()
-                q = run(s)
-                seconds = time.perf_counter() - start
-                if seed == seeds[0]:
-                    first[name] = q
-                r = braking_rms_deg(q, s)
-                sq[name][0] += r["pitch_deg"] ** 2
-                sq[name][1] += r["roll_deg"] ** 2
-                sq[name][2] += seconds
-                sq[name][3] += float(s.t[-1] - s.t[0])
-        methods = {m: {"rms": {"pitch_deg": float(np.sqrt(v[0] / len(seeds))), "roll_deg": float(np.sqrt(v[1] / len(seeds)))},
-                       "x_realtime": v[3] / v[2]} for m, v in sq.items()}
-        if ride == "downhill":
-            out["methods"] = methods
-            if plot is not None and session0 is not None:
-                plot_bicycle(session0, {m: first[m] for m in METHODS}, plot)
-        else:
-            out["stand"] = {"methods": methods, "note": "same phase (30-35 s): the rider stops pedalling and holds the thigh; no translation"}
-    out["seeds"] = list(seeds)
-    return out
-
-
-def plot_bicycle(s: BicycleSession, estimates: dict[str, FloatArray], path: str) -> None:
-    """Like the paper's figure: thigh pitch and roll, truth and each method, braking shaded."""
-    from ..report.plots import plt, save_figure  # headless pyplot
-
-    truth = np.degrees(euler_zyx_from_quat(s.thigh_quat_wxyz))
-    fig, axes = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
-    for ax, c, name in ((axes[0], 1, "pitch"), (axes[1], 2, "roll")):
-        ax.plot(s.t, truth[:, c], "k-", lw=2, alpha=0.5, label="truth")
-        for method, q in estimates.items():
-            ax.plot(s.t, np.degrees(euler_zyx_from_quat(q))[:, c], lw=0.8, label=method)
-        ax.axvspan(s.config.brake_s, s.config.brake_s + 5.0, color="0.9")
-        ax.set_ylabel(f"thigh {name} (deg)")
-        ax.set_xlim(s.config.brake_s - 8, s.config.brake_s + 8)
-    axes[0].legend(fontsize=8)
-    axes[1].set_xlabel("time (s); braking phase shaded")
-    save_figure(fig, path)
-
-
-def format_bicycle_table(report: dict[str, object]) -> str:
-    lines = []
-    for title, block in (("downhill, braking phase", report["methods"]), ("stand (indoor trainer), same phase", report["stand"]["methods"])):  # type: ignore[index]
-        assert isinstance(block, dict)
-        lines.append(f"{title}")
-        lines.append(f"{'method':28s}{'pitch deg':>10s}{'roll deg':>10s}{'x real time':>13s}")
-        for m, r in block.items():
-            lines.append(f"{m:28s}{r['rms']['pitch_deg']:10.2f}{r['rms']['roll_deg']:10.2f}{r['x_realtime']:13.0f}")
-        p = block["paper_pipeline"]["rms"]
-        for m in ("online", "batch"):
-            r = block[m]["rms"]
-            lines.append(f"{m}/paper_pipeline: pitch {r['pitch_deg'] / p['pitch_deg']:.2f}, roll {r['roll_deg'] / p['roll_deg']:.2f}")
-        lines.append("")
-    return "\n".join(lines).rstrip()

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import gtsam
@@ -30,7 +30,7 @@ from ..factors.imu import MotionPriors
 from ..factors.mag import MagNoise
 from ..geometry import FloatArray, quat_wxyz_from_rot3
 from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
-from ..scenarios.gaze import GazeScenarioConfig, GazeSession, simulate_gaze
+from ..scenarios.gaze import GazeScenarioConfig, GazeSession
 from ..session import Session, SessionError
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from .attitude9 import attitude_tracker
@@ -355,94 +355,6 @@ def rms_mm(estimate: FloatArray, session: GazeSession, skip_s: float = 1.0) -> d
     return {"x_mm": float(np.sqrt(np.mean(err[:, 0] ** 2))), "z_mm": float(np.sqrt(np.mean(err[:, 1] ** 2)))}
 
 
-NOISE_FACTORS = (0.5, 2.0)
-"""The report's wrong-declaration rows: every sensor sigma told x0.5 and x2 (``<method>_noise_x0.5``, ``_x2``)."""
-
-
-def noise_scaled(session: GazeSession, factor: float, model: GazeModel | None = None) -> tuple[GazeSession, GazeModel, GazeEkfConfig]:
-    """What the estimators are told when every sensor sigma is declared ``factor`` times its figure: the graph's head
-    IMU, gravity and magnetometer sigmas and the pixel sigma (the session's camera), and the EKF's (tuned) figures.
-    ``model``: the graph's model before scaling (default the online one)."""
-    camera = session.config.camera
-    scaled = replace(session, config=replace(session.config, camera=replace(camera, pixel_sigma=factor * camera.pixel_sigma)))
-    model = model or GazeModel()
-    ekf = GazeEkfConfig()
-    return (scaled, replace(model, head=model.head.with_noise_scaled(factor)),
-            replace(ekf, head=ekf.head.with_noise_scaled(factor), pixel_sigma=factor * ekf.pixel_sigma))
-
-
-def _noisy_runner(method: str, factor: float) -> Callable[[GazeSession], GazeEstimate]:
-    def run(session: GazeSession) -> GazeEstimate:
-        scaled, model, ekf = noise_scaled(session, factor, batch_model() if method == "batch" else None)
-        return run_ekf(session, ekf) if method == "ekf" else (run_online if method == "online" else run_batch)(scaled, model)
-
-    return run
-
-
-def _report_runners(noise_rows: bool) -> dict[str, Callable[[GazeSession], GazeEstimate]]:
-    runners: dict[str, Callable[[GazeSession], GazeEstimate]] = {"ekf": run_ekf, "online": run_online, "batch": run_batch}
-    if noise_rows:
-        runners.update({f"{m}_noise_x{k:g}": _noisy_runner(m, k) for m in METHODS for k in NOISE_FACTORS})
-    return runners
-
-
-def gaze_report(seeds: tuple[int, ...] = (0,), plot: str | None = None, noise_rows: bool = True) -> dict[str, object]:
-    """``fusegraph report gaze``: RMS of the wall point per method (mean over seeds) and speed; with ``noise_rows`` also
-    every method told its sensor sigmas x0.5 and x2 (``NOISE_FACTORS``)."""
-    runners = _report_runners(noise_rows)
-    sums: dict[str, dict[str, float]] = {m: {"x_mm": 0.0, "z_mm": 0.0, "seconds": 0.0, "duration": 0.0} for m in runners}
-    first: dict[str, FloatArray] = {}
-    session0 = None
-    for seed in seeds:
-        session = simulate_gaze(seed)
-        session0 = session0 or session
-        for name, run in runners.items():
-            result = run(session)
-            est, seconds = result.points_xz_m, result.runtime_s
-            if seed == seeds[0]:
-                first[name] = est
-            r = rms_mm(est, session)
-            sums[name]["x_mm"] += r["x_mm"] ** 2
-            sums[name]["z_mm"] += r["z_mm"] ** 2
-            sums[name]["seconds"] += seconds
-            sums[name]["duration"] += float(session.t[-1] - session.t[0])
-    methods = {name: {"rms": {"x_mm": float(np.sqrt(v["x_mm"] / len(seeds))), "z_mm": float(np.sqrt(v["z_mm"] / len(seeds)))},
-                      "x_realtime": v["duration"] / v["seconds"]} for name, v in sums.items()}
-    if plot is not None and session0 is not None:
-        plot_gaze(session0, {m: first[m] for m in METHODS}, plot)
-    return {"methods": methods, "seeds": list(seeds)}
-
-
-def plot_gaze(session: GazeSession, estimates: dict[str, FloatArray], path: str) -> None:
-    """Like the paper's figure: gaze point X and Z on the wall over time, truth and each method."""
-    from ..report.plots import plt, save_figure  # headless pyplot
-
-    fig, axes = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
-    for c, (ax, name) in enumerate(zip(axes, ("X (horizontal)", "Z (vertical)"), strict=True)):
-        ax.plot(session.tracker_t, 1000 * session.truth_gaze_xz_m[:, c], "k-", lw=2, alpha=0.5, label="truth")
-        for method, est in estimates.items():
-            ax.plot(session.tracker_t, 1000 * est[:, c], lw=0.8, label=method)
-        ax.set_ylabel(f"gaze {name} on the wall (mm)")
-        ax.set_ylim(1000 * session.truth_gaze_xz_m[:, c].min() - 150, 1000 * session.truth_gaze_xz_m[:, c].max() + 150)
-    axes[0].legend(fontsize=8)
-    axes[1].set_xlabel("time (s)")
-    fig.suptitle(f"gaze point on the wall while nodding and shaking the head; the mark changes at {session.config.switch_s:.0f} s")
-    save_figure(fig, path)
-
-
-def format_gaze_table(report: dict[str, object]) -> str:
-    methods = report["methods"]
-    assert isinstance(methods, dict)
-    lines = [f"{'method':20s}{'X rms mm':>10s}{'Z rms mm':>10s}{'x real time':>13s}"]
-    for name, r in methods.items():
-        lines.append(f"{name:20s}{r['rms']['x_mm']:10.1f}{r['rms']['z_mm']:10.1f}{r['x_realtime']:13.0f}")
-    ekf = methods["ekf"]["rms"]
-    for name in ("online", "batch"):
-        r = methods[name]["rms"]
-        lines.append(f"{name}/ekf: X {r['x_mm'] / ekf['x_mm']:.2f}, Z {r['z_mm'] / ekf['z_mm']:.2f}")
-    return "\n".join(lines)
-
-
 RUNNERS = {"ekf": run_ekf, "online": run_online, "batch": run_batch}
 
-__all__ = ["RUNNERS", "GazeGraph", "GazeModel", "declared_config", "format_gaze_table", "from_session", "gaze_report", "run_batch", "run_ekf", "run_online"]
+__all__ = ["RUNNERS", "GazeGraph", "GazeModel", "declared_config", "from_session", "run_batch", "run_ekf", "run_online"]

@@ -17,13 +17,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import gtsam
 import numpy as np
 
 from ..factors.linear import robust
-from ..frontends.association import assign_ranges, assign_receivers, locate
+from ..frontends.association import assign_receivers, locate
 from ..geometry import FloatArray
 from ..scenarios.ultrasonic import RangeEpochs
 from ..solvers.multiple_model import REST, MotionModes, PointBank, Prediction
@@ -269,17 +268,6 @@ def run_fusegraph(epochs: RangeEpochs, transmitters: int, config: TrackerConfig 
     return TrackingRun(np.array(positions), labels, np.array(times), extras, np.array(rest))
 
 
-def oracle_labels(epochs: RangeEpochs, gate_chi2: float = 16.0) -> list[list[np.ndarray]]:
-    """The limit: each receiver's distances assigned against the TRUE positions (same assignment and gate)."""
-    assert epochs.positions is not None
-    out = []
-    sigma = np.full(epochs.transmitters, epochs.range_sigma_m)
-    for k in range(len(epochs.t)):
-        predicted = np.linalg.norm(epochs.positions[k][None, :, :] - epochs.receivers[:, None, :], axis=2)
-        out.append([assign_ranges(epochs.ranges[k][r], predicted[r], sigma, gate_chi2) for r in range(len(epochs.receivers))])
-    return out
-
-
 def identity_map(estimate: FloatArray, truth: FloatArray) -> np.ndarray:
     """Method's transmitter index -> truth index by an optimal matching of positions (one epoch)."""
     from scipy.optimize import linear_sum_assignment
@@ -370,200 +358,6 @@ def run_combinatorial(epochs: RangeEpochs, transmitters: int, config: object | N
         positions.append(p)
         labels.append(lab)
     return TrackingRun(np.array(positions), labels, np.array(times), {"capped_epochs": capped})
-
-
-def crossing_epochs(closest_m: float, speed_m_s: float, head_on: bool, seed: int = 0, rate_hz: float = 40.0) -> RangeEpochs:
-    """Two transmitters passing each other: head-on (opposite directions) or side by side (one overtakes)."""
-    from ..scenarios.ultrasonic import UltrasonicScenarioConfig, hear
-
-    cfg = UltrasonicScenarioConfig(transmitters=2, rate_hz=rate_hz)
-    t = np.arange(0.0, 3.0, 1.0 / rate_hz)
-    centre = np.array([1.0, 0.75, 0.9])
-    s = np.clip((t - 0.5) / 2.0, 0.0, 1.0)  # both move for 2 s, passing at the middle
-    a = centre + np.outer(speed_m_s * 2.0 * (s - 0.5), [1.0, 0.0, 0.0]) + [0.0, -closest_m / 2, 0.0]
-    if head_on:
-        b = centre + np.outer(-speed_m_s * 2.0 * (s - 0.5), [1.0, 0.0, 0.0]) + [0.0, closest_m / 2, 0.0]
-    else:  # side by side: b starts ahead at half the speed, a overtakes it at the middle
-        b = centre + np.outer(0.5 * speed_m_s * 2.0 * (s - 0.5), [1.0, 0.0, 0.0]) + [0.0, closest_m / 2, 0.0]
-    positions = np.stack([a, b], axis=1)
-    rng = np.random.default_rng(seed)
-    ranges, labels = hear(positions, cfg.receivers, rng, cfg)
-    return RangeEpochs(t, cfg.receivers.copy(), ranges, labels, positions, cfg.range_sigma_m)
-
-
-def bench_ultrasonic(
-    transmitter_counts: tuple[int, ...] = (3, 6, 12),
-    seeds: tuple[int, ...] = (0, 1, 2),
-    duration_s: float = 20.0,
-    baseline_s: float = 5.0,
-    show_progress: bool = True,
-    uwb_dir: str | None = "default",
-    plot: str | Path | None = None,
-    peer_s: float = 2.0,
-    peers: tuple[str, ...] = ("gnn", "jpda"),
-) -> dict[str, object]:
-    """Simulation (both methods and the oracle per N), crossings; the JSON of ``fusegraph bench ultrasonic``.
-    ``plot``: a PNG of fusegraph's run at the largest N and the first seed (``plot_ultrasonic``).
-    ``peers``: Stone Soup's trackers (``stonesoup_gnn``, ``stonesoup_jpda``, with their tuned settings) on the first
-    ``peer_s`` seconds (Stone Soup needs ~1 s per epoch at N = 12), beside ``fusegraph_peer_window``: fusegraph's causal
-    run scored on the same epochs."""
-    from ..baselines.stonesoup_peer import run_stonesoup, tuned_config
-    from ..progress import progress
-    from ..scenarios.ultrasonic import simulate_ultrasonic
-
-    sim: dict[str, dict[str, dict[str, float]]] = {}
-    jobs = [(n, seed) for n in transmitter_counts for seed in seeds]
-    rows: dict[tuple[int, str], list[dict[str, float]]] = {}
-    for n, seed in progress(jobs, desc="bench ultrasonic", enabled=None if show_progress else False):
-        epochs = simulate_ultrasonic(seed, transmitters=n, duration_s=duration_s)
-        oracle = score_run(epochs, oracle_labels(epochs), None)
-        short = _head(epochs, baseline_s)
-        ours = run_fusegraph(epochs, n)
-        if plot is not None and n == max(transmitter_counts) and seed == seeds[0]:
-            plot_ultrasonic(epochs, ours, plot)
-        window = _head(epochs, peer_s)
-        compared: list[tuple[str, TrackingRun, RangeEpochs]] = [("fusegraph", ours, epochs), ("combinatorial", run_combinatorial(short, n), short)]
-        if peers:
-            compared.append(("fusegraph_peer_window", _first_epochs(ours, len(window.t)), window))
-            compared += [(f"stonesoup_{p}", run_stonesoup(window, n, p, tuned_config(p)), window) for p in peers]
-        for method, run, scored in compared:
-            score = score_run(scored, run.labels, run.positions)
-            oracle_here = oracle if scored is epochs else score_run(scored, oracle_labels(scored), None)
-            rows.setdefault((n, method), []).append({
-                "assoc_acc": score.assoc_acc,
-                "assoc_acc_unambiguous": score.assoc_acc_unambiguous,
-                "oracle_acc": oracle_here.assoc_acc,
-                "oracle_acc_unambiguous": oracle_here.assoc_acc_unambiguous,
-                "rmse_m": score.rmse_m,
-                "rmse_all_m": score.rmse_all_m,
-                "lost_frac": score.lost_frac,
-                "identity_swaps": float(score.identity_swaps),
-                "ms_per_epoch": float(np.mean(run.ms_per_epoch)),
-                "ms_p99": float(np.percentile(run.ms_per_epoch, 99)),
-                "seconds_scored": float(scored.t[-1] - scored.t[0] + 1 / 40),
-                "capped_epochs": float(run.extras.get("capped_epochs", 0)),
-            })
-    for (n, method), runs in rows.items():
-        sim.setdefault(str(n), {})[method] = {key: float(np.mean([r[key] for r in runs])) for key in runs[0]}
-        sim[str(n)][method]["ms_p99"] = float(np.max([r["ms_p99"] for r in runs]))  # the worst seed's p99
-    swaps = runs_done = 0
-    for closest in (0.05, 0.07, 0.10):
-        for speed in (0.3, 0.6, 1.0):
-            for head_on in (True, False):
-                epochs = crossing_epochs(closest, speed, head_on, seed=runs_done)
-                run = run_fusegraph(epochs, 2)
-                assert epochs.positions is not None
-                start = identity_map(run.positions[0], epochs.positions[0])
-                end = identity_map(run.positions[-1], epochs.positions[-1])
-                swaps += int(np.any(start != end))
-                runs_done += 1
-    uwb: dict[str, float] | None = None
-    uwb_status = "skipped"
-    if uwb_dir is not None:
-        from ..datasets.uwb_lias import DEFAULT_DIR, load_uwb_lias
-        from .uwb import run_uwb
-
-        directory = DEFAULT_DIR if uwb_dir == "default" else Path(uwb_dir)
-        uwb_status = f"recording not found at {directory}"
-        if directory.is_dir():
-            uwb_status = "ran"
-            found = run_uwb(load_uwb_lias(directory))
-            uwb = {
-                "labelled_rmse_m": found.labelled_rmse_m,
-                "unlabelled_rmse_m": found.unlabelled_rmse_m,
-                "assoc_acc": found.assoc_acc,
-                "clock_offset_s": found.clock_offset_s,
-                "ms_per_epoch": found.ms_per_epoch,
-                "assoc_expected_geometry": found.assoc_expected,
-            }
-    return {"sim": sim, "crossing": {"runs": runs_done, "swaps": swaps}, "uwb": uwb, "uwb_status": uwb_status}
-
-
-def _first_epochs(run: TrackingRun, count: int) -> TrackingRun:
-    """A causal run's output over its first epochs (what it gave there, whatever came later)."""
-    return TrackingRun(run.positions[:count], run.labels[:count], run.ms_per_epoch[:count], dict(run.extras))
-
-
-def _head(epochs: RangeEpochs, seconds: float) -> RangeEpochs:
-    keep = int(np.searchsorted(epochs.t, epochs.t[0] + seconds))
-    return RangeEpochs(
-        epochs.t[:keep], epochs.receivers, epochs.ranges[:keep], None if epochs.labels is None else epochs.labels[:keep],
-        None if epochs.positions is None else epochs.positions[:keep], epochs.range_sigma_m,
-    )
-
-
-def plot_ultrasonic(epochs: RangeEpochs, run: TrackingRun, path: str | Path) -> None:
-    """Top view of every transmitter (truth and estimate), each one's error over time, and the REST
-    model's probability beside the truth's rests."""
-    from ..report.plots import plt, save_figure  # headless pyplot
-
-    assert epochs.positions is not None
-    truth = epochs.positions
-    n = truth.shape[1]
-    mapping = np.array([identity_map(run.positions[k], truth[k]) for k in range(len(epochs.t))])  # (K, N): track -> truth
-    matched = np.full_like(truth, np.nan)
-    rest = np.full(truth.shape[:2], np.nan)
-    for k in range(len(epochs.t)):
-        ok = mapping[k] >= 0
-        matched[k, mapping[k][ok]] = run.positions[k][ok]
-        if run.rest_probability is not None:
-            rest[k, mapping[k][ok]] = run.rest_probability[k][ok]
-    error_mm = 1e3 * np.linalg.norm(matched - truth, axis=2)
-    speed = np.linalg.norm(np.gradient(truth, epochs.t, axis=0), axis=2)
-    fig = plt.figure(figsize=(15, 8))
-    grid = fig.add_gridspec(2, 2, width_ratios=[1, 1.4])
-    top, err, modes = fig.add_subplot(grid[:, 0]), fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, 1])
-    colours = plt.get_cmap("tab20")(np.arange(n) % 20)
-    top.plot(epochs.receivers[:, 0], epochs.receivers[:, 1], "ks", ms=5, label="receiver (2.5 m up)")
-    for i in range(n):
-        top.plot(truth[:, i, 0], truth[:, i, 1], "-", color=colours[i], lw=3, alpha=0.3)
-        top.plot(matched[:, i, 0], matched[:, i, 1], "-", color=colours[i], lw=0.8)
-        err.plot(epochs.t, error_mm[:, i], color=colours[i], lw=0.6)
-    top.plot([], [], "k-", lw=3, alpha=0.3, label="truth")
-    top.plot([], [], "k-", lw=0.8, label="fusegraph")
-    top.set(xlabel="x (m)", ylabel="y (m)", title=f"{n} transmitters, top view", aspect="equal")
-    top.legend(fontsize=8, loc="lower right")
-    err.axhline(50.0, color="r", ls=":", lw=1)
-    err.set(yscale="log", ylim=(0.1, 500), ylabel="position error (mm)", title="error per transmitter (red: 5 cm, track lost)")
-    picture = np.where(speed < 0.01, 1.0, 0.0) * 0.5 + np.nan_to_num(rest) * 0.5  # both at rest: 1, neither: 0
-    modes.imshow(picture.T, aspect="auto", cmap="viridis", vmin=0, vmax=1, interpolation="nearest",
-                 extent=(epochs.t[0], epochs.t[-1], n - 0.5, -0.5))
-    modes.set(xlabel="time (s)", ylabel="transmitter",
-              title="REST: truth at rest and model probability (yellow both, teal one of them, purple neither)")
-    save_figure(fig, path)
-
-
-def format_ultrasonic_table(result: dict[str, object]) -> str:
-    sim = result["sim"]
-    assert isinstance(sim, dict)
-    header = f"{'N':>3} {'method':<22}{'assoc':>8}{'unamb.':>8}{'oracle':>8}{'or.unamb':>9}{'rmse mm':>9}{'all mm':>8}{'lost %':>8}{'swaps':>7}"
-    lines = [header + f"{'ms/ep':>8}{'p99 ms':>8}{'s':>6}{'capped':>8}"]
-    for n, methods in sim.items():
-        for method, r in methods.items():
-            lines.append(
-                f"{n:>3} {method:<22}{r['assoc_acc']:>8.4f}{r['assoc_acc_unambiguous']:>8.4f}{r['oracle_acc']:>8.4f}{r['oracle_acc_unambiguous']:>9.4f}"
-                f"{1e3 * r['rmse_m']:>9.1f}{1e3 * r['rmse_all_m']:>8.0f}{100 * r['lost_frac']:>8.2f}{r['identity_swaps']:>7.1f}"
-                f"{r['ms_per_epoch']:>8.2f}{r['ms_p99']:>8.2f}{r['seconds_scored']:>6.0f}{r['capped_epochs']:>8.0f}"
-            )
-    crossing = result["crossing"]
-    assert isinstance(crossing, dict)
-    lines.append(f"crossings (closest approach 5, 7, 10 cm; 0.3-1 m/s; head-on and side by side): {crossing['swaps']} identity swaps "
-                 f"in {crossing['runs']} runs")
-    lines.append("means over seeds (p99: the worst seed); accuracies as fractions; rmse over tracked transmitter-epochs (within 5 cm), "
-                 "all = every epoch with an estimate;")
-    lines.append("the combinatorial search runs on the first s seconds (capped = epochs where its time cap stopped the search); "
-                 "Stone Soup's GNN and JPDA (tuned settings) on the first s seconds too, beside fusegraph's run scored there (peer window)")
-    uwb = result.get("uwb")
-    if isinstance(uwb, dict):
-        lines.append(
-            f"uwb (3 tags, 8 anchors, height held): labelled RMSE {uwb['labelled_rmse_m']:.3f} m, unlabelled {uwb['unlabelled_rmse_m']:.3f} m "
-            f"(ratio {uwb['unlabelled_rmse_m'] / uwb['labelled_rmse_m']:.2f}), association {uwb['assoc_acc']:.3f}, "
-            f"clock offset {uwb['clock_offset_s'] * 1e3:.0f} ms (raw ranges vs motion capture), {uwb['ms_per_epoch']:.2f} ms/epoch; "
-            f"self-check: association from geometry alone {uwb.get('assoc_expected_geometry', float('nan')):.2f} (a lower bound, no truth)"
-        )
-    else:
-        lines.append(f"uwb: {result.get('uwb_status', 'not run')} (--uwb DIR)")
-    return "\n".join(lines)
 
 
 def smooth_tracks(epochs: RangeEpochs, run: TrackingRun, speed_sigma_m_s: float = 0.02, cauchy_k: float = 3.0) -> TrackingRun:

@@ -15,20 +15,18 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any
 
 import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from ..datasets import steps_oxford
 from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose, odometry_sigmas
 from ..factors.ranging import BeaconRanges, beacon_ranges_from
-from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model, gravity_filter
+from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, gravity_filter
 from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule, start_from_ranges
-from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingScenarioConfig, WalkingSession, simulate_calibration_walk, simulate_walking
+from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingSession
 from ..session import Session, SessionError
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig
@@ -377,112 +375,3 @@ def count_steps(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> 
     return len(step_times(t, accel, config))
 
 
-def calibrated_speed_model(seed: int, config: WalkingScenarioConfig | None = None) -> SpeedModel:
-    """The speed regression fitted on the seed's calibration walk (its own walker, as a user calibrates)."""
-    calibration = simulate_calibration_walk(seed, config=config)
-    return fit_speed_model(detect_cycles(calibration.t, calibration.accel_m_s2, calibration.gyro_rad_s, WAIST), calibration.bouts)
-
-
-def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None) -> dict[str, object]:
-    """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape."""
-    from ..evaluation import plaza as plaza_system
-
-    # the activity confusion on the independent (pendulum) gait, whose signals do not follow the detector's rules;
-    # the first generator's figure beside it, and the positioning runs on that generator's walk as before
-    pendulum = WalkingScenarioConfig(gait="pendulum")
-    independent = simulate_walking(seed, pendulum)
-    independent_speed = calibrated_speed_model(seed, pendulum)
-    independent_cycles, independent_rides, _ = analyse(independent, independent_speed)
-    session = simulate_walking(seed)
-    speed = calibrated_speed_model(seed)
-    cycles, rides, events = analyse(session, speed)
-    out: dict[str, object] = {"confusion": confusion(independent, independent_cycles, independent_rides),
-                              "confusion_signature_gait": confusion(session, cycles, rides),
-                              "speed_model": {"intercept_m_s": speed.intercept_m_s, "slope_s": speed.slope_s}}
-    for key, fixes in (("walking", session.fixes.pose), ("walking_no_wrong_fixes", session.fixes.correct_pose)):
-        runs = run_all(session, events, fixes)
-        out[key] = {name: {**score(run, session), "seconds": run.seconds} for name, run in runs.items()}
-        if plot is not None and key == "walking":
-            plot_walk(session, runs, plot)
-    out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
-                           "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
-                           "wrong_fixes": int(session.fixes.wrong.sum())}
-    # `phone`: the phone's own step counter, which these recordings do not hold (stepcounter.csv is the foot
-    # switches, see datasets.steps_oxford); null rather than a guess. `foot_switches`: the insoles' count.
-    oxford: dict[str, dict[str, int | str | None]] = {}
-    if oxford_dir is not None and Path(oxford_dir).is_dir():
-        stats = steps_oxford.read_stats(Path(oxford_dir))
-        for name in steps_oxford.recordings(Path(oxford_dir)):
-            rec = steps_oxford.load_recording(Path(oxford_dir), name, stats)
-            oxford[name] = {"true": rec.true_steps, "counted": count_steps(rec.t, rec.accel_m_s2), "phone": None,
-                            "foot_switches": rec.foot_switch_steps, "position": rec.position}
-    out["oxford"] = oxford
-    if plaza:
-        out["plaza"] = plaza_system.bench_plaza()
-    return out
-
-
-def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> None:
-    """Top view and height over time of the truth and every method, fixes marked (wrong ones as x)."""
-    from ..report.plots import plt, save_figure  # headless pyplot
-
-    fig, (top, height) = plt.subplots(1, 2, figsize=(15, 6), gridspec_kw={"width_ratios": [1.3, 1]})
-    top.plot(session.truth_xyz_m[:, 0], session.truth_xyz_m[:, 1], "k-", lw=2, alpha=0.4, label="truth")
-    height.plot(session.t, session.truth_xyz_m[:, 2], "k-", lw=2, alpha=0.4, label="truth")
-    for name, run in runs.items():
-        top.plot(run.xyz[:, 0], run.xyz[:, 1], lw=1, label=name)
-        height.plot(run.t, run.xyz[:, 2], lw=1, label=name)
-    f = session.fixes
-    top.plot(f.pose[~f.wrong, 0], f.pose[~f.wrong, 1], "g^", label="image fix")
-    top.plot(f.pose[f.wrong, 0], f.pose[f.wrong, 1], "rx", ms=9, label="wrong image fix")
-    top.set(xlabel="east (m)", ylabel="north (m)", title="walk, top view", aspect="equal")
-    height.set(xlabel="time (s)", ylabel="height (m)", title="floors (3.5 m apart)")
-    top.legend(fontsize=8)
-    save_figure(fig, path)
-
-
-def format_walking_table(result: dict[str, object]) -> str:
-    """The bench's tables as text."""
-    lines = []
-    cols = [*ACTIVITIES, "none"]
-    for key, title in (("confusion", "independent (pendulum) gait"), ("confusion_signature_gait", "signature gait (the first generator)")):
-        conf = result.get(key)
-        if not isinstance(conf, dict):
-            continue
-        lines.append(f"activity on the {title} (rows true, columns detected; per walking cycle, per ride for the elevator)")
-        lines.append(f"{'':12s}" + "".join(f"{c:>12s}" for c in cols) + f"{'correct':>10s}")
-        for a in ACTIVITIES:
-            row = conf.get(a, {})
-            total = sum(row.values())
-            lines.append(f"{a:12s}" + "".join(f"{row.get(c, 0):12d}" for c in cols) + (f"{100 * row.get(a, 0) / total:9.1f}%" if total else f"{'-':>10s}"))
-        lines.append("")
-    for key, title in (("walking", "walking (20% wrong fixes)"), ("walking_no_wrong_fixes", "walking (every fix correct)")):
-        table = result[key]
-        assert isinstance(table, dict)
-        lines.append("")
-        lines.append(f"{title:34s}{'rmse_m':>10s}{'final_m':>10s}{'seconds':>10s}")
-        for name in METHODS:
-            r = table[name]
-            lines.append(f"{name:34s}{r['rmse_m']:10.2f}{r['final_error_m']:10.2f}{r['seconds']:10.2f}")
-    walking, clean = result["walking"], result["walking_no_wrong_fixes"]
-    assert isinstance(walking, dict) and isinstance(clean, dict)
-    lines.append(f"batch rmse with wrong fixes / without: {walking['batch']['rmse_m'] / clean['batch']['rmse_m']:.2f}")
-    oxford = result.get("oxford") or {}
-    assert isinstance(oxford, dict)
-    if oxford:
-        lines.append("")
-        lines.append(f"{'oxford recording':40s}{'true':>8s}{'counted':>9s}{'error':>8s}{'foot switches':>15s}{'phone':>7s}")
-        for name, r in oxford.items():
-            switches, phone = ("-" if r.get(key) is None else str(r[key]) for key in ("foot_switches", "phone"))
-            lines.append(f"{name:40s}{r['true']:8d}{r['counted']:9d}{100 * (r['counted'] - r['true']) / r['true']:7.1f}%{switches:>15s}{phone:>7s}")
-        lines.append("true: counted by hand (stats.csv); foot switches: the dataset's insoles (stepcounter.csv, heel contacts);"
-                     " phone: the phone's own step counter, not in these recordings")
-    plaza = result.get("plaza") or {}
-    assert isinstance(plaza, dict)
-    if plaza:
-        lines.append("")
-        lines.append(f"{'plaza':10s}{'odometry_m':>12s}{'online_m':>10s}{'batch_m':>10s}{'batch/odo':>10s}{'online x rt':>13s}")
-        for name, r in plaza.items():
-            lines.append(f"{name:10s}{r['odometry_rmse_m']:12.2f}{r['online_rmse_m']:10.2f}{r['batch_rmse_m']:10.2f}"
-                         f"{r['batch_rmse_m'] / r['odometry_rmse_m']:10.2f}{r['online_x_realtime']:13.0f}")
-    return "\n".join(lines)

@@ -1,0 +1,56 @@
+"""The walking bench: the simulated 3-floor walk, the Oxford step counts and the Plaza range + odometry runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..datasets import steps_oxford
+from ..frontends.pdr import SpeedModel, detect_cycles, fit_speed_model
+from ..report.walking import plot_walk
+from ..scenarios.walking import WalkingScenarioConfig, simulate_calibration_walk, simulate_walking
+from ..systems.walking import WAIST, analyse, confusion, count_steps, run_all, score
+
+
+def calibrated_speed_model(seed: int, config: WalkingScenarioConfig | None = None) -> SpeedModel:
+    """The speed regression fitted on the seed's calibration walk (its own walker, as a user calibrates)."""
+    calibration = simulate_calibration_walk(seed, config=config)
+    return fit_speed_model(detect_cycles(calibration.t, calibration.accel_m_s2, calibration.gyro_rad_s, WAIST), calibration.bouts)
+
+
+def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None) -> dict[str, object]:
+    """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape."""
+    from ..evaluation import plaza as plaza_system
+
+    # the activity confusion on the independent (pendulum) gait, whose signals do not follow the detector's rules;
+    # the first generator's figure beside it, and the positioning runs on that generator's walk as before
+    pendulum = WalkingScenarioConfig(gait="pendulum")
+    independent = simulate_walking(seed, pendulum)
+    independent_speed = calibrated_speed_model(seed, pendulum)
+    independent_cycles, independent_rides, _ = analyse(independent, independent_speed)
+    session = simulate_walking(seed)
+    speed = calibrated_speed_model(seed)
+    cycles, rides, events = analyse(session, speed)
+    out: dict[str, object] = {"confusion": confusion(independent, independent_cycles, independent_rides),
+                              "confusion_signature_gait": confusion(session, cycles, rides),
+                              "speed_model": {"intercept_m_s": speed.intercept_m_s, "slope_s": speed.slope_s}}
+    for key, fixes in (("walking", session.fixes.pose), ("walking_no_wrong_fixes", session.fixes.correct_pose)):
+        runs = run_all(session, events, fixes)
+        out[key] = {name: {**score(run, session), "seconds": run.seconds} for name, run in runs.items()}
+        if plot is not None and key == "walking":
+            plot_walk(session, runs, plot)
+    out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
+                           "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
+                           "wrong_fixes": int(session.fixes.wrong.sum())}
+    # `phone`: the phone's own step counter, which these recordings do not hold (stepcounter.csv is the foot
+    # switches, see datasets.steps_oxford); null rather than a guess. `foot_switches`: the insoles' count.
+    oxford: dict[str, dict[str, int | str | None]] = {}
+    if oxford_dir is not None and Path(oxford_dir).is_dir():
+        stats = steps_oxford.read_stats(Path(oxford_dir))
+        for name in steps_oxford.recordings(Path(oxford_dir)):
+            rec = steps_oxford.load_recording(Path(oxford_dir), name, stats)
+            oxford[name] = {"true": rec.true_steps, "counted": count_steps(rec.t, rec.accel_m_s2), "phone": None,
+                            "foot_switches": rec.foot_switch_steps, "position": rec.position}
+    out["oxford"] = oxford
+    if plaza:
+        out["plaza"] = plaza_system.bench_plaza()
+    return out

@@ -1,0 +1,51 @@
+"""BROAD bench as text and as a figure."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+
+def format_broad_table(result: dict[str, Any]) -> str:
+    """The bench as text: per trial and mean, total/heading/inclination RMSE (deg) and x real time."""
+    methods = list(result["mean"])
+    head = f"{'trial':<34}" + "".join(f"{m:>26}" for m in methods)
+    sub = f"{'':<34}" + "".join(f"{'tot  head  incl   x rt':>26}" for _ in methods)
+    lines = [head, sub]
+
+    def cells(row: dict[str, dict[str, float]]) -> str:
+        return "".join(f"{row[m]['total']:>7.2f}{row[m]['heading']:>6.2f}{row[m]['inclination']:>6.2f}{row[m]['x_realtime']:>7.0f}" for m in methods)
+
+    for stem, row in result["trials"].items():
+        lines.append(f"{stem[:34]:<34}" + cells(row))
+    lines.append(f"{'mean':<34}" + cells(result["mean"]))
+    mean = result["mean"]
+    ratios = []
+    for ours, peer in (("online", "vqf"), ("batch", "vqf_offline")):
+        if ours in mean and peer in mean:
+            ratios.append(
+                f"{ours}/{peer}: total {mean[ours]['total'] / mean[peer]['total']:.2f}, inclination "
+                f"{mean[ours]['inclination'] / mean[peer]['inclination']:.2f}, speed {mean[ours]['x_realtime'] / mean[peer]['x_realtime']:.3f}"
+            )
+    return "\n".join(lines + ["RMSE in degrees (BROAD metric, movement phases, no alignment); x rt = times faster than real time"] + ratios)
+
+
+def plot_broad(result: dict[str, Any], path: str | Path) -> Path:
+    """Grouped bars of the total and the inclination RMSE per trial and method (log scale), as a PNG."""
+    import matplotlib.pyplot as plt
+
+    from ..report.plots import grouped_bars, save_figure
+
+    trials = list(result["trials"])
+    methods = list(result["mean"])
+    fig, axes = plt.subplots(2, 1, figsize=(max(8, 1.1 * len(trials) + 2), 7), sharex=True)
+    labels = [t.split("_", 1)[0] + "\n" + t.split("_", 1)[-1].replace("undisturbed_", "").replace("disturbed_", "")[:18] for t in trials] + ["mean"]
+    for ax, key in zip(axes, ("total", "inclination"), strict=True):
+        grouped_bars(ax, labels, {m: [result["trials"][t][m][key] for t in trials] + [result["mean"][m][key]] for m in methods})
+    axes[0].set_ylabel("total RMSE (deg)")
+    axes[1].set_ylabel("inclination RMSE (deg)")
+    axes[0].set_yscale("log")
+    axes[1].set_yscale("log")
+    axes[0].legend(ncol=len(methods), fontsize=8)
+    fig.suptitle("BROAD: orientation error per trial (log scale)")
+    return save_figure(fig, path, dpi=120)

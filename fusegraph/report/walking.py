@@ -1,0 +1,74 @@
+"""The walking bench as text, and the walk's trajectories as a figure."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..scenarios.walking import ACTIVITIES, WalkingSession
+from ..systems.walking import METHODS, WalkRun
+
+
+def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> None:
+    """Top view and height over time of the truth and every method, fixes marked (wrong ones as x)."""
+    from ..report.plots import plt, save_figure  # headless pyplot
+
+    fig, (top, height) = plt.subplots(1, 2, figsize=(15, 6), gridspec_kw={"width_ratios": [1.3, 1]})
+    top.plot(session.truth_xyz_m[:, 0], session.truth_xyz_m[:, 1], "k-", lw=2, alpha=0.4, label="truth")
+    height.plot(session.t, session.truth_xyz_m[:, 2], "k-", lw=2, alpha=0.4, label="truth")
+    for name, run in runs.items():
+        top.plot(run.xyz[:, 0], run.xyz[:, 1], lw=1, label=name)
+        height.plot(run.t, run.xyz[:, 2], lw=1, label=name)
+    f = session.fixes
+    top.plot(f.pose[~f.wrong, 0], f.pose[~f.wrong, 1], "g^", label="image fix")
+    top.plot(f.pose[f.wrong, 0], f.pose[f.wrong, 1], "rx", ms=9, label="wrong image fix")
+    top.set(xlabel="east (m)", ylabel="north (m)", title="walk, top view", aspect="equal")
+    height.set(xlabel="time (s)", ylabel="height (m)", title="floors (3.5 m apart)")
+    top.legend(fontsize=8)
+    save_figure(fig, path)
+
+
+def format_walking_table(result: dict[str, object]) -> str:
+    """The bench's tables as text."""
+    lines = []
+    cols = [*ACTIVITIES, "none"]
+    for key, title in (("confusion", "independent (pendulum) gait"), ("confusion_signature_gait", "signature gait (the first generator)")):
+        conf = result.get(key)
+        if not isinstance(conf, dict):
+            continue
+        lines.append(f"activity on the {title} (rows true, columns detected; per walking cycle, per ride for the elevator)")
+        lines.append(f"{'':12s}" + "".join(f"{c:>12s}" for c in cols) + f"{'correct':>10s}")
+        for a in ACTIVITIES:
+            row = conf.get(a, {})
+            total = sum(row.values())
+            lines.append(f"{a:12s}" + "".join(f"{row.get(c, 0):12d}" for c in cols) + (f"{100 * row.get(a, 0) / total:9.1f}%" if total else f"{'-':>10s}"))
+        lines.append("")
+    for key, title in (("walking", "walking (20% wrong fixes)"), ("walking_no_wrong_fixes", "walking (every fix correct)")):
+        table = result[key]
+        assert isinstance(table, dict)
+        lines.append("")
+        lines.append(f"{title:34s}{'rmse_m':>10s}{'final_m':>10s}{'seconds':>10s}")
+        for name in METHODS:
+            r = table[name]
+            lines.append(f"{name:34s}{r['rmse_m']:10.2f}{r['final_error_m']:10.2f}{r['seconds']:10.2f}")
+    walking, clean = result["walking"], result["walking_no_wrong_fixes"]
+    assert isinstance(walking, dict) and isinstance(clean, dict)
+    lines.append(f"batch rmse with wrong fixes / without: {walking['batch']['rmse_m'] / clean['batch']['rmse_m']:.2f}")
+    oxford = result.get("oxford") or {}
+    assert isinstance(oxford, dict)
+    if oxford:
+        lines.append("")
+        lines.append(f"{'oxford recording':40s}{'true':>8s}{'counted':>9s}{'error':>8s}{'foot switches':>15s}{'phone':>7s}")
+        for name, r in oxford.items():
+            switches, phone = ("-" if r.get(key) is None else str(r[key]) for key in ("foot_switches", "phone"))
+            lines.append(f"{name:40s}{r['true']:8d}{r['counted']:9d}{100 * (r['counted'] - r['true']) / r['true']:7.1f}%{switches:>15s}{phone:>7s}")
+        lines.append("true: counted by hand (stats.csv); foot switches: the dataset's insoles (stepcounter.csv, heel contacts);"
+                     " phone: the phone's own step counter, not in these recordings")
+    plaza = result.get("plaza") or {}
+    assert isinstance(plaza, dict)
+    if plaza:
+        lines.append("")
+        lines.append(f"{'plaza':10s}{'odometry_m':>12s}{'online_m':>10s}{'batch_m':>10s}{'batch/odo':>10s}{'online x rt':>13s}")
+        for name, r in plaza.items():
+            lines.append(f"{name:10s}{r['odometry_rmse_m']:12.2f}{r['online_rmse_m']:10.2f}{r['batch_rmse_m']:10.2f}"
+                         f"{r['batch_rmse_m'] / r['odometry_rmse_m']:10.2f}{r['online_x_realtime']:13.0f}")
+    return "\n".join(lines)
