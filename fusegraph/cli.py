@@ -19,24 +19,9 @@ EPILOG = """examples:
 """
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``0-9`` or ``0,3,5`` or ``0-4,8`` -> list of seeds."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        if "-" in part[1:]:
-            lo, hi = part.split("-", 1) if not part.startswith("-") else (part, part)
-            seeds.extend(range(int(lo), int(hi) + 1))
-        else:
-            seeds.append(int(part))
-    if not seeds:
-        raise argparse.ArgumentTypeError(f"no seeds in {text!r} (use e.g. 0-9 or 0,2,5)")
-    return seeds
-
-
 def _seeds_arg(text: str) -> list[int]:
+    from .evaluation.tuning import parse_seeds
+
     try:
         return parse_seeds(text)
     except ValueError:
@@ -295,10 +280,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .scenarios import SIMULATORS
     from .session import save_session
     from .systems.presets import PRESETS
 
-    preset = PRESETS[args.scenario]
+    preset, simulator = PRESETS[args.scenario], SIMULATORS[args.scenario]
     options: dict[str, Any] = {}
     given = {
         "tracker_latency_s": args.latency_true, "tracker_latency_assumed_s": args.latency_assumed,
@@ -310,20 +296,20 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     for name, value in given.items():
         if value is None:
             continue
-        if name not in preset.simulate_options:
+        if name not in simulator.options:
             raise ValueError(f"{flags[name]} does not apply to {args.scenario} (it applies to: "
-                             f"{', '.join(p.name for p in PRESETS.values() if name in p.simulate_options)})")
+                             f"{', '.join(system for system, s in SIMULATORS.items() if name in s.options)})")
         options[name] = value
     if args.profile is not None:
-        profiles = {"head": ("ideal", "realistic"), "attitude9": ("realistic", "noise_free")}.get(args.scenario, ("realistic",))
+        profiles = simulator.profiles
         if args.profile not in profiles:
-            raise ValueError(f"--profile {args.profile} does not apply to {args.scenario} (it has: {', '.join(profiles)})")
-        if "profile" in preset.simulate_options:
+            raise ValueError(f"--profile {args.profile} does not apply to {args.scenario} (it has: {', '.join(sorted(profiles))})")
+        if "profile" in simulator.options:
             options["profile"] = args.profile
-    if args.duration is not None and not args.duration >= preset.min_duration_s:
-        raise ValueError(f"--duration {args.duration:g}: {args.scenario} needs at least {preset.min_duration_s:g} s"
+    if args.duration is not None and not args.duration >= simulator.min_duration_s:
+        raise ValueError(f"--duration {args.duration:g}: {args.scenario} needs at least {simulator.min_duration_s:g} s"
                          + (f" ({preset.notes[0]})" if preset.notes else ""))
-    session = preset.simulate(args.seed, args.duration, **options)
+    session = simulator.simulate(args.seed, args.duration, **options)
     if args.out.exists() and any(args.out.iterdir()) and not (args.out / "session.toml").is_file():
         raise ValueError(f"--out {args.out}: a folder with other files in it; give a new or empty folder (or an old session to replace)")
     if (args.out / "session.toml").is_file():
@@ -345,7 +331,8 @@ def _gap_arg(text: str) -> tuple[float, float]:
 
 
 def _cmd_sensors(args: argparse.Namespace) -> int:
-    from .catalogue import catalogue_markdown, kind_markdown, sensor_catalogue, suggest
+    from .catalogue import kind_markdown, suggest
+    from .sensors import catalogue_markdown, sensor_catalogue
     from .systems.presets import PRESETS
 
     catalogue = sensor_catalogue()
@@ -448,13 +435,12 @@ def _cmd_report(args: argparse.Namespace) -> int:
         print(json.dumps(found, indent=2) if args.json else format_generic_report(found))
         if args.plot:
             from .evaluation.runner import solve_session
-            from .systems.presets import PRESETS
+            from .report.pictures import PICTURES
+            from .scenarios import SIMULATORS
 
-            preset = PRESETS[args.system]
-            session = preset.simulate(chosen[0], args.duration)
+            session = SIMULATORS[args.system].simulate(chosen[0], args.duration)
             estimates = [solve_session(session, m).estimate for m in ("online", "batch")]
-            assert preset.picture is not None
-            written = preset.picture(session, estimates, args.plot.parent)
+            written = PICTURES[args.system](session, estimates, args.plot.parent)
             written[0].replace(args.plot)
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
         return 0

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .estimate import Estimate
-from .geometry import FloatArray, euler_zyx_from_quat, quat_conjugate, quat_multiply, rotvec_from_quat, wrap_angle
+from .geometry import FloatArray, euler_zyx_from_quat, quat_conjugate, quat_multiply, quat_normalize, rotvec_from_quat, wrap_angle
 
 AXES = ("azimuth", "elevation", "roll")
 
@@ -67,3 +67,41 @@ def mean_scores(scores: Sequence[AttitudeScore]) -> AttitudeScore:
     rms = np.mean([s.rms_rad for s in scores], axis=0)
     nees_values = [s.nees for s in scores if s.nees is not None]
     return AttitudeScore(rms, float(np.mean(nees_values)) if nees_values else None, sum(s.samples for s in scores), sum(s.missing for s in scores))
+
+
+@dataclass(frozen=True)
+class BroadErrors:
+    """The benchmark's RMSE, degrees."""
+
+    total: float
+    heading: float
+    inclination: float
+    samples: int
+    """Samples scored (movement set, truth finite)."""
+    failed: int = 0
+    """Of those, samples where the estimate was not finite (scored as 180 deg)."""
+
+
+def broad_errors(estimate_quat_wxyz: FloatArray, truth_quat_wxyz: FloatArray, movement: FloatArray) -> BroadErrors:
+    """Total, heading and inclination RMSE (deg) as the benchmark defines them.
+
+    Samples are those in movement with a finite truth. A sample where the ESTIMATE is not finite is not
+    dropped (a method must not escape its hard samples): it is scored as failing, 180 deg in all three.
+    """
+    scored = (np.asarray(movement) > 0) & np.all(np.isfinite(truth_quat_wxyz), axis=1)
+    if not scored.any():
+        raise ValueError("no sample to score (no movement with a finite truth)")
+    estimate = np.asarray(estimate_quat_wxyz, dtype=float)[scored]
+    failed = ~np.all(np.isfinite(estimate), axis=1) | (np.linalg.norm(np.nan_to_num(estimate), axis=1) < 1e-9)
+    estimate = np.where(failed[:, None], np.array([1.0, 0.0, 0.0, 0.0]), estimate)
+    q_err = quat_multiply(quat_normalize(estimate), quat_conjugate(quat_normalize(truth_quat_wxyz[scored])))
+    w = np.clip(np.abs(q_err[:, 0]), 0.0, 1.0)
+    z = q_err[:, 3]
+    total = np.where(failed, np.pi, 2.0 * np.arccos(w))
+    heading = np.where(failed, np.pi, 2.0 * np.arctan(np.abs(z) / np.maximum(w, 1e-12)))
+    inclination = np.where(failed, np.pi, 2.0 * np.arccos(np.clip(np.sqrt(w**2 + z**2), 0.0, 1.0)))
+
+    def rmse(x: FloatArray) -> float:
+        return float(np.rad2deg(np.sqrt(np.mean(x**2))))
+
+    return BroadErrors(rmse(total), rmse(heading), rmse(inclination), int(scored.sum()), int(failed.sum()))

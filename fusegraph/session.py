@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .catalogue import TRUTH_KEYS, CatalogueError, SensorKind, check_keys, sensor_catalogue, suggest
+from .catalogue import TRUTH_KEYS, CatalogueError, SensorKind, check_keys, suggest
+from .sensors import sensor_catalogue
 
 FloatArray = NDArray[np.float64]
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from conftest import assert_jacobians_match, random_rot3, requires_shared_data
 
-from fusegraph.datasets.broad import broad_errors
 from fusegraph.factors.accel import GravityNoise, gravity_factor
 from fusegraph.factors.mag import FieldReference, MagNoise, field_norm_dip, fit_mag_calibration, heading_factor, heading_sigma_rad
 from fusegraph.graphs.attitude9 import Attitude9Builder, fill_samples, initial_attitude
+from fusegraph.metrics import broad_errors
 from fusegraph.scenarios.attitude9 import simulate_attitude9
 from fusegraph.systems import attitude9
 

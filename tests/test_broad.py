@@ -7,8 +7,9 @@ import pytest
 from conftest import requires_shared_data
 
 from fusegraph import SessionError
-from fusegraph.datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
+from fusegraph.datasets.broad import DEFAULT_DIR, load_broad, trial_paths
 from fusegraph.geometry import quat_from_rotvec, quat_multiply
+from fusegraph.metrics import broad_errors
 
 
 def test_metric_splits_heading_and_inclination() -> None:

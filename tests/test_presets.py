@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from conftest import requires_shared_data
 
-from fusegraph.catalogue import catalogue_markdown
 from fusegraph.cli import main, system_docs
+from fusegraph.sensors import catalogue_markdown
 from fusegraph.session import SessionError, load_session
 
 # shortest simulations each system can score (walking needs a few steps)
@@ -79,9 +79,10 @@ def test_walking_beacon_ranges_enter_the_graph() -> None:
     beacons_m is an error naming the row."""
     from dataclasses import replace
 
+    from fusegraph.scenarios import SIMULATORS
     from fusegraph.systems.presets import PRESETS
 
-    session = PRESETS["walking"].simulate(4, duration_s=60.0, sensors=("gyro", "accel", "beacons"))
+    session = SIMULATORS["walking"].simulate(4, duration_s=60.0, sensors=("gyro", "accel", "beacons"))
     batch = PRESETS["walking"].run(session, "batch")
     metrics = PRESETS["walking"].score(session, batch)
     assert metrics is not None and metrics["rmse_m"] < 1.5, metrics

@@ -40,7 +40,7 @@ def test_view_of_a_session_writes_every_file(head_session: Path, tmp_path: Path,
 def test_open3d_renders_headless_when_installed(head_session: Path, tmp_path: Path) -> None:
     pytest.importorskip("open3d", exc_type=ImportError)
     from fusegraph import load_session
-    from fusegraph.report.view import head_scene, write_head_scene
+    from fusegraph.report.scene import head_scene, write_head_scene
     from fusegraph.systems.head import run_batch
 
     session = load_session(head_session)

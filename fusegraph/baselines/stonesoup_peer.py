@@ -31,7 +31,7 @@ import numpy as np
 
 from ..frontends.association import locate
 from ..geometry import FloatArray
-from ..scenarios.ultrasonic import RangeEpochs
+from ..records import RangeEpochs
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,7 @@
 """Loaders that turn real recordings into Sessions."""
 
-from .broad import BroadErrors, broad_errors, load_broad, trial_paths
+from ..metrics import BroadErrors, broad_errors
+from .broad import load_broad, trial_paths
 from .plaza import PlazaRecording, load_plaza
 from .steps_oxford import StepRecording, load_recording, read_stats, recordings
 

@@ -13,12 +13,10 @@ with ``movement`` set and a finite truth. No alignment of any kind.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..geometry import FloatArray, quat_conjugate, quat_multiply, quat_normalize
 from ..session import KIND_COLUMNS, Session, SessionError, Stream
 
 #: Where the recordings live beside the repository (tests skip when it is absent).
@@ -57,44 +55,6 @@ def load_broad(path: str | Path) -> Session:
                    {"frame": "earth_R_sensor", "world_frame": "ENU", "source": "optical motion capture"})
     session_meta = {"session": {"system": "attitude9", "dataset": "BROAD", "trial": path.stem, "world_frame": "ENU"}}
     return Session("attitude9", streams, truth, session_meta, path.parent)
-
-
-@dataclass(frozen=True)
-class BroadErrors:
-    """The benchmark's RMSE, degrees."""
-
-    total: float
-    heading: float
-    inclination: float
-    samples: int
-    """Samples scored (movement set, truth finite)."""
-    failed: int = 0
-    """Of those, samples where the estimate was not finite (scored as 180 deg)."""
-
-
-def broad_errors(estimate_quat_wxyz: FloatArray, truth_quat_wxyz: FloatArray, movement: FloatArray) -> BroadErrors:
-    """Total, heading and inclination RMSE (deg) as the benchmark defines them.
-
-    Samples are those in movement with a finite truth. A sample where the ESTIMATE is not finite is not
-    dropped (a method must not escape its hard samples): it is scored as failing, 180 deg in all three.
-    """
-    scored = (np.asarray(movement) > 0) & np.all(np.isfinite(truth_quat_wxyz), axis=1)
-    if not scored.any():
-        raise ValueError("no sample to score (no movement with a finite truth)")
-    estimate = np.asarray(estimate_quat_wxyz, dtype=float)[scored]
-    failed = ~np.all(np.isfinite(estimate), axis=1) | (np.linalg.norm(np.nan_to_num(estimate), axis=1) < 1e-9)
-    estimate = np.where(failed[:, None], np.array([1.0, 0.0, 0.0, 0.0]), estimate)
-    q_err = quat_multiply(quat_normalize(estimate), quat_conjugate(quat_normalize(truth_quat_wxyz[scored])))
-    w = np.clip(np.abs(q_err[:, 0]), 0.0, 1.0)
-    z = q_err[:, 3]
-    total = np.where(failed, np.pi, 2.0 * np.arccos(w))
-    heading = np.where(failed, np.pi, 2.0 * np.arctan(np.abs(z) / np.maximum(w, 1e-12)))
-    inclination = np.where(failed, np.pi, 2.0 * np.arccos(np.clip(np.sqrt(w**2 + z**2), 0.0, 1.0)))
-
-    def rmse(x: FloatArray) -> float:
-        return float(np.rad2deg(np.sqrt(np.mean(x**2))))
-
-    return BroadErrors(rmse(total), rmse(heading), rmse(inclination), int(scored.sum()), int(failed.sum()))
 
 
 def trial_paths(directory: str | Path = DEFAULT_DIR) -> list[Path]:

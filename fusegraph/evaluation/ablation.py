@@ -146,7 +146,7 @@ def load_study(path: str | Path) -> Study:
         table = tomllib.loads(path.read_text())["study"]
     except (OSError, tomllib.TOMLDecodeError, KeyError) as exc:
         raise ValueError(f"{path}: cannot read a [study] table ({exc})") from None
-    from ..cli import parse_seeds
+    from .tuning import parse_seeds
 
     seeds = table.get("seeds", [0])
     return Study(
@@ -203,14 +203,14 @@ def _blank_row(spec: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _solve_generic(spec: Mapping[str, Any]) -> tuple[dict[str, float], float]:
-    """Any system: simulate through its preset, drop streams, set catalogued keys, solve, score (flattened metrics)."""
+    """Any system: simulate (``scenarios.SIMULATORS``), drop streams, set catalogued keys, solve, score (flattened metrics)."""
     from dataclasses import replace
 
-    from ..catalogue import sensor_catalogue
-    from ..systems.presets import PRESETS, flatten
+    from ..scenarios import SIMULATORS
+    from ..sensors import sensor_catalogue
+    from ..systems.presets import flatten
     from .runner import solve_session
 
-    preset = PRESETS[spec["system"]]
     options: dict[str, Any] = {}
     scenario = {k: v for k, v in spec["params"].items() if "." not in k}
     if spec["system"] == "head":
@@ -218,7 +218,7 @@ def _solve_generic(spec: Mapping[str, Any]) -> tuple[dict[str, float], float]:
         options["profile"] = spec["profile"]
         options["sensors"] = ("gyro", "accel", "tracker")
     duration = spec["duration_s"]
-    session = preset.simulate(int(spec["seed"]), None if duration in ("", None) else float(duration), **options)
+    session = SIMULATORS[spec["system"]].simulate(int(spec["seed"]), None if duration in ("", None) else float(duration), **options)
     drop = [d for d in spec["drop"] if d in session.streams]
     missing = [d for d in spec["drop"] if d not in session.streams]
     if missing:

@@ -27,7 +27,8 @@ def bench_broad(
     ``trials`` keeps the files whose name starts with one of these prefixes (e.g. ``"01"``); all by default.
     The same ``model`` (one parameter set) serves every trial; the truth is used only to score.
     """
-    from ..datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
+    from ..datasets.broad import DEFAULT_DIR, load_broad, trial_paths
+    from ..metrics import broad_errors
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown:

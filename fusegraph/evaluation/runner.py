@@ -51,9 +51,9 @@ def run_session(path: str | Path, solver: str, out: str | Path | None = None, pl
     target.parent.mkdir(parents=True, exist_ok=True)
     outcome.files.append(outcome.estimate.save_csv(target))
     if plot is not None:
-        picture = outcome.preset.picture
-        if picture is None:
-            raise SessionError(f"system '{outcome.preset.name}' has no picture")
+        from ..report.pictures import PICTURES
+
+        picture = PICTURES[outcome.preset.name]
         plot_path = Path(plot)
         written = picture(session, [outcome.estimate], plot_path.parent if plot_path.suffix else plot_path)
         if plot_path.suffix and written:
@@ -175,6 +175,7 @@ def generic_report(system: str, seeds: Sequence[int], duration_s: float | None =
     JSON: ``{"system", "seeds", "duration_s", "methods": {solver: {"metrics": {...}, "x_realtime": x}}, "per_seed": ...}``.
     """
     from ..progress import progress
+    from ..scenarios import SIMULATORS
 
     preset = PRESETS[system]
     names = list(solvers or preset.solvers)
@@ -182,7 +183,7 @@ def generic_report(system: str, seeds: Sequence[int], duration_s: float | None =
     seconds: dict[str, float] = dict.fromkeys(names, 0.0)
     data_s = 0.0
     for seed in progress(seeds, len(seeds), f"{system} report (seeds)"):
-        session = preset.simulate(seed, duration_s, **options)
+        session = SIMULATORS[system].simulate(seed, duration_s, **options)
         data_s += session.duration_s
         for name in names:
             outcome = solve_session(session, name)

@@ -119,7 +119,8 @@ def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
     """The 9-axis EKF's open settings (gyro noise; the accelerometer-noise inflation with | |a| - g |, which no
     paper has) chosen by leave-one-trial-out on the BROAD trials: total RMSE, degrees."""
     from ..baselines.ekf9 import Ekf9Config, run_ekf9
-    from ..datasets.broad import DEFAULT_DIR, broad_errors, load_broad, trial_paths
+    from ..datasets.broad import DEFAULT_DIR, load_broad, trial_paths
+    from ..metrics import broad_errors
     from ..systems.attitude9 import imu9, model_for
 
     grid = grid_settings(BROAD_EKF_GRID)
@@ -194,7 +195,8 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
 
 def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
     """Every grid point of a BROAD study on one trial (``job``: path, study, solver): total RMSE, degrees."""
-    from ..datasets.broad import broad_errors, load_broad
+    from ..datasets.broad import load_broad
+    from ..metrics import broad_errors
     from ..systems import attitude9
 
     path, study, solver = job
@@ -436,3 +438,20 @@ __all__ = ["STUDIES", "TEST_SEEDS", "TUNING_SEEDS", "Study", "format_study", "ru
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0-9`` or ``0,3,5`` or ``0-4,8`` -> list of seeds."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        if "-" in part[1:]:
+            lo, hi = part.split("-", 1) if not part.startswith("-") else (part, part)
+            seeds.extend(range(int(lo), int(hi) + 1))
+        else:
+            seeds.append(int(part))
+    if not seeds:
+        raise argparse.ArgumentTypeError(f"no seeds in {text!r} (use e.g. 0-9 or 0,2,5)")
+    return seeds

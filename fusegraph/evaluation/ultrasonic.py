@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from ..frontends.association import assign_ranges
+from ..records import RangeEpochs
 from ..report.ultrasonic import plot_ultrasonic
-from ..scenarios.ultrasonic import RangeEpochs
 from ..systems.ultrasonic import TrackingRun, identity_map, run_combinatorial, run_fusegraph, score_run
 
 

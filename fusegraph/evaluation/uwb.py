@@ -113,7 +113,7 @@ def association_self_check(rec: UwbRecording, xy: FloatArray) -> float:
 def run_uwb(rec: UwbRecording, config: UwbConfig | None = None) -> UwbResult:
     """Labelled and unlabelled runs, scored against the motion capture after aligning the two clocks on the
     raw ranges (``clock_offset_from_ranges``; formerly the offset that minimised our own labelled error)."""
-    from .ultrasonic import identity_map
+    from ..systems.ultrasonic import identity_map
 
     labelled_xy, _, _ = _track(rec, True, config)
     offset = clock_offset_from_ranges(rec)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scenarios.ultrasonic import RangeEpochs
+from ..records import RangeEpochs
 from ..systems.ultrasonic import TrackingRun, identity_map
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..scenarios.walking import ACTIVITIES, WalkingSession
+from ..records import ACTIVITIES, WalkingSession
 from ..systems.walking import METHODS, WalkRun
 
 

@@ -12,68 +12,14 @@ bicycle's translational acceleration. World ENU; body frames x forward, y left, 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx, quat_multiply
+from ..records import BicycleScenarioConfig, BicycleSession
 from ..session import KIND_COLUMNS, Session, Stream
 from .attitude9 import _noisy_readings
-
-
-@dataclass(frozen=True)
-class BicycleScenarioConfig:
-    """Everything that defines a simulated ride."""
-
-    ride: str = "downhill"
-    """'downhill' (outdoor, braking) or 'stand' (indoor trainer, no translation)."""
-    duration_s: float = 40.0
-    """Length, seconds."""
-    rate_hz: float = 100.0
-    """IMU rate, Hz."""
-    brake_s: float = 30.0
-    """Start of the hard braking (downhill), seconds."""
-    decel_m_s2: float = 4.0
-    """Braking deceleration, m/s^2."""
-    top_speed_m_s: float = 8.0
-    """Speed before braking, m/s."""
-    slope_deg: float = 4.0
-    """Road descent, degrees."""
-    cadence_hz: float = 1.3
-    """Pedalling rate, revolutions per second."""
-    thigh_lever_m: float = 0.2
-    """Distance from the hip to the thigh IMU, metres."""
-    gyro_sigma_rad_s: float = 0.003
-    """Gyro noise per sample, rad/s."""
-    gyro_bias_deg_s: float = 0.2
-    """Gyro bias per axis (sigma), deg/s."""
-    accel_sigma_m_s2: float = 0.05
-    """Accelerometer noise, m/s^2."""
-    mag_sigma: float = 0.01
-    """Magnetometer noise (field of norm 1)."""
-
-
-@dataclass(frozen=True)
-class BicycleSession:
-    """Both IMUs' readings and the truth."""
-
-    t: FloatArray
-    thigh_gyro: FloatArray
-    thigh_accel: FloatArray
-    thigh_mag: FloatArray
-    frame_gyro: FloatArray
-    frame_accel: FloatArray
-    frame_mag: FloatArray
-    thigh_quat_wxyz: FloatArray
-    """Truth: world_R_thigh."""
-    frame_quat_wxyz: FloatArray
-    """Truth: world_R_frame."""
-    config: BicycleScenarioConfig
-
-    @property
-    def braking(self) -> np.ndarray:
-        """The braking phase: from the brake to 5 s later (the stop and the held thigh)."""
-        return (self.t >= self.config.brake_s) & (self.t < self.config.brake_s + 5.0)
 
 
 def _speed(t: FloatArray, config: BicycleScenarioConfig) -> FloatArray:

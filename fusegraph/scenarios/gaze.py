@@ -12,76 +12,15 @@ Head IMU at 100 Hz (gyro with bias, accelerometer, calibrated magnetometer), tra
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
 from ..catalogue import check_sensors
-from ..factors.attitude import AttitudeTrack
-from ..factors.gaze import SceneCamera
 from ..geometry import FloatArray, matrix_from_quat, quat_from_euler_zyx
+from ..records import GazeScenarioConfig, GazeSession
 from ..session import KIND_COLUMNS, Session, Stream
 from .attitude9 import _noisy_readings, attitude_tracker_stream
-
-
-@dataclass(frozen=True)
-class GazeScenarioConfig:
-    """Everything that defines a simulated gaze session."""
-
-    duration_s: float = 40.0
-    """Length, seconds."""
-    switch_s: float = 25.0
-    """When the subject looks from the first mark to the second, seconds."""
-    wall_m: float = 1.0
-    """Distance to the wall, metres."""
-    target_depth_m: float | None = None
-    """None: the gaze targets lie on the wall x = ``wall_m``. Set (a recording without a wall): each
-    fixation point is held at this depth along its first ray, metres."""
-    first_mark_xz_m: tuple[float, float] = (0.0, 0.0)
-    """First mark on the wall (X, Z), metres."""
-    second_mark_xz_m: tuple[float, float] = (-0.25, -0.15)
-    """Second mark (X, Z), metres."""
-    imu_rate_hz: float = 100.0
-    """Head IMU rate, Hz."""
-    tracker_rate_hz: float = 60.0
-    """Eye tracker rate, Hz."""
-    camera: SceneCamera = field(default_factory=SceneCamera)
-    """Scene camera (the pixel noise is drawn with its ``pixel_sigma``)."""
-    jitter_m: float = 0.003
-    """Fixational jitter of the true gaze point on the wall, metres."""
-    gyro_sigma_rad_s: float = 0.003
-    """Gyro white noise, rad/s per sample."""
-    gyro_bias_deg_s: float = 0.3
-    """Gyro bias per axis (sigma), deg/s."""
-    accel_sigma_m_s2: float = 0.05
-    """Accelerometer noise, m/s^2."""
-    mag_sigma: float = 0.01
-    """Magnetometer noise (field of norm 1)."""
-    nod_deg: float = 15.0
-    """Nodding amplitude (pitch), degrees."""
-    shake_deg: float = 20.0
-    """Shaking amplitude (yaw), degrees."""
-
-
-@dataclass(frozen=True)
-class GazeSession:
-    """A simulated gaze session with its truth."""
-
-    t: FloatArray
-    gyro_rad_s: FloatArray
-    accel_m_s2: FloatArray
-    mag: FloatArray
-    tracker_t: FloatArray
-    """Tracker sample times, seconds."""
-    gaze_px: FloatArray
-    """Gaze pixels (u right, v up), origin at the image centre, shape (M, 2)."""
-    truth_quat_wxyz: FloatArray
-    """Head attitude world_R_head at the IMU times."""
-    truth_gaze_xz_m: FloatArray
-    """True gaze point on the wall (X, Z) at the tracker times, shape (M, 2)."""
-    config: GazeScenarioConfig
-    head_tracker: AttitudeTrack | None = None
-    """An optional head attitude tracker (its own room frame, possibly late)."""
 
 
 def head_motion(t: FloatArray, config: GazeScenarioConfig, rng: np.random.Generator) -> FloatArray:

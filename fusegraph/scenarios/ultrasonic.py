@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import FloatArray
+from ..records import RangeEpochs
 
 
 def ceiling_board(nx: int = 3, ny: int = 6, pitch_m: float = 0.3, height_m: float = 2.5, centre_xy: tuple[float, float] = (1.0, 0.75)) -> FloatArray:
@@ -54,28 +55,6 @@ class UltrasonicScenarioConfig:
     """Transmitters start at least this far apart (the paper's setting: about 50 cm)."""
     receivers: FloatArray = field(default_factory=ceiling_board)
     """Receiver positions (R, 3), metres."""
-
-
-@dataclass(frozen=True)
-class RangeEpochs:
-    """What the receivers heard, epoch by epoch, with the truth for scoring."""
-
-    t: FloatArray
-    """Emission times (K,), seconds."""
-    receivers: FloatArray
-    """Receiver positions (R, 3), metres."""
-    ranges: list[list[FloatArray]]
-    """ranges[k][r]: distances heard by receiver r at epoch k, sorted ascending (metres)."""
-    labels: list[list[np.ndarray]] | None
-    """Truth: the transmitter of each distance, or -1 - n for an echo of transmitter n."""
-    positions: FloatArray | None
-    """Truth positions (K, N, 3), metres."""
-    range_sigma_m: float = 0.005
-    """Range noise the session declares, metres."""
-
-    @property
-    def transmitters(self) -> int:
-        return 0 if self.positions is None else self.positions.shape[1]
 
 
 def _trajectory(rng: np.random.Generator, t: FloatArray, start: FloatArray, cfg: UltrasonicScenarioConfig) -> FloatArray:

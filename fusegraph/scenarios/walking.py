@@ -24,117 +24,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from ..catalogue import check_sensors
 from ..factors.imu import GRAVITY_M_S2
-from ..factors.ranging import BeaconRanges
 from ..geometry import FloatArray
+from ..records import Building, Fixes, WalkingScenarioConfig, WalkingSession
 from ..session import KIND_COLUMNS, Session, Stream
 from .gait import PendulumGait, Walker, turn_progress
-
-ACTIVITIES = ("flat", "stairs_up", "stairs_down", "elevator")
-
-
-@dataclass(frozen=True)
-class Building:
-    """Where things are: floors, the elevator shaft, the stairwell."""
-
-    floor_height_m: float = 3.5
-    """Height between floors, metres."""
-    floors: int = 3
-    """Number of floors (0 = ground)."""
-    elevator_xy_m: tuple[float, float] = (20.0, 0.0)
-    """Elevator car centre, metres."""
-    stairs_foot_xy_m: tuple[float, float] = (0.0, 8.0)
-    """Foot of every flight (the flights go +x from here, one floor each)."""
-    riser_m: float = 0.175
-    """Stair riser height, metres (20 steps per floor)."""
-    tread_m: float = 0.28
-    """Stair tread depth, metres."""
-
-
-@dataclass(frozen=True)
-class WalkingScenarioConfig:
-    """Everything that defines a simulated walk."""
-
-    rate_hz: float = 100.0
-    """IMU sample rate, Hz."""
-    building: Building = field(default_factory=Building)
-    """The building."""
-    gyro_sigma_rad_s: float = 0.005
-    """Gyro white noise per sample, rad/s."""
-    gyro_bias_sigma_deg_s: float = 0.02
-    """Constant gyro bias per axis, deg/s (drawn per seed)."""
-    accel_sigma_m_s2: float = 0.05
-    """Accelerometer white noise per sample, m/s^2."""
-    fix_every_s: float = 20.0
-    """Mean time between image fixes while walking, seconds."""
-    fix_position_sigma_m: float = 0.3
-    """Noise of a correct fix's position, metres."""
-    fix_heading_sigma_deg: float = 3.0
-    """Noise of a correct fix's heading, degrees."""
-    wrong_fix_fraction: float = 0.2
-    """Fraction of fixes that are wrong matches."""
-    wrong_fix_m: tuple[float, float] = (3.0, 10.0)
-    """How far off a wrong fix is, metres (uniform)."""
-    elevator_rides: int = 6
-    """Elevator rides in the tour (at least 6)."""
-    gait: str = "signature"
-    """How the waist moves: ``signature`` draws each activity with the signature the detector looks for (the
-    first generator); ``pendulum`` is the independent gait of ``scenarios.gait`` (an inverted-pendulum walker
-    drawn per seed, stride variability, heel-strike transients, a tilted belt IMU)."""
-
-
-@dataclass(frozen=True)
-class Fixes:
-    """Image-match fixes: measured pose, the pose a correct match would have given, and which are wrong."""
-
-    t: FloatArray
-    """Fix times, seconds, shape (F,)."""
-    pose: FloatArray
-    """Measured (x, y, z, yaw), shape (F, 4)."""
-    correct_pose: FloatArray
-    """The same fix had the match been right (truth + ordinary noise), shape (F, 4)."""
-    wrong: np.ndarray
-    """True where the match is wrong, shape (F,)."""
-
-
-@dataclass(frozen=True)
-class WalkingSession:
-    """A simulated walk: the waist IMU, the fixes and the truth."""
-
-    t: FloatArray
-    """IMU sample times, seconds, shape (N,)."""
-    accel_m_s2: FloatArray
-    """Specific force in the body frame, shape (N, 3)."""
-    gyro_rad_s: FloatArray
-    """Body rate, shape (N, 3)."""
-    fixes: Fixes
-    """Image-match fixes."""
-    truth_xyz_m: FloatArray
-    """Waist position (without the gait sway), shape (N, 3)."""
-    truth_yaw_rad: FloatArray
-    """Heading of the body x axis, shape (N,)."""
-    step_t: FloatArray
-    """Heel-strike times of every step, shape (S,)."""
-    step_activity: tuple[str, ...]
-    """Activity of each step: flat, stairs_up or stairs_down."""
-    rides: FloatArray
-    """Elevator rides: rows (start_s, end_s, floors moved (+up))."""
-    building: Building
-    """The building (known to the estimator: elevator position, floor height, stair size)."""
-    start_pose: FloatArray
-    """(x, y, z, yaw) at the start, known to the estimator."""
-    bouts: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
-    """Calibration walks only: rows (start_s, end_s, true mean speed m/s) of each straight leg."""
-    beacons: BeaconRanges | None = None
-    """Optional ranges to known UWB beacons (the Plaza factors in the walker's graph)."""
-    start_sigmas: FloatArray | None = None
-    """Prior sigmas of the start (roll, pitch, yaw rad, x, y, z m); None: the walker's known entrance."""
 
 
 class _Tour:
@@ -312,7 +211,6 @@ def _imu(tour: _Tour, rng: np.random.Generator, config: WalkingScenarioConfig) -
     gyro_meas = gyro + bias + rng.normal(0.0, config.gyro_sigma_rad_s, gyro.shape)
     accel_meas = accel + rng.normal(0.0, config.accel_sigma_m_s2, accel.shape)
     return t, accel_meas, gyro_meas, pos, yaw
-
 
 
 def _fixes(rng: np.random.Generator, t: FloatArray, pos: FloatArray, yaw: FloatArray, walking: list[tuple[float, float]],

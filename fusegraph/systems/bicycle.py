@@ -22,7 +22,7 @@ from ..geometry import FloatArray, matrix_from_quat, quat_wxyz_from_rot3
 from ..graphs.attitude9 import fill_samples
 from ..graphs.bicycle import BicycleModel, CoupledBuilder
 from ..metrics import euler_errors
-from ..scenarios.bicycle import BicycleScenarioConfig, BicycleSession
+from ..records import BicycleScenarioConfig, BicycleSession
 from ..session import Session
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig, OnlineSmoother

@@ -30,7 +30,7 @@ from ..factors.imu import MotionPriors
 from ..factors.mag import MagNoise
 from ..geometry import FloatArray, quat_wxyz_from_rot3
 from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
-from ..scenarios.gaze import GazeScenarioConfig, GazeSession
+from ..records import GazeScenarioConfig, GazeSession
 from ..session import Session, SessionError
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from .attitude9 import attitude_tracker

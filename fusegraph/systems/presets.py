@@ -3,8 +3,9 @@
 A ``Preset`` says, for one system: the streams and session keys it reads (documented, checked:
 a misspelled key is an error naming the nearest), its solvers (every one ``Session -> Estimate``
 or ``PointEstimate``: ``online``, ``batch`` and its paper's baseline, plus others), how an
-estimate is scored when the session has truth (one flat dict of metrics), how a session is
-simulated, and how a result is pictured. The CLI is generic over ``PRESETS``: no per-system branch.
+estimate is scored when the session has truth (one flat dict of metrics). How a session is simulated
+(``scenarios.SIMULATORS``) and pictured (``report.pictures.PICTURES``) is found by system name in those
+layers, so a preset imports neither. The CLI is generic over ``PRESETS``: no per-system branch.
 
 The graph builders behind the solvers stay where a measured special case needs one (head's
 ordering, attitude9's two-pass magnetometer, the cyclist's QR); what is common (catalogue, loading,
@@ -16,7 +17,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,8 @@ SolverFn = Callable[[Session], Result]
 
 @dataclass(frozen=True)
 class Preset:
-    """One system: its streams, keys, solvers, scoring, simulation and picture."""
+    """One system: its streams, keys, solvers and scoring (its simulator is in ``scenarios.SIMULATORS``, its picture in
+``report.pictures.PICTURES``, both by system name)."""
 
     name: str
     """System name, as written in ``[session] system``."""
@@ -47,20 +48,10 @@ class Preset:
     """Run a solver by name."""
     score: Callable[[Session, Result], dict[str, Any] | None]
     """Metrics of an estimate against the session's truth (None without truth)."""
-    simulate: Callable[..., Session]
-    """``simulate(seed, duration_s=None, **options) -> Session`` with truth."""
-    default_duration_s: float
-    """Seconds ``simulate`` writes when no duration is given."""
-    min_duration_s: float = 1.0
-    """Shortest simulation the system's scoring can use, seconds."""
     estimate_name: str = "estimate"
     """Stem of the default output file (``<stem>_<solver>.csv``)."""
-    picture: Callable[[Session, list[Result], Path], list[Path]] | None = None
-    """Figures of estimates of one session (``view`` and ``run --plot``)."""
     metric_keys: tuple[str, ...] = ()
     """Scalar metrics a study summarises (keys of ``score``'s result, flattened with dots)."""
-    simulate_options: tuple[str, ...] = ()
-    """Options of ``simulate`` beyond seed and duration that the CLI may pass (others are an error)."""
     notes: tuple[str, ...] = field(default_factory=tuple)
     """Further lines of documentation (``fusegraph sensors``)."""
 
@@ -152,38 +143,6 @@ def gap_scores(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, 
     return {"gap_rms_deg": dict(zip(AXES, (float(v) for v in rms), strict=True)), "gap_max_deg": float(np.max(angle)), "gap_nees": gap_nees}
 
 
-def _head_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
-    from ..scenarios.head import simulate_head
-
-    return simulate_head(seed, duration_s=duration_s or 10.0, **options)
-
-
-def _attitude_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
-    """Attitude axes with 3-sigma bands against the truth (or the first estimate without truth)."""
-    from ..report.plots import plot_attitude_axes
-
-    attitude = [e for e in estimates if isinstance(e, Estimate)]
-    truth = session.truth
-    if truth is not None and truth.kind == "attitude":
-        t, q = truth.t, truth.values
-    else:
-        t, q = attitude[0].t, attitude[0].quat_wxyz
-    name = "_".join(e.method for e in attitude)
-    title = f"{session.system}: {', '.join(e.method for e in attitude)}" + ("" if truth is not None else " (no truth)")
-    return [plot_attitude_axes(t, q, attitude, out / f"attitude_{name}.png", title=title)]
-
-
-def _head_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
-    from ..report.view import head_scene, write_head_scene
-
-    written = _attitude_picture(session, estimates, out)
-    first = estimates[0]
-    assert isinstance(first, Estimate)
-    truth = session.truth
-    scene = head_scene(first, truth.t if truth else None, truth.values if truth else None, title=f"{session.system}: {first.method}: 3D view")
-    return written + write_head_scene(scene, out)
-
-
 # --------------------------------------------------------------------------------- attitude9
 
 
@@ -194,7 +153,7 @@ def _attitude9_run(session: Session, solver: str) -> Result:
 
 
 def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    from ..datasets.broad import broad_errors
+    from ..metrics import broad_errors
 
     truth = session.truth
     if truth is None or not isinstance(estimate, Estimate) or estimate.t.shape != truth.t.shape:
@@ -202,12 +161,6 @@ def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | Non
     movement = session.stream("movement").values[:, 0] if "movement" in session.streams else np.ones(len(estimate.t))
     errors = broad_errors(estimate.quat_wxyz, truth.values, movement)
     return {"total_deg": errors.total, "heading_deg": errors.heading, "inclination_deg": errors.inclination}
-
-
-def _attitude9_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
-    from ..scenarios.attitude9 import simulate_attitude9
-
-    return simulate_attitude9(seed, duration_s=duration_s or 10.0, **options)
 
 
 # -------------------------------------------------------------------------------------- gaze
@@ -228,35 +181,6 @@ def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     if not np.isfinite(data.truth_gaze_xz_m).any() or not isinstance(estimate, PointEstimate):
         return None
     return {"rms": gaze.rms_mm(estimate.points[:, 0, :], data)}
-
-
-def _gaze_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
-    from ..scenarios.gaze import gaze_session
-
-    return gaze_session(seed, duration_s=duration_s or 40.0, **{k: v for k, v in options.items() if v is not None})
-
-
-def _gaze_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
-    """The gaze point on the wall (X right, Z up), each estimate against the truth."""
-    import matplotlib.pyplot as plt
-
-    from ..report.plots import save_figure
-
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
-    truth = session.truth
-    if truth is not None:
-        axes[0].plot(truth.values[:, 1], truth.values[:, 2], color="black", lw=2, label="truth")
-    for e in estimates:
-        if isinstance(e, PointEstimate):
-            axes[0].plot(e.points[:, 0, 0], e.points[:, 0, 1], lw=0.8, label=e.method)
-            if truth is not None and len(truth.t) == len(e.t):
-                axes[1].plot(e.t, 1000 * np.linalg.norm(e.points[:, 0, :] - truth.values[:, 1:3], axis=1), lw=0.8, label=e.method)
-    axes[0].set(xlabel="wall X = world y [m]", ylabel="wall Z = world z [m]", title="gaze point on the wall", aspect="equal")
-    axes[1].set(xlabel="time [s]", ylabel="error [mm]", title="distance to the true gaze point", yscale="log")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    return [save_figure(fig, out / f"gaze_{'_'.join(e.method for e in estimates)}.png")]
 
 
 # ----------------------------------------------------------------------------------- bicycle
@@ -280,12 +204,6 @@ def _bicycle_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     if not isinstance(estimate, Estimate) or not np.isfinite(ride.thigh_quat_wxyz).all() or not np.isfinite(ride.config.brake_s):
         return None
     return {"rms": bicycle.braking_rms_deg(estimate.quat_wxyz, ride)}
-
-
-def _bicycle_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
-    from ..scenarios.bicycle import bicycle_session
-
-    return bicycle_session(seed, duration_s=duration_s or 40.0, **options)
 
 
 # ----------------------------------------------------------------------------------- walking
@@ -346,45 +264,11 @@ def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     return walking.score(walking.WalkRun(estimate.method, estimate.t, estimate.points[:, 0, :], estimate.runtime_s), walk)
 
 
-def _walking_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
-    from ..scenarios.walking import walking_session
-
-    session = walking_session(seed, **{k: v for k, v in options.items() if v is not None})
-    if duration_s is not None:
-        session = _clip(session, duration_s)
-    return session
-
-
-def _walking_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
-    """The walk per floor (top views), each estimate against the truth."""
-    import matplotlib.pyplot as plt
-
-    from ..report.plots import save_figure
-
-    height = float(session.meta.get("building", {}).get("floor_height_m", 3.5))
-    truth = session.truth
-    tracks = [(e.method, e.points[:, 0, :]) for e in estimates if isinstance(e, PointEstimate)]
-    all_z = np.concatenate([xyz[:, 2] for _, xyz in tracks] + ([truth.values[:, 2]] if truth is not None else []))
-    floors = sorted(set(np.round(all_z[np.isfinite(all_z)] / height).astype(int).tolist())) or [0]
-    fig, axes = plt.subplots(1, len(floors), figsize=(5 * len(floors), 5), squeeze=False)
-    for ax, floor in zip(axes[0], floors, strict=True):
-        if truth is not None:
-            on = np.round(truth.values[:, 2] / height) == floor
-            ax.plot(np.where(on, truth.values[:, 0], np.nan), np.where(on, truth.values[:, 1], np.nan), color="black", lw=2, label="truth")
-        for name, xyz in tracks:
-            on = np.round(xyz[:, 2] / height) == floor
-            ax.plot(np.where(on, xyz[:, 0], np.nan), np.where(on, xyz[:, 1], np.nan), lw=1, marker=".", ms=2, label=name)
-        ax.set(title=f"floor {floor}", xlabel="x east [m]", ylabel="y north [m]", aspect="equal")
-        ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=8)
-    return [save_figure(fig, out / f"walk_{'_'.join(n for n, _ in tracks)}.png")]
-
-
 # -------------------------------------------------------------------------------- ultrasonic
 
 
 def _ultrasonic_run(session: Session, solver: str) -> Result:
-    from ..datasets.ultrasonic_session import epochs_from_session
+    from ..records import epochs_from_session
     from . import ultrasonic
 
     epochs = epochs_from_session(session)
@@ -404,7 +288,7 @@ def _ultrasonic_run(session: Session, solver: str) -> Result:
 def _ultrasonic_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     from dataclasses import asdict
 
-    from ..datasets.ultrasonic_session import epochs_from_session
+    from ..records import epochs_from_session
     from . import ultrasonic
 
     if not isinstance(estimate, PointEstimate):
@@ -418,61 +302,7 @@ def _ultrasonic_score(session: Session, estimate: Result) -> dict[str, Any] | No
     return out
 
 
-def _ultrasonic_simulate(seed: int, duration_s: float | None = None, **options: Any) -> Session:
-    from ..datasets.ultrasonic_session import session_from_epochs
-    from ..scenarios.ultrasonic import simulate_ultrasonic
-
-    epochs = simulate_ultrasonic(seed, duration_s=duration_s or 10.0, **options)
-    return session_from_epochs(epochs, {"scenario": "ultrasonic", "seed": seed})
-
-
-def _ultrasonic_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
-    """The receivers and every tag's track in 3D, and each tag's error over time."""
-    import matplotlib.pyplot as plt
-
-    from ..datasets.ultrasonic_session import epochs_from_session
-    from ..report.plots import save_figure
-    from .ultrasonic import identity_map
-
-    epochs = epochs_from_session(session)
-    fig = plt.figure(figsize=(14, 6))
-    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
-    ax3.scatter(*epochs.receivers.T, marker="s", color="grey", label="receivers")
-    if epochs.positions is not None:
-        for j in range(epochs.positions.shape[1]):
-            ax3.plot(*epochs.positions[:, j].T, color="black", lw=1.5, label="truth" if j == 0 else None)
-    ax2 = fig.add_subplot(1, 2, 2)
-    for e in estimates:
-        if not isinstance(e, PointEstimate):
-            continue
-        for j in range(e.points.shape[1]):
-            (line,) = ax3.plot(*e.points[:, j].T, lw=0.8, label=f"{e.method}" if j == 0 else None)
-        if epochs.positions is not None:
-            errors = []
-            for k in range(len(e.t)):
-                mapping = identity_map(e.points[k], epochs.positions[k])
-                matched = np.full_like(epochs.positions[k], np.nan)
-                matched[mapping[mapping >= 0]] = e.points[k][mapping >= 0]
-                errors.append(np.linalg.norm(matched - epochs.positions[k], axis=1))
-            ax2.plot(e.t, 1000 * np.array(errors), lw=0.6, color=line.get_color())
-    ax3.set(xlabel="x [m]", ylabel="y [m]", zlabel="z [m]", title="tags and receivers")
-    ax3.legend(fontsize=8)
-    ax2.set(xlabel="time [s]", ylabel="error per tag [mm]", yscale="log", title="position error (each tag matched to the truth)")
-    ax2.grid(alpha=0.3)
-    return [save_figure(fig, out / f"tags_{'_'.join(e.method for e in estimates)}.png")]
-
-
 # ------------------------------------------------------------------------------------ shared
-
-
-def _clip(session: Session, duration_s: float) -> Session:
-    """The session's first ``duration_s`` seconds (every stream and the truth)."""
-    from dataclasses import replace
-
-    t0 = min(float(s.t[0]) for s in session.streams.values())
-    keep = {name: s.select(s.t <= t0 + duration_s) for name, s in session.streams.items()}
-    truth = session.truth.select(session.truth.t <= t0 + duration_s) if session.truth is not None else None
-    return replace(session, streams=keep, truth=truth)
 
 
 PRESETS: dict[str, Preset] = {
@@ -487,11 +317,7 @@ PRESETS: dict[str, Preset] = {
                  "method2_paper_values": "Method II with the paper's own noise figures (ekf/method1/method2/kalman are tuned on seeds 100-119)"},
         run=_head_run,
         score=_head_score,
-        simulate=_head_simulate,
-        default_duration_s=10.0,
-        picture=_head_picture,
         metric_keys=("rms_deg.azimuth", "rms_deg.elevation", "rms_deg.roll", "nees"),
-        simulate_options=("profile", "tracker_latency_s", "tracker_latency_assumed_s", "sensors", "tracker_gap_s"),
     ),
     "attitude9": Preset(
         name="attitude9",
@@ -506,11 +332,7 @@ PRESETS: dict[str, Preset] = {
                  "vqf": "VQF online (the peer)", "vqf_offline": "VQF offline (the peer)"},
         run=_attitude9_run,
         score=_attitude9_score,
-        simulate=_attitude9_simulate,
-        default_duration_s=10.0,
-        picture=_attitude_picture,
         metric_keys=("total_deg", "heading_deg", "inclination_deg"),
-        simulate_options=("profile", "sensors"),
     ),
     "gaze": Preset(
         name="gaze",
@@ -527,13 +349,8 @@ PRESETS: dict[str, Preset] = {
         solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)"},
         run=_gaze_run,
         score=_gaze_score,
-        simulate=_gaze_simulate,
-        default_duration_s=40.0,
-        min_duration_s=5.0,
         estimate_name="gaze",
-        picture=_gaze_picture,
         metric_keys=("rms.x_mm", "rms.z_mm"),
-        simulate_options=("sensors",),
     ),
     "bicycle": Preset(
         name="bicycle",
@@ -545,10 +362,6 @@ PRESETS: dict[str, Preset] = {
                  "paper_pipeline": "same as ekf", "no_removal": "the thigh EKF alone"},
         run=_bicycle_run,
         score=_bicycle_score,
-        simulate=_bicycle_simulate,
-        default_duration_s=40.0,
-        min_duration_s=10.0,
-        picture=_attitude_picture,
         metric_keys=("rms.pitch_deg", "rms.roll_deg"),
         notes=("the braking phase brake_s .. brake_s + 5 s is scored; a shorter simulation brakes at 3/4 of its length",),
     ),
@@ -567,13 +380,8 @@ PRESETS: dict[str, Preset] = {
                  "dead_reckoning": "steps and rides only", "steps": "step count of the accelerometer alone (a phone's step recording; no trajectory)"},
         run=_walking_run,
         score=_walking_score,
-        simulate=_walking_simulate,
-        default_duration_s=float("nan"),
-        min_duration_s=20.0,
         estimate_name="trajectory",
-        picture=_walking_picture,
         metric_keys=("rmse_m", "final_error_m"),
-        simulate_options=("sensors",),
     ),
     "ultrasonic": Preset(
         name="ultrasonic",
@@ -584,12 +392,8 @@ PRESETS: dict[str, Preset] = {
                  "combinatorial": "the paper's combinatorial search per epoch"},
         run=_ultrasonic_run,
         score=_ultrasonic_score,
-        simulate=_ultrasonic_simulate,
-        default_duration_s=10.0,
         estimate_name="tags",
-        picture=_ultrasonic_picture,
         metric_keys=("assoc_acc", "assoc_acc_unambiguous", "rmse_m", "lost_frac"),
-        simulate_options=("transmitters",),
     ),
 }
 """Every system by name."""

@@ -24,7 +24,7 @@ import numpy as np
 from ..factors.linear import robust
 from ..frontends.association import assign_receivers, locate
 from ..geometry import FloatArray
-from ..scenarios.ultrasonic import RangeEpochs
+from ..records import RangeEpochs
 from ..solvers.multiple_model import REST, MotionModes, PointBank, Prediction
 
 

@@ -26,7 +26,7 @@ from ..factors.ranging import BeaconRanges, beacon_ranges_from
 from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, gravity_filter
 from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule, start_from_ranges
-from ..scenarios.walking import ACTIVITIES, Building, Fixes, WalkingSession
+from ..records import ACTIVITIES, Building, Fixes, WalkingSession
 from ..session import Session, SessionError
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig
