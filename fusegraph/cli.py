@@ -145,8 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     imp = sub.add_parser("import", help="turn a real recording into a session directory (then run/view/ablate it)",
                          description="broad: a BROAD trial (.mat) or a folder of them -> attitude9 sessions (one per trial). "
-                         "uwb: the UWB recording folder (UWB_*.csv + motion_capture_*.csv) -> an ultrasonic session (anchors as receivers, "
-                         "tags unlabelled, motion capture as truth). oxford: an Oxford step recording folder or the dataset folder -> walking "
+                         "uwb: one UWB run's folder (UWB_<run>.csv + motion_capture_<run>.csv + SOURCE_README.md) -> an ultrasonic session "
+                         "(anchors as receivers, tags unlabelled on one rigid planar body, motion capture on the UWB clock as truth). "
+                         "oxford: an Oxford step recording folder or the dataset folder -> walking "
                          "sessions with the phone accelerometer and the hand-counted steps (run --solver steps). plaza: Plaza1|Plaza2 (shipped with gtsam) "
                          "-> a walking session driven by wheel odometry with beacon ranges (start found from the ranges). tobii: a Tobii Pro Glasses 3 "
                          "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth).",
@@ -160,6 +161,8 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("format", choices=["broad", "oxford", "plaza", "tobii", "uwb"])
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
+    imp.add_argument("--labelled", action="store_true", help="uwb: keep each range's tag as the ranging system reports it (a tag column); "
+                     "default: unlabelled, each receiver's distances in arrival order")
 
     tun = sub.add_parser("tune", help="choose free settings by one rule: a grid on tuning seeds 100-119, or leave-one-trial-out on BROAD",
                          description="Every setting a paper leaves open (a baseline's noise) and every free setting of ours is chosen by "
@@ -390,7 +393,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_import(args: argparse.Namespace) -> int:
     from .datasets.importers import import_recording
 
-    for path in import_recording(args.format, args.source, args.out):
+    if args.labelled and args.format != "uwb":
+        raise ValueError("--labelled applies to import uwb only")
+    for path in import_recording(args.format, args.source, args.out, labelled=args.labelled):
         print(f"wrote {path}/")
     return 0
 

@@ -255,10 +255,21 @@ class RangeEpochs:
     """Truth positions (K, N, 3), metres."""
     range_sigma_m: float = 0.005
     """Range noise the session declares, metres."""
+    tag_offsets_m: FloatArray | None = None
+    """(N, 3) the tags' positions on one rigid body, in its frame (metres), when the session declares them."""
+    planar: bool = False
+    """The tags move in a horizontal plane (the receivers' mean height): tracked and scored in x, y."""
+    declared_transmitters: int = 0
+    """How many transmitters the session says emit each epoch."""
+    labelled: bool = False
+    """The ranging system knows each range's tag (a ``tag`` column): ranges[k][r] is then in tag order, NaN where
+    receiver r did not hear that tag."""
 
     @property
     def transmitters(self) -> int:
-        return 0 if self.positions is None else self.positions.shape[1]
+        if self.positions is not None:
+            return int(self.positions.shape[1])
+        return self.declared_transmitters
 
 
 def session_from_epochs(epochs: RangeEpochs, meta: dict[str, object] | None = None) -> Session:
@@ -304,7 +315,8 @@ def epochs_from_session(session: Session) -> RangeEpochs:
         bad = int(np.argmax((receiver != np.round(receiver)) | (receiver < 0) | (receiver >= len(receivers))))
         raise SessionError(f"{where}: stream '{stream.name}' line {bad + 2}: receiver {receiver[bad]:g} "
                            f"is not an index of receivers_m (0..{len(receivers) - 1})")
-    labels_all = _labels(session, stream.name)
+    labels_all = _column(session, stream.name, "truth_label")
+    tag_all = _column(session, stream.name, "tag")
     times, starts = np.unique(stream.t, return_index=True)
     ends = np.append(starts[1:], len(stream.t))
     ranges: list[list[FloatArray]] = []
@@ -315,6 +327,14 @@ def epochs_from_session(session: Session) -> RangeEpochs:
         per_label = []
         for r in range(len(receivers)):
             mask = rec == r
+            if tag_all is not None:  # labelled: in tag order, NaN for a tag this receiver did not hear
+                tag = tag_all[a:b][mask].astype(int)
+                heard = np.full(n, np.nan)
+                heard[tag[(tag >= 0) & (tag < n)]] = dist[mask][(tag >= 0) & (tag < n)]
+                per.append(heard)
+                if labels_all is not None:
+                    per_label.append(np.arange(n))
+                continue
             order = np.argsort(dist[mask])
             per.append(dist[mask][order])
             if labels_all is not None:
@@ -329,19 +349,27 @@ def epochs_from_session(session: Session) -> RangeEpochs:
         k = np.searchsorted(times, truth.t)
         ok = (k < len(times)) & (truth.values[:, 0] < n)
         positions[k[ok], truth.values[ok, 0].astype(int)] = truth.values[ok, 1:4]
-    return RangeEpochs(times, receivers, ranges, labels, positions, float(stream.meta.get("sigma_m", 0.005)))
+    offsets = stream.meta.get("tag_offsets_m")
+    tag_offsets = None
+    if offsets is not None:
+        tag_offsets = np.asarray(offsets, dtype=float)
+        if tag_offsets.ndim != 2 or tag_offsets.shape[1] != 3 or len(tag_offsets) != n:
+            raise SessionError(f"{where}: [streams.{stream.name}] tag_offsets_m must be {n} rows of [x, y, z] (one per transmitter; "
+                               f"got shape {tag_offsets.shape})")
+    return RangeEpochs(times, receivers, ranges, labels, positions, float(stream.meta.get("sigma_m", 0.005)), tag_offsets,
+                       bool(stream.meta.get("planar", False)), n, tag_all is not None)
 
 
-def _labels(session: Session, name: str) -> FloatArray | None:
-    """The optional ``truth_label`` column of the stream's file (scoring only)."""
+def _column(session: Session, name: str, column: str) -> FloatArray | None:
+    """An optional column of a ranges stream: ``truth_label`` (scoring only) or ``tag`` (the ranging system's own label)."""
     stream = session.stream(name)
-    if "truth_label" in stream.columns:
-        return stream.values[:, stream.columns.index("truth_label")]
+    if column in stream.columns:
+        return stream.values[:, stream.columns.index(column)]
     if session.path is None:
         return None
     path = session.path / str(session.stream(name).meta.get("file", f"{name}.csv"))
     header = path.read_text(encoding="utf-8-sig").splitlines()[0].split(",")
-    if "truth_label" not in [h.strip() for h in header]:
+    if column not in [h.strip() for h in header]:
         return None
-    _, values = read_stream_csv(path, ("truth_label",), name, repeated_times=True)
+    _, values = read_stream_csv(path, (column,), name, repeated_times=True)
     return values[:, 0]

@@ -113,7 +113,10 @@ def test_uwb_loader_names_a_missing_file(tmp_path) -> None:  # type: ignore[no-u
     from fusegraph import SessionError
     from fusegraph.datasets.uwb_lias import load_uwb_lias
 
-    with pytest.raises(SessionError, match="UWB_dynamic_exp_fast.csv: UWB recording file not found"):
+    with pytest.raises(SessionError, match="one UWB run per folder .* found none"):
+        load_uwb_lias(tmp_path)
+    (tmp_path / "UWB_dynamic_exp_mid.csv").write_text("")
+    with pytest.raises(SessionError, match="motion_capture_dynamic_exp_mid.csv: the motion capture of UWB_dynamic_exp_mid.csv not found"):
         load_uwb_lias(tmp_path)
 
 
@@ -147,23 +150,50 @@ def test_uwb_recording_reads_the_documented_quaternion_and_tracks_labelled_tags(
 @requires_shared_data("uwb_lias")
 def test_uwb_figures_do_not_depend_on_where_the_run_starts() -> None:
     """Started at 0, 30 or 60 s (handedness and start found again from the ranges each time), the labelled
-    tracker scores the same on the common stretch 70-90 s; the clock offset comes from the raw ranges and
-    is the same for every start."""
+    rigid-body tracker of the imported session scores the same on the common stretch 70-90 s; the clock offset
+    comes from the raw ranges and is the same for every start."""
     import dataclasses
 
-    from fusegraph.datasets.uwb_lias import load_uwb_lias
-    from fusegraph.evaluation.uwb import _rmse, _track, clock_offset_from_ranges
+    from fusegraph.datasets.importers import uwb_session
+    from fusegraph.datasets.uwb_lias import DEFAULT_DIR, clock_offset_from_ranges, load_uwb_lias
+    from fusegraph.records import epochs_from_session
+    from fusegraph.systems.uwb import track_rigid
 
     rec = load_uwb_lias().between(0.0, 90.0)
+    epochs = epochs_from_session(uwb_session(DEFAULT_DIR, labelled=True))
+    assert epochs.labelled and epochs.planar and epochs.tag_offsets_m is not None and epochs.positions is not None
     offsets, scores = [], []
     for start in (0.0, 30.0, 60.0):
-        part = rec.between(start)
-        offsets.append(clock_offset_from_ranges(part, search_s=0.1, step_s=0.01))
-        xy, _, _ = _track(part, True, None)
-        common = part.t >= rec.t[0] + 70.0
-        scores.append(_rmse(dataclasses.replace(part, t=part.t[common], ranges=part.ranges[common]), xy[common], offsets[-1]))
+        offsets.append(clock_offset_from_ranges(rec.between(start), search_s=0.1, step_s=0.01))
+        keep = np.nonzero((epochs.t >= start) & (epochs.t <= 90.0))[0]
+        part = dataclasses.replace(epochs, t=epochs.t[keep], ranges=[epochs.ranges[k] for k in keep], labels=None, positions=epochs.positions[keep])
+        run = track_rigid(part, epochs.tag_offsets_m, labelled=True)
+        common = part.t >= 70.0
+        error = run.positions[common, :, :2] - part.positions[common, :, :2]  # labelled: the tags in the truth's order
+        scores.append(float(np.sqrt(np.nanmean(np.sum(error**2, axis=2)))))
     assert max(offsets) - min(offsets) <= 0.011, offsets  # one grid step
     assert max(scores) - min(scores) < 0.02, scores  # m (the run's RMSE is ~0.09 m)
+
+
+@requires_shared_data("uwb_lias")
+def test_uwb_import_and_run_online_give_the_bench_figures(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The user's path: ``import uwb`` then ``run --solver online --json`` tracks the unlabelled tags of the fast run
+    (targets: every estimate within 0.09 m RMS, association >= 0.75, under 5 % lost; measured 0.084, 0.80, 0.02).
+    ``bench ultrasonic --uwb`` runs the same ``solve_session`` on the same import."""
+    import contextlib
+    import io
+    import json
+
+    from fusegraph.cli import main
+    from fusegraph.datasets.uwb_lias import DEFAULT_DIR
+
+    assert main(["import", "uwb", str(DEFAULT_DIR), "--out", str(tmp_path / "s")]) == 0
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer):
+        assert main(["run", str(tmp_path / "s"), "--solver", "online", "--json", "--out", str(tmp_path / "est.csv")]) == 0
+    metrics = json.loads(buffer.getvalue())["metrics"]
+    assert metrics["rmse_all_m"] <= 0.09 and metrics["assoc_acc"] >= 0.75 and metrics["lost_frac"] <= 0.05, metrics
+    assert not (tmp_path / "s" / "tags_online.csv").exists()  # --out given: nothing written into the recording
 
 
 def test_batched_update_equals_gtsam_eliminating_the_same_graph() -> None:

@@ -11,10 +11,11 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
   -> a walking session driven by wheel odometry: ``odometry`` (kind wheel_odometry), ``ranges`` (kind
   beacon_ranges: Huber, a bias per beacon), the ground truth (x, y, 0) as truth. No start pose is
   written: it is found from the first minute of odometry and ranges.
-* ``uwb``: the UWB recording folder (``UWB_*.csv`` and ``motion_capture_*.csv``) -> one ultrasonic
+* ``uwb``: a UWB run's folder (``UWB_<run>.csv`` and ``motion_capture_<run>.csv``) -> one ultrasonic
   session: the anchors as receivers, every tag's range per epoch UNLABELLED (the tag labels become
-  the scoring-only ``truth_label`` column), the tags' motion-capture positions as truth. Times are
-  seconds from the first UWB epoch.
+  the scoring-only ``truth_label`` column; ``labelled`` keeps them as a ``tag`` column), the tags as one
+  rigid planar body (``tag_offsets_m``, ``planar``), the tags' motion-capture positions on the UWB clock as
+  truth. Times are seconds from the first UWB epoch.
 * ``tobii``: a Tobii Pro Glasses 3 export folder (``imudata.gz``, ``gazedata.gz``) -> one gaze session
   (gyro in rad/s and head axes, accel, mag on the IMU times, gaze pixels; no wall: ``target_depth_m``);
   no truth (``bench gaze-recorded`` scores fixations). See ``datasets.tobii``.
@@ -29,7 +30,7 @@ import numpy as np
 from ..session import KIND_COLUMNS, Session, SessionError, Stream, save_session
 
 
-def import_recording(fmt: str, source: str | Path, out: str | Path) -> list[Path]:
+def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bool = False) -> list[Path]:
     """Write the recording at ``source`` as session directories under ``out``; returns them."""
     if fmt == "plaza":
         return [save_session(plaza_session(str(source)), Path(out))]
@@ -46,7 +47,7 @@ def import_recording(fmt: str, source: str | Path, out: str | Path) -> list[Path
             return [save_session(_portable(load_broad(paths[0])), out)]
         return [save_session(_portable(load_broad(p)), out / p.stem) for p in paths]
     if fmt == "uwb":
-        return [save_session(uwb_session(source), out)]
+        return [save_session(uwb_session(source, labelled), out)]
     if fmt == "oxford":
         from .steps_oxford import recordings
 
@@ -106,28 +107,36 @@ def _portable(session: Session) -> Session:
     return replace(session, path=None)
 
 
-def uwb_session(directory: Path) -> Session:
-    """The UWB recording as an ultrasonic session (see the module docstring)."""
-    from .uwb_lias import load_uwb_lias
+def uwb_session(directory: Path, labelled: bool = False) -> Session:
+    """A UWB run as an ultrasonic session (see the module docstring).
+
+    The tags ride one trolley: the stream declares their offsets (``tag_offsets_m``) and that they move in a plane
+    (``planar``). The motion capture is moved onto the UWB clock by the offset the raw ranges give against it
+    (``clock_offset_from_ranges``: no estimate enters) and written at the UWB epochs it covers. ``labelled``: the
+    ranges keep the tag each was measured to (a ``tag`` column), as a UWB system that knows its tags reports them.
+    """
+    from .uwb_lias import clock_offset_from_ranges, load_uwb_lias
 
     rec = load_uwb_lias(directory)
     t0 = float(rec.t[0])
-    rows = []
-    for k, t in enumerate(rec.t):
-        for a in range(rec.anchors.shape[0]):
-            for tag in range(rec.ranges.shape[2]):
-                d = rec.ranges[k, a, tag]
-                if np.isfinite(d):
-                    rows.append((float(t) - t0, a, float(d), tag))
-    table = np.array(rows, dtype=float)
+    k, a, tag = np.nonzero(np.isfinite(rec.ranges))
+    table = np.column_stack([rec.t[k] - t0, a, rec.ranges[k, a, tag], tag])
     order = np.lexsort((table[:, 2], table[:, 1], table[:, 0]))
     table = table[order]
     meta = {"receivers_m": rec.anchors.tolist(), "transmitters": int(rec.ranges.shape[2]), "sigma_m": 0.1,
-            "description": "UWB anchors as receivers; tag labels kept only as truth_label"}
-    ranges = Stream("ranges", "ranges", table[:, 0], table[:, 1:4], (*KIND_COLUMNS["ranges"], "truth_label"), 0.0, meta)
-    positions = rec.tags_truth(rec.t)
+            "tag_offsets_m": rec.tag_offsets.tolist(), "planar": True,
+            "description": "UWB anchors as receivers; " + ("each range's tag in the tag column" if labelled else "tag labels kept only as truth_label")}
+    columns = (*KIND_COLUMNS["ranges"], "truth_label", "tag") if labelled else (*KIND_COLUMNS["ranges"], "truth_label")
+    values = np.column_stack([table[:, 1:4], table[:, 3]]) if labelled else table[:, 1:4]
+    ranges = Stream("ranges", "ranges", table[:, 0], values, columns, 0.0, meta)
+    offset = clock_offset_from_ranges(rec)
+    covered = (rec.t + offset >= rec.mocap_t[0]) & (rec.t + offset <= rec.mocap_t[-1])
+    positions = rec.tags_truth(rec.t[covered] + offset)
     n = positions.shape[1]
-    truth = Stream("truth", "tag_position", np.repeat(rec.t - t0, n), np.column_stack([np.tile(np.arange(n, dtype=float), len(rec.t)),
-                                                                                         positions.reshape(-1, 3)]), KIND_COLUMNS["tag_position"])
-    header = {"session": {"system": "ultrasonic", "dataset": "UWB", "world_frame": "motion-capture room frame"}}
+    truth = Stream("truth", "tag_position", np.repeat(rec.t[covered] - t0, n),
+                   np.column_stack([np.tile(np.arange(n, dtype=float), int(covered.sum())), positions.reshape(-1, 3)]), KIND_COLUMNS["tag_position"])
+    header = {"session": {"system": "ultrasonic", "dataset": "UWB", "trial": Path(directory).name,
+                          "world_frame": "motion-capture room frame",
+                          "truth_clock_offset_s": offset,
+                          "description": "truth: the motion capture moved onto the UWB clock by truth_clock_offset_s (found from the raw ranges)"}}
     return Session("ultrasonic", {"ranges": ranges}, truth, header)

@@ -1,8 +1,8 @@
 """UWB ranging of 3 tags on a rigid trolley from 8 anchors, with motion capture (Jiang et al., ICRA 2023).
 
-Files (read in place from ``../shared/data/uwb_lias``): ``UWB_dynamic_exp_fast.csv`` (no header: a
-wall-clock time, then 24 ranges in metres ordered a0-t0, a0-t1, a0-t2, a1-t0, ... a7-t2; some
-empty), ``motion_capture_dynamic_exp_fast.csv`` (header ``time,x,y,z,rotation,,,``: centroid
+One run per folder (read in place, e.g. ``../shared/data/uwb_lias`` fast, ``uwb_lias_slow``): ``UWB_<run>.csv`` (no
+header: a wall-clock time, then 24 ranges in metres ordered a0-t0, a0-t1, a0-t2, a1-t0, ... a7-t2; some
+empty), ``motion_capture_<run>.csv`` (header ``time,x,y,z,rotation,,,``: centroid
 position in metres and a quaternion), ``SOURCE_README.md`` (anchor coordinates, tag offsets in the
 trolley frame, as Markdown tables).
 
@@ -26,8 +26,17 @@ from ..geometry import FloatArray
 from ..session import SessionError
 
 DEFAULT_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "uwb_lias"
-RANGES_FILE = "UWB_dynamic_exp_fast.csv"
-MOCAP_FILE = "motion_capture_dynamic_exp_fast.csv"
+def run_files(directory: Path) -> tuple[Path, Path]:
+    """The one run in a folder: its ``UWB_*.csv`` and the ``motion_capture_*.csv`` of the same run name."""
+    ranges = sorted(directory.glob("UWB_*.csv"))
+    if len(ranges) != 1:
+        found = ", ".join(p.name for p in ranges) or "none"
+        raise SessionError(f"{directory}: one UWB run per folder (UWB_<run>.csv with motion_capture_<run>.csv); found {found}")
+    run = ranges[0].name.removeprefix("UWB_")
+    mocap = directory / f"motion_capture_{run}"
+    if not mocap.is_file():
+        raise SessionError(f"{mocap}: the motion capture of {ranges[0].name} not found")
+    return ranges[0], mocap
 
 
 @dataclass(frozen=True)
@@ -84,33 +93,58 @@ def _table(text: str, label: str) -> FloatArray:
 
 
 def load_uwb_lias(directory: str | Path = DEFAULT_DIR) -> UwbRecording:
-    """The fast dynamic run: ranges, anchors and tag offsets, motion capture."""
+    """One run (any speed): ranges, anchors and tag offsets, motion capture."""
     directory = Path(directory)
-    for name in (RANGES_FILE, MOCAP_FILE, "SOURCE_README.md"):
-        if not (directory / name).is_file():
-            raise SessionError(f"{directory / name}: UWB recording file not found")
+    ranges_file, mocap_file = run_files(directory)
+    if not (directory / "SOURCE_README.md").is_file():
+        raise SessionError(f"{directory / 'SOURCE_README.md'}: UWB recording file not found (it holds the anchors and tag offsets)")
     readme = (directory / "SOURCE_README.md").read_text()
     anchors, tags = _table(readme, "Anchor"), _table(readme, "Tag")
     if anchors.shape != (8, 3) or tags.shape != (3, 3):
         raise SessionError(f"{directory / 'SOURCE_README.md'}: expected 8 anchors and 3 tags, found {len(anchors)} and {len(tags)}")
     t, ranges = [], []
-    with open(directory / RANGES_FILE) as f:
+    with open(ranges_file) as f:
         for row, line in enumerate(f, start=1):
             cells = line.rstrip("\n").split(",")
             if len(cells) != 25:
-                raise SessionError(f"{directory / RANGES_FILE}: row {row}: {len(cells)} columns, expected 25 (time + 24 ranges)")
-            t.append(_seconds(cells[0], directory / RANGES_FILE, row))
+                raise SessionError(f"{ranges_file}: row {row}: {len(cells)} columns, expected 25 (time + 24 ranges)")
+            t.append(_seconds(cells[0], ranges_file, row))
             ranges.append([float(c) if c.strip() not in ("", "nan", "NaN") else np.nan for c in cells[1:]])
     mt, mp, mq = [], [], []
-    with open(directory / MOCAP_FILE) as f:
+    with open(mocap_file) as f:
         next(f)
         for row, line in enumerate(f, start=2):
             cells = line.rstrip("\n").split(",")
             if len(cells) < 8:
-                raise SessionError(f"{directory / MOCAP_FILE}: row {row}: {len(cells)} columns, expected 8")
-            mt.append(_seconds(cells[0], directory / MOCAP_FILE, row))
+                raise SessionError(f"{mocap_file}: row {row}: {len(cells)} columns, expected 8")
+            mt.append(_seconds(cells[0], mocap_file, row))
             mp.append([float(c) for c in cells[1:4]])
             mq.append([float(c) for c in cells[4:8]])  # w, x, y, z
     return UwbRecording(
         np.array(t), np.array(ranges).reshape(-1, 8, 3), anchors, tags, np.array(mt), np.array(mp), np.array(mq)
     )
+
+
+def clock_offset_from_ranges(rec: UwbRecording, search_s: float = 1.0, step_s: float = 0.005) -> float:
+    """Motion-capture time minus UWB time, from the raw data alone: the offset at which the measured ranges
+    best match the ranges the motion capture's tag positions give (a constant bias per anchor and tag
+    removed; median absolute residual). No estimate enters, so the offset cannot favour any method.
+    Searched over +-``search_s`` (a few ms on the fast run, about 0.3 s on the slow one) in 20 ms steps, then on
+    the ``step_s`` grid within 30 ms of the best."""
+    anchors = rec.anchors[None, :, None, :]
+
+    def cost(offset: float) -> float:
+        t = rec.t + offset
+        inside = (t >= rec.mocap_t[0]) & (t <= rec.mocap_t[-1])
+        if inside.sum() < 100:
+            return np.inf
+        tags = rec.tags_truth(t[inside])[:, None, :, :]  # (K, 1, T, 3)
+        residual = rec.ranges[inside] - np.linalg.norm(tags - anchors, axis=3)
+        residual = residual - np.nanmedian(residual, axis=0, keepdims=True)
+        return float(np.nanmedian(np.abs(residual)))
+
+    coarse = np.arange(-search_s, search_s + 1e-9, 0.02)
+    centre = float(coarse[int(np.argmin([cost(float(o)) for o in coarse]))])
+    fine = step_s * np.round(np.arange(centre - 0.03, centre + 0.03 + 1e-9, step_s) / step_s)
+    costs = [cost(float(o)) for o in fine]
+    return float(fine[int(np.argmin(costs))])

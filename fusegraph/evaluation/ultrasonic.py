@@ -112,22 +112,14 @@ def bench_ultrasonic(
     uwb: dict[str, float] | None = None
     uwb_status = "skipped"
     if uwb_dir is not None:
-        from ..datasets.uwb_lias import DEFAULT_DIR, load_uwb_lias
-        from .uwb import run_uwb
+        from ..datasets.uwb_lias import DEFAULT_DIR
+        from .uwb import bench_uwb
 
         directory = DEFAULT_DIR if uwb_dir == "default" else Path(uwb_dir)
         uwb_status = f"recording not found at {directory}"
         if directory.is_dir():
             uwb_status = "ran"
-            found = run_uwb(load_uwb_lias(directory))
-            uwb = {
-                "labelled_rmse_m": found.labelled_rmse_m,
-                "unlabelled_rmse_m": found.unlabelled_rmse_m,
-                "assoc_acc": found.assoc_acc,
-                "clock_offset_s": found.clock_offset_s,
-                "ms_per_epoch": found.ms_per_epoch,
-                "assoc_expected_geometry": found.assoc_expected,
-            }
+            uwb = bench_uwb(directory)
     return {"sim": sim, "crossing": {"runs": runs_done, "swaps": swaps}, "uwb": uwb, "uwb_status": uwb_status}
 
 

@@ -113,11 +113,15 @@ CATALOGUE = (
         columns=("receiver", "range_m"),
         units=("index", "m"),
         frame="receiver positions in the world frame (receivers_m)",
-        factors="ultrasonic: associated online (chi-square gate, assignment, multiple-model tracks); range rows of each track's point",
+        factors="ultrasonic: associated online (chi-square gate, assignment, multiple-model tracks); range rows of each track's point; "
+        "with tag_offsets_m: one rigid body's planar pose and a range bias per receiver",
         keys=(
             KeySpec("receivers_m", None, "receiver positions [[x, y, z], ...], m (required)"),
             KeySpec("transmitters", None, "how many transmitters emit each epoch (required)"),
             KeySpec("sigma_m", 0.005, "range noise, m"),
+            KeySpec("tag_offsets_m", None, "the transmitters are tags on one rigid body: their positions in its frame [[x, y, z], ...], m "
+                    "(then tracked as one body, either handedness)"),
+            KeySpec("planar", False, "the tags move in a horizontal plane at the receivers' mean height: tracked and scored in x, y"),
         ),
         repeated_times=True,
     ),

@@ -74,8 +74,10 @@ def format_ultrasonic_table(result: dict[str, object]) -> str:
     uwb = result.get("uwb")
     if isinstance(uwb, dict):
         lines.append(
-            f"uwb (3 tags, 8 anchors, height held): labelled RMSE {uwb['labelled_rmse_m']:.3f} m, unlabelled {uwb['unlabelled_rmse_m']:.3f} m "
+            f"uwb (import uwb + the ultrasonic preset's online solver; 3 tags on one body, 8 anchors, planar): every estimate's RMSE "
+            f"labelled {uwb['labelled_rmse_m']:.3f} m, unlabelled {uwb['unlabelled_rmse_m']:.3f} m "
             f"(ratio {uwb['unlabelled_rmse_m'] / uwb['labelled_rmse_m']:.2f}), association {uwb['assoc_acc']:.3f}, "
+            f"lost {uwb.get('lost_frac', float('nan')):.3f}, "
             f"clock offset {uwb['clock_offset_s'] * 1e3:.0f} ms (raw ranges vs motion capture), {uwb['ms_per_epoch']:.2f} ms/epoch; "
             f"self-check: association from geometry alone {uwb.get('assoc_expected_geometry', float('nan')):.2f} (a lower bound, no truth)"
         )

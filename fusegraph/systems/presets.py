@@ -269,19 +269,21 @@ def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
 
 def _ultrasonic_run(session: Session, solver: str) -> Result:
     from ..records import epochs_from_session
-    from . import ultrasonic
+    from . import ultrasonic, uwb
 
     epochs = epochs_from_session(session)
     n = int(session.streams_of_kind("ranges")[0].meta["transmitters"])
     start = time.perf_counter()
     if solver == "combinatorial":
         run = ultrasonic.run_combinatorial(epochs, n)
+    elif epochs.tag_offsets_m is not None:  # the tags of one rigid body: its pose, not N free points
+        run = uwb.track_rigid(epochs, epochs.tag_offsets_m, labelled=epochs.labelled)
     else:
         run = ultrasonic.run_fusegraph(epochs, n)
-        if solver == "batch":
-            run = ultrasonic.smooth_tracks(epochs, run)
+    if solver == "batch":
+        run = ultrasonic.smooth_tracks(epochs, run)
     seconds = time.perf_counter() - start
-    extras = {"labels": run.labels, "ms_per_epoch": run.ms_per_epoch, "epochs": epochs}  # epochs: scoring reuses them, not re-reading the file
+    extras = {"labels": run.labels, "ms_per_epoch": run.ms_per_epoch, "epochs": epochs, **run.extras}  # epochs: scoring reuses them, not re-reading the file
     return PointEstimate(solver, epochs.t.copy(), run.positions, ("x", "y", "z"), seconds, extras)
 
 
@@ -299,6 +301,8 @@ def _ultrasonic_score(session: Session, estimate: Result) -> dict[str, Any] | No
     score = ultrasonic.score_run(epochs, estimate.extras["labels"], estimate.points)
     out: dict[str, Any] = asdict(score)
     out["ms_per_epoch"] = float(np.mean(estimate.extras["ms_per_epoch"]))
+    if "assoc_expected_geometry" in estimate.extras:
+        out["assoc_expected_geometry"] = float(estimate.extras["assoc_expected_geometry"])
     return out
 
 
@@ -387,7 +391,8 @@ PRESETS: dict[str, Preset] = {
         name="ultrasonic",
         summary="every ultrasonic/UWB tag's 3D position at the full rate from unlabelled distances heard by known receivers",
         streams="ranges (kind ranges: t, receiver, range_m per distance heard; receivers_m, transmitters, sigma_m)",
-        session_keys=(),
+        session_keys=(KeySpec("truth_clock_offset_s", None, "imports: the reference clock minus the ranges' clock, found from the raw data "
+                              "and applied to the truth, s (documentation)"),),
         solvers={"online": "association + multiple-model tracks per epoch", "batch": "the tracks smoothed over the session with the online association",
                  "combinatorial": "the paper's combinatorial search per epoch"},
         run=_ultrasonic_run,

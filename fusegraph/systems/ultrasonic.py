@@ -288,33 +288,41 @@ class AssociationScore:
     assoc_acc_unambiguous: float
     """Over echoes and the direct distances more than 2 cm from every other transmitter's at that receiver."""
     rmse_m: float
-    """Position RMSE over the transmitter-epochs that are tracked (within 5 cm), metres."""
+    """Position RMSE over the transmitter-epochs that are tracked (within ``lost_beyond_m``), metres."""
     rmse_all_m: float
     """Position RMSE over every transmitter-epoch with an estimate, lost ones included, metres."""
     lost_frac: float
-    """Transmitter-epochs with no estimate within 5 cm (track loss)."""
+    """Transmitter-epochs with no estimate within ``lost_beyond_m`` (track loss)."""
     identity_swaps: int
     """Times the matching of the method's transmitters to the truth changed from one epoch to the next."""
+
+
+def lost_beyond_m(epochs: RangeEpochs) -> float:
+    """A track is lost when its error exceeds what the range noise explains: 3 declared range sigmas, at least 5 cm
+    (the ultrasonic simulations' 5 mm ranges: 5 cm; UWB's 10 cm ranges: 30 cm). Set before any run was scored."""
+    return max(0.05, 3.0 * epochs.range_sigma_m)
 
 
 def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: FloatArray | None) -> AssociationScore:
     """Score a run. Each epoch, the method's transmitters are matched to the truth by position (the
     association question is which distance belongs to which transmitter; keeping identities over time
-    is counted apart, as swaps). ``positions`` None: the labels are truth indices already (oracle)."""
+    is counted apart, as swaps). ``positions`` None: the labels are truth indices already (oracle). A planar session
+    is scored in x, y. A track is lost beyond ``lost_beyond_m(epochs)``."""
     assert epochs.labels is not None and epochs.positions is not None
+    dims = 2 if epochs.planar else 3
     correct = total = correct_u = total_u = 0
     errors, swaps, previous = [], 0, None
     for k in range(len(epochs.t)):
         truth_k = epochs.positions[k]
         mapping = None
         if positions is not None:
-            mapping = identity_map(positions[k], truth_k)
+            mapping = identity_map(positions[k][:, :dims], truth_k[:, :dims])
             if previous is not None:
                 swaps += int(np.sum(mapping != previous)) // 2
             previous = mapping
-            matched = np.full((epochs.transmitters, 3), np.nan)
-            matched[mapping[mapping >= 0]] = positions[k][mapping >= 0]
-            errors.append(np.linalg.norm(matched - truth_k, axis=1))
+            matched = np.full((epochs.transmitters, dims), np.nan)
+            matched[mapping[mapping >= 0]] = positions[k][mapping >= 0, :dims]
+            errors.append(np.linalg.norm(matched - truth_k[:, :dims], axis=1))
         direct = np.linalg.norm(truth_k[None, :, :] - epochs.receivers[:, None, :], axis=2)
         for r in range(len(epochs.receivers)):
             truth = epochs.labels[k][r]
@@ -336,7 +344,7 @@ def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: Fl
     if errors:
         err = np.nan_to_num(np.array(errors), nan=np.inf)
         finite = np.isfinite(err)
-        tracked = err <= 0.05
+        tracked = err <= lost_beyond_m(epochs)
         rmse = float(np.sqrt(np.mean(err[tracked] ** 2))) if tracked.any() else float("nan")
         rmse_all = float(np.sqrt(np.mean(err[finite] ** 2))) if finite.any() else float("nan")
         lost = float(np.mean(~tracked))

@@ -1,4 +1,4 @@
-"""Recorded UWB run: 3 tags tracked from unlabelled anchor ranges, against the labelled run and motion capture.
+"""Tags on one rigid body tracked in a plane from unlabelled ranges (the UWB trolley: 3 tags, 8 anchors).
 
 The trolley's planar pose (x, y, heading) and its rates, the tags at their fixed offsets on it (the
 rigid body as part of the measurement model), and one range bias per anchor (the ranges read ~0.2 m
@@ -15,13 +15,16 @@ range DIFFERENCES at each anchor, which no common bias affects.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..frontends.association import assign_ranges
 from ..geometry import FloatArray
+from ..records import RangeEpochs
 from ..solvers.sequential import MarginalStep, constant_velocity, whitening
+from .ultrasonic import TrackingRun
 
 
 @dataclass(frozen=True)
@@ -190,3 +193,84 @@ class UwbTracker:
         return self.tag_xy(self.x), labels
 
 
+
+
+def ranges_by_receiver(epochs: RangeEpochs, tags: int) -> FloatArray:
+    """(K, R, tags) distances per epoch and receiver in the order heard (NaN where fewer were heard; an epoch that
+    heard more than ``tags`` at a receiver keeps its shortest ``tags``: the others are echoes)."""
+    out = np.full((len(epochs.t), len(epochs.receivers), tags), np.nan)
+    for k, per_receiver in enumerate(epochs.ranges):
+        for r, heard in enumerate(per_receiver):
+            n = min(len(heard), tags)
+            out[k, r, :n] = heard[:n]
+    return out
+
+
+def track_rigid(epochs: RangeEpochs, tag_offsets_m: FloatArray, config: UwbConfig | None = None, labelled: bool = False,
+                select_s: float = 20.0) -> TrackingRun:
+    """Every tag of one rigid body from its ranges (unlabelled: each receiver's distances in arrival order).
+
+    The offsets' handedness seen from above is not decidable from one epoch (a motion-capture body frame may be
+    upside down): both are tracked for ``select_s`` seconds and the one whose ranges fit better (Cauchy cost) is
+    kept; the run then restarts with it. The start uses the first second of ranges, buffered.
+    ``labelled``: the ranges of each receiver are in tag order (a ranging system that knows its tags).
+    """
+    offsets = np.asarray(tag_offsets_m, dtype=float)
+    tags = len(offsets)
+    ranges = ranges_by_receiver(epochs, tags)
+    first = ranges[: max(1, int(np.searchsorted(epochs.t, epochs.t[0] + 1.0)))]
+    window = int(np.searchsorted(epochs.t, epochs.t[0] + select_s))
+    costs = {}
+    for handed in (1.0, -1.0):
+        trial = UwbTracker(epochs.receivers, offsets, config)
+        trial.start(first, labelled, mirror=handed)
+        for k in range(window):
+            trial.step(float(epochs.t[k]), ranges[k], labelled)
+        costs[handed] = trial.cost
+    tracker = UwbTracker(epochs.receivers, offsets, config)
+    tracker.start(first, labelled, mirror=min(costs, key=costs.__getitem__))
+    positions = np.zeros((len(epochs.t), tags, 3))
+    labels: list[list[np.ndarray]] = []
+    times = np.zeros(len(epochs.t))
+    for k, t in enumerate(epochs.t):
+        start = time.perf_counter()
+        xy, given = tracker.step(float(t), ranges[k], labelled)
+        times[k] = 1e3 * (time.perf_counter() - start)
+        positions[k, :, :2] = xy
+        positions[k, :, 2] = tracker.height
+        labels.append([given[r, : len(heard)] if len(heard) <= tags else np.r_[given[r], np.full(len(heard) - tags, -1)]
+                       for r, heard in enumerate(epochs.ranges[k])])
+    extras = {"mirror": float(tracker.mirror), "assoc_expected_geometry": association_self_check(epochs, positions)}
+    return TrackingRun(positions, labels, times, extras)
+
+
+def association_self_check(epochs: RangeEpochs, positions: FloatArray) -> float:
+    """Association accuracy to expect from the geometry alone, no labels, no truth.
+
+    Per epoch (every tenth) and receiver that heard every tag, every assignment of the measured ranges to the
+    tracked tags (``positions`` (K, T, 3)) is costed; the range noise is the robust spread of the best
+    assignments' residuals. A range set is told apart when the best assignment beats the second best by more
+    than 4 (chi-square: 2 sigma); otherwise it is a guess (right 1 time in T). Returns told + (1 - told) / T.
+    """
+    import itertools
+
+    tags = positions.shape[1]
+    perms = np.array(list(itertools.permutations(range(tags))))
+    best, second, residuals = [], [], []
+    for k in range(0, len(epochs.t), 10):  # every tenth epoch: the figure is a mean
+        predicted = np.linalg.norm(epochs.receivers[:, None, :] - positions[k][None, :, :], axis=2)  # (R, T)
+        for a in range(len(epochs.receivers)):
+            measured = np.sort(epochs.ranges[k][a][np.isfinite(epochs.ranges[k][a])])
+            if len(measured) != tags or not np.all(np.isfinite(predicted[a])):
+                continue
+            costs = ((measured[None, :] - predicted[a][perms]) ** 2).sum(axis=1)
+            order = np.argsort(costs)
+            best.append(costs[order[0]])
+            second.append(costs[order[1]])
+            residuals.append(measured - predicted[a][perms[order[0]]])
+    if not best:
+        return float("nan")
+    spread = np.concatenate(residuals)
+    sigma = 1.4826 * float(np.median(np.abs(spread - np.median(spread))))  # robust sigma of the residuals
+    told = float(np.mean((np.array(second) - np.array(best)) / max(sigma, 1e-3) ** 2 > 4.0))
+    return told + (1.0 - told) / tags
