@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -82,20 +83,32 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--workers", type=int, default=None, help="several sessions: parallel processes (default: all cores)")
     run.add_argument("--scheduler", default=None, help="several sessions: 'local' starts a Dask LocalCluster; tcp://host:port uses an existing one")
 
-    rep = sub.add_parser("report", help="the paper's comparison table over seeds (accuracy, time, NEES)",
-                         description="head: simulate each seed, run every method, print RMS per axis (1e-2 rad), ratio to Method II, "
+    rep = sub.add_parser("report", help="every solver of a system on your sessions (or on simulated seeds): one table, one JSON, one figure",
+                         description="With session folders: every solver of SYSTEM (ours, the paper's baseline, the peers) on each session, "
+                         "each run exactly as `fusegraph run` runs it; a table of the means over the sessions and a row per session "
+                         "(a session without truth: the estimate's own sigma, the samples it covers, speed, warnings). JSON: "
+                         "methods.<solver>.metrics (the keys `run --json` prints) and sessions.<name>.<solver>.\n"
+                         "Without folders, the system's simulated report over --seeds:\n"
+                         "head: simulate each seed, run every method, print RMS per axis (1e-2 rad), ratio to Method II, "
                          "processing time per 40 ms of data and NEES.\n"
                          "gaze: a subject 1 m from a wall fixates a mark while nodding and shaking the head, then a second mark; "
                          "the gaze point on the wall (X, Z RMS in mm) from the paper's EKF (yaw, pitch, roll, GX, GZ), fusegraph online "
                          "and batch, and speed (x real time).\n"
                          "bicycle: a cyclist's thigh and the bicycle frame, two 9-axis IMUs, downhill with hard braking at 30 s (and on an "
                          "indoor trainer): thigh pitch/roll RMS in the braking phase for the thigh alone (no_removal), the paper's pipeline "
-                         "(frame EKF -> subtract -> thigh EKF), fusegraph online and batch (both bodies in one graph).",
-                         epilog="examples:\n  fusegraph report head --seeds 0-9 --plot head.png\n  fusegraph report gaze --seeds 0-4 --json\n"
-                         "  fusegraph report gaze --plot gaze.png\n  fusegraph report bicycle --seeds 0-2 --json --plot bicycle.png",
+                         "(frame EKF -> subtract -> thigh EKF), fusegraph online and batch (both bodies in one graph).\n"
+                         "attitude9, walking, ultrasonic: every solver on each simulated seed, means over seeds.",
+                         epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
+                         "  fusegraph report attitude9 sessions/broad --json > broad.json\n"
+                         "  fusegraph report ultrasonic sessions/uwb --solvers online,batch --plot uwb.png\n"
+                         "  fusegraph report head --seeds 0-9 --plot head.png\n  fusegraph report gaze --seeds 0-4 --json\n"
+                         "  fusegraph report bicycle --seeds 0-2 --json --plot bicycle.png",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     rep.add_argument("system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"])
-    rep.add_argument("--seeds", type=_seeds_arg, default=list(range(10)), help="seeds, e.g. 0-9 (default: test seeds; settings are chosen on 100-119) or 0,3,7")
+    rep.add_argument("sessions", nargs="*", type=Path, metavar="SESSION_DIR",
+                     help="session directories, or folders of them (from `fusegraph import`, `simulate` or your own); none: simulate --seeds")
+    rep.add_argument("--seeds", type=_seeds_arg, default=None, help="seeds, e.g. 0-9 (default: test seeds; settings are chosen on 100-119) or 0,3,7")
+    rep.add_argument("--solvers", default=None, metavar="LIST", help="comma list of the system's solvers (default: all; `fusegraph sensors SYSTEM` lists them)")
     rep.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="sensor error profile (default realistic)")
     rep.add_argument("--duration", type=float, default=None, help="seconds per session (default: head 10, like the paper; others their simulate default)")
     rep.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency in seconds (default: the scenario's 0.1)")
@@ -103,7 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="latency the user believes; adds rows method2_wrong_d (Method II with it) and isam2_td/batch_td "
                      "(fusegraph estimating the latency from it as a prior); method2/isam2/batch get the true one")
     rep.add_argument("--json", action="store_true", help="print JSON instead of the table")
-    rep.add_argument("--plot", type=Path, help="write a figure like the paper's Fig. 3/4 (first seed) to this PNG")
+    rep.add_argument("--plot", type=Path, help="write a figure to this PNG (sessions: the headline metric per session and solver; "
+                     "seeds: like the paper's Fig. 3/4, first seed)")
 
     vw = sub.add_parser("view", help="files to look at: 3D scene (PLY/GLB/PNG), 2D plots, TUM and CSV trajectories",
                         description="Given a session directory (the solver runs first) or an estimate CSV, write a 3D scene "
@@ -126,6 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="a parameter grid (repeatable; crossed): head scenario names (latency, gyro_noise, ...) or any catalogued key STREAM.KEY, "
                      "e.g. tracker.noise_sigma_deg=0.2,0.4,0.8")
     abl.add_argument("--seeds", type=_seeds_arg, help="seeds, e.g. 0-19 (default 0-4)")
+    abl.add_argument("--sessions", nargs="+", type=Path, metavar="DIR", help="study these session directories (or folders of them: "
+                     "imported, recorded, your own) instead of simulating seeds; --vary then takes STREAM.KEY settings")
     abl.add_argument("--solver", default=None, help="comma list of solvers (default: online, batch and the system's baseline)")
     abl.add_argument("--duration", type=float, default=None, help="seconds per session (default 10)")
     abl.add_argument("--profile", choices=["ideal", "realistic"], default=None)
@@ -413,6 +429,14 @@ def _seeds_block(seeds: Any, system: str) -> dict[str, Any]:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    solvers = [x.strip() for x in args.solvers.split(",") if x.strip()] if args.solvers else None
+    if args.sessions:
+        return _report_sessions(args, solvers)
+    if args.seeds is None:
+        args.seeds = list(range(10))
+    if solvers is not None and args.system in ("head", "bicycle", "gaze"):
+        raise ValueError(f"report {args.system} over seeds: the paper's table has fixed rows; --solvers applies to session folders and to "
+                         "attitude9, walking, ultrasonic")
     if args.system in ("bicycle", "gaze"):
         from .evaluation import bicycle, gaze
         from .report.bicycle import format_bicycle_table
@@ -434,7 +458,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         if args.latency_true is not None or args.latency_assumed is not None or args.profile != "realistic":
             raise ValueError(f"report {args.system}: --latency-true/--latency-assumed/--profile apply to head only")
         chosen = args.seeds
-        found = generic_report(args.system, chosen, args.duration)
+        found = generic_report(args.system, chosen, args.duration, solvers)
         found.pop("per_seed")
         found.update(_seeds_block(chosen, args.system))
         print(json.dumps(found, indent=2) if args.json else format_generic_report(found))
@@ -461,6 +485,34 @@ def _cmd_report(args: argparse.Namespace) -> int:
         path = head_figure(args.seeds[0], args.profile, duration, args.plot)
         print(f"wrote {path}", file=sys.stderr if args.json else sys.stdout)
     return 0
+
+
+def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int:
+    """``report SYSTEM DIR ...``: every solver on the user's sessions."""
+    from .evaluation.runner import load_sessions, report_sessions
+    from .report.tables import format_session_report, plot_session_report
+
+    fixed = {"--seeds": args.seeds is not None, "--duration": args.duration is not None, "--latency-true": args.latency_true is not None,
+             "--latency-assumed": args.latency_assumed is not None, "--profile": args.profile != "realistic"}
+    given = [flag for flag, used in fixed.items() if used]
+    if given:
+        raise ValueError(f"{', '.join(given)}: for simulated reports; session folders are reported as recorded")
+    found = report_sessions(args.system, load_sessions(args.sessions), solvers)
+    print(json.dumps(_json_safe(found), indent=2) if args.json else format_session_report(found))
+    if args.plot:
+        print(f"wrote {plot_session_report(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
+def _json_safe(value: Any) -> Any:
+    """NaN and infinities as null (JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def head_figure(seed: int, profile: str, duration_s: float, path: Path) -> Path:
@@ -624,6 +676,12 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     changes: dict[str, Any] = {"vary": tuple(vary.items()), "drops": study.drops + tuple(tuple(d.split("+")) for d in args.drop)}
     if args.seeds:
         changes["seeds"] = tuple(args.seeds)
+    if args.sessions:
+        from .evaluation.runner import session_dirs
+
+        if args.seeds or args.duration or args.profile:
+            raise ValueError("--seeds, --duration and --profile are for simulated studies; --sessions are studied as recorded")
+        changes["sessions"] = tuple(str(p) for p in session_dirs(args.sessions))
     if args.solver:
         changes["solvers"] = tuple(s.strip() for s in args.solver.split(","))
     if args.duration:
@@ -637,6 +695,10 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     print(ablation.summary_table(summary))
     files = ablation.write_summary(summary, args.out)
     failed = sum(r["status"] != "ok" for r in result.rows)
+    idle = ablation.settings_without_effect(result.rows, study)
+    if idle:
+        raise ValueError(f"--vary {', '.join(idle)}: every value gave the same results in every run: no solver of {study.system} "
+                         f"reads {'it' if len(idle) == 1 else 'them'} (the rows are in {args.out / 'runs.csv'})")
     print(f"{len(result.rows)} runs ({result.ran} run now, {result.skipped} already done, {failed} failed); "
           f"wall {result.wall_s:.1f} s on {result.workers} worker(s); time inside the solvers: {100 * result.solver_fraction:.0f}% of the workers' time")
     print(f"wrote {args.out / 'runs.csv'}, " + ", ".join(str(f) for f in files))

@@ -43,7 +43,7 @@ SENSORS = {"head": ("tracker", "gyro", "accel")}
 """Head streams with their own drop semantics (see the module docstring); other systems drop any stream by name."""
 SOLVERS = ("ekf", "online", "batch")
 METRIC_COLUMNS = ("rms_azimuth_rad", "rms_elevation_rad", "rms_roll_rad", "nees")
-COLUMNS = ("key", "system", "variant", "drop", "params", "seed", "solver", "profile", "duration_s", "status", "error",
+COLUMNS = ("key", "system", "variant", "drop", "params", "seed", "session", "solver", "profile", "duration_s", "status", "error",
            *METRIC_COLUMNS, "solver_s", "run_s", "metrics")
 
 
@@ -82,7 +82,9 @@ class Study:
     vary: tuple[tuple[str, tuple[float, ...]], ...] = ()
     """Parameter grids, crossed with each other and with every sensor variant."""
     seeds: tuple[int, ...] = (0,)
-    """Seeds of the simulated sessions."""
+    """Seeds of the simulated sessions (unused when ``sessions`` are given)."""
+    sessions: tuple[str, ...] = ()
+    """Session directories (imported, recorded, hand-made): the study runs on these instead of simulating."""
     solvers: tuple[str, ...] = ()
     """Solvers (any of the system's; empty: its paper's baseline, ``online`` and ``batch``)."""
     duration_s: float | None = None
@@ -95,7 +97,7 @@ class Study:
 
         if self.system not in PRESETS:
             raise ValueError(f"no system {self.system!r} (available: {', '.join(PRESETS)})")
-        if self.system == "head" and self.duration_s is None:
+        if self.system == "head" and self.duration_s is None and not self.sessions:
             object.__setattr__(self, "duration_s", 10.0)
         if not self.solvers:
             object.__setattr__(self, "solvers", (_baseline_solver(self.system), "online", "batch"))
@@ -122,11 +124,14 @@ class Study:
     def runs(self) -> list[dict[str, Any]]:
         """Every run as a plain dict (picklable, hashable by ``run_key``)."""
         out = []
+        sources: list[tuple[int | str, str]] = [("", path) for path in self.sessions] or [(seed, "") for seed in self.seeds]
         for variant in self.variants():
-            for seed in self.seeds:
+            for seed, session in sources:
                 for solver in self.solvers:
                     spec = {"system": self.system, "drop": list(variant.drop), "params": dict(variant.params), "seed": seed,
                             "solver": solver, "profile": self.profile, "duration_s": self.duration_s}
+                    if session:
+                        spec.update(session=session, profile="", duration_s="")
                     spec["key"] = run_key(spec)
                     spec["variant"] = variant.name
                     out.append(spec)
@@ -136,6 +141,8 @@ class Study:
 def run_key(spec: Mapping[str, Any]) -> str:
     """A stable key of a run's full configuration (what it computes, not where or when)."""
     fields = {k: spec[k] for k in ("system", "drop", "params", "seed", "solver", "profile", "duration_s")}
+    if spec.get("session"):
+        fields["session"] = spec["session"]
     return hashlib.sha1(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -155,6 +162,7 @@ def load_study(path: str | Path) -> Study:
         vary=tuple((k, tuple(float(x) for x in v)) for k, v in table.get("vary", {}).items()),
         seeds=tuple(parse_seeds(seeds) if isinstance(seeds, str) else seeds),
         solvers=tuple(table.get("solvers", ())),
+        sessions=tuple(str(p) for p in table.get("sessions", ())),
         duration_s=float(table["duration_s"]) if "duration_s" in table else None,
         profile=table.get("profile", "realistic"),
     )
@@ -167,7 +175,7 @@ def execute(spec: Mapping[str, Any]) -> dict[str, Any]:
     """Simulate, drop, solve, score one run; never raises (a failure is a row)."""
     start = time.perf_counter()
     row = _blank_row(spec)
-    generic = spec["system"] != "head" or any("." in k for k in spec["params"]) or "accel" in spec["drop"]
+    generic = spec["system"] != "head" or any("." in k for k in spec["params"]) or "accel" in spec["drop"] or bool(spec.get("session"))
     try:
         if generic:
             metrics, seconds = _solve_generic(spec)
@@ -197,13 +205,15 @@ def _blank_row(spec: Mapping[str, Any]) -> dict[str, Any]:
     """A row with the run's configuration filled in and its results empty."""
     row: dict[str, Any] = dict.fromkeys(COLUMNS, "")
     row.update({k: spec[k] for k in ("key", "system", "variant", "seed", "solver", "profile", "duration_s")})
+    row["session"] = spec.get("session", "")
     row["drop"] = "+".join(spec["drop"])
     row["params"] = ";".join(f"{k}={v:g}" for k, v in spec["params"].items())
     return row
 
 
 def _solve_generic(spec: Mapping[str, Any]) -> tuple[dict[str, float], float]:
-    """Any system: simulate (``scenarios.SIMULATORS``), drop streams, set catalogued keys, solve, score (flattened metrics)."""
+    """Any system: load the session (or simulate one: ``scenarios.SIMULATORS``), drop streams, set catalogued keys, solve,
+    score (flattened metrics)."""
     from dataclasses import replace
 
     from ..scenarios import SIMULATORS
@@ -218,7 +228,16 @@ def _solve_generic(spec: Mapping[str, Any]) -> tuple[dict[str, float], float]:
         options["profile"] = spec["profile"]
         options["sensors"] = ("gyro", "accel", "tracker")
     duration = spec["duration_s"]
-    session = SIMULATORS[spec["system"]].simulate(int(spec["seed"]), None if duration in ("", None) else float(duration), **options)
+    if spec.get("session"):
+        from ..session import load_session
+
+        if scenario:
+            raise ValueError(f"--vary {', '.join(scenario)}: scenario settings apply to simulated sessions; a recording's are STREAM.KEY")
+        session = load_session(spec["session"])
+        if session.system != spec["system"]:
+            raise ValueError(f"{spec['session']}: a {session.system} session, not {spec['system']}")
+    else:
+        session = SIMULATORS[spec["system"]].simulate(int(spec["seed"]), None if duration in ("", None) else float(duration), **options)
     drop = [d for d in spec["drop"] if d in session.streams]
     missing = [d for d in spec["drop"] if d not in session.streams]
     if missing:
@@ -424,6 +443,27 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SummaryRow]:
         solver_s = float(np.mean([float(m["solver_s"]) for m in ok])) if ok else float("nan")
         out.append(SummaryRow(variant, solver, len(members), len(members) - len(ok), tuple(mean), tuple(half), solver_s, names))
     return out
+
+
+def settings_without_effect(rows: Sequence[Mapping[str, Any]], study: Study) -> list[str]:
+    """The ``vary`` settings whose every value gave the same metrics in every run that finished (same variant otherwise,
+    same seed or session, same solver): a setting no solver honoured."""
+    idle = []
+    for name, values in study.vary:
+        if len(values) < 2:
+            continue
+        groups: dict[tuple[Any, ...], set[str]] = {}
+        for row in rows:
+            if row.get("status") != "ok":
+                continue
+            params = dict(p.split("=", 1) for p in str(row["params"]).split(";") if p)
+            params.pop(name, None)
+            key = (row["drop"], tuple(sorted(params.items())), row["seed"], row.get("session", ""), row["solver"])
+            found = _metric_values(row)
+            groups.setdefault(key, set()).add(json.dumps({k: round(v, 12) for k, v in found.items()}, sort_keys=True))
+        if groups and all(len(results) == 1 for results in groups.values()):
+            idle.append(name)
+    return idle
 
 
 def summary_table(summary: Sequence[SummaryRow]) -> str:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ..estimate import Result
+from ..estimate import Estimate, PointEstimate, Result
 from ..session import Session, SessionError, load_session
 from ..systems.presets import PRESETS, Preset, flatten, preset_for
 
@@ -208,3 +208,106 @@ def format_generic_report(report: dict[str, Any]) -> str:
         cells = "".join(f"{row['metrics'].get(k, float('nan')):24.4f}" for k in keys)
         lines.append(f"{name:<{width}}{cells}{row['x_realtime']:14.1f}")
     return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- report over sessions
+
+
+def unflatten(flat: dict[str, float]) -> dict[str, Any]:
+    """``a.b`` -> number back into nested dicts (the shape ``run --json`` prints)."""
+    out: dict[str, Any] = {}
+    for key, value in flat.items():
+        *parents, leaf = key.split(".")
+        node = out
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return out
+
+
+def _without_truth(outcome: Outcome) -> dict[str, float]:
+    """What can be said of an estimate without truth: its own sigma (median over samples, the attitude's largest axis in
+    degrees) and how much of the session it covers."""
+    estimate = outcome.estimate
+    out: dict[str, float] = {}
+    if isinstance(estimate, Estimate):
+        covered = np.isfinite(estimate.quat_wxyz).all(axis=1)
+        if estimate.cov is not None:
+            variances = np.diagonal(estimate.cov, axis1=1, axis2=2)
+            known = np.isfinite(variances).all(axis=1)  # NaN before the first fix
+            if known.any():
+                out["sigma_deg_median"] = float(np.degrees(np.median(np.sqrt(variances[known].max(axis=1)))))
+    elif isinstance(estimate, PointEstimate):
+        covered = np.isfinite(estimate.points).all(axis=(1, 2))
+    else:
+        return out
+    out["covered_frac"] = float(np.mean(covered)) if np.size(covered) else 0.0
+    return out
+
+
+def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solvers: Sequence[str] | None = None,
+                    show_progress: bool = True) -> dict[str, Any]:
+    """Every solver of ``system`` on every session (imported, hand-made or simulated), each through ``solve_session``
+    exactly as ``fusegraph run`` runs it.
+
+    JSON: ``{"system", "solvers", "sessions": {name: {solver: {"status", "metrics", "runtime_s", "x_realtime",
+    "warnings", "no_truth"}}}, "methods": {solver: {"metrics": mean over the sessions it scored (the keys ``run --json``
+    prints), "x_realtime", "sessions_scored", "sessions_failed"}}}``. A session without truth gets ``metrics: {}`` and
+    ``no_truth`` (the estimate's own sigma, the fraction of samples it covers); a solver that fails is a row with its error.
+    """
+    import warnings
+
+    from ..progress import progress
+
+    preset = PRESETS[system]
+    names = list(solvers or preset.solvers)
+    unknown = [s for s in names if s not in preset.solvers]
+    if unknown:
+        raise SessionError(f"--solvers {','.join(unknown)}: {system} has {', '.join(preset.solvers)}")
+    for name, session in sessions:
+        if session.system != system:
+            raise SessionError(f"{name}: a {session.system} session, not {system} (report one system at a time)")
+    rows: dict[str, dict[str, dict[str, Any]]] = {name: {} for name, _ in sessions}
+    jobs = [(name, session, solver) for name, session in sessions for solver in names]
+    for name, session, solver in progress(jobs, len(jobs), f"report {system}", enabled=None if show_progress else False):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                outcome = solve_session(session, solver)
+            except Exception as exc:  # noqa: BLE001 - one solver failing on one session is a row, the report goes on
+                rows[name][solver] = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
+                continue
+        runtime = float(outcome.estimate.runtime_s)
+        rows[name][solver] = {
+            "status": "ok", "metrics": outcome.metrics or {}, "runtime_s": runtime,
+            "x_realtime": session.duration_s / runtime if runtime > 0 else float("inf"),
+            "warnings": sorted({str(w.message) for w in caught}),
+            **({} if outcome.metrics else {"no_truth": _without_truth(outcome)}),
+        }
+    methods: dict[str, dict[str, Any]] = {}
+    for solver in names:
+        done = [rows[name][solver] for name, _ in sessions if rows[name][solver]["status"] == "ok"]
+        scored = [flatten(r["metrics"]) for r in done if r["metrics"]]
+        keys = sorted(set().union(*[set(r) for r in scored])) if scored else []
+        means = {k: float(np.mean([r[k] for r in scored if k in r])) for k in keys}
+        data_s = sum(session.duration_s for name, session in sessions if rows[name][solver]["status"] == "ok")
+        seconds = sum(r["runtime_s"] for r in done)
+        methods[solver] = {"metrics": unflatten(means), "x_realtime": data_s / seconds if seconds > 0 else float("nan"),
+                           "sessions_scored": len(scored), "sessions_failed": len(sessions) - len(done)}
+    return {"system": system, "solvers": names, "sessions": rows, "methods": methods}
+
+
+def load_sessions(paths: Iterable[str | Path]) -> list[tuple[str, Session]]:
+    """Sessions from directories (each a session, or a folder of them), named by their folder (a clash: by their path)."""
+    dirs = session_dirs(paths)
+    names = [p.name for p in dirs]
+    if len(set(names)) < len(names):
+        names = [str(p) for p in dirs]
+    return [(name, load_session(p)) for name, p in zip(names, dirs, strict=True)]
+
+
+def simulated_sessions(system: str, seeds: Sequence[int], duration_s: float | None = None, **options: Any) -> list[tuple[str, Session]]:
+    """The system's simulator at each seed, named ``seed<N>``."""
+    from ..scenarios import SIMULATORS
+
+    return [(f"seed{seed}", SIMULATORS[system].simulate(seed, duration_s, **options)) for seed in seeds]

@@ -87,6 +87,16 @@ DECLARED_IMU: tuple[tuple[str, str, str], ...] = (
 """(stream, key it declares, ``ImuNoise`` field it replaces) for what a recording may say about its IMU (``model_for``)."""
 
 
+def declared_gyro_density(session: Session, name: str = "gyro") -> float | None:
+    """The gyro's declared white noise (``noise_sigma_rad_s`` per sample) as a density, rad/s/sqrt(Hz): sigma over the
+    square root of its rate (declared ``rate_hz``, else the median sample spacing); None when not declared."""
+    if name not in session.streams or "noise_sigma_rad_s" not in session.stream(name).meta:
+        return None
+    gyro = session.stream(name)
+    rate = float(gyro.meta["rate_hz"]) if "rate_hz" in gyro.meta else 1.0 / float(np.median(np.diff(gyro.t)))
+    return float(gyro.meta["noise_sigma_rad_s"]) / float(np.sqrt(rate))
+
+
 def model_for(session: Session, model: Attitude9Model | None = None, solver: str = "online") -> Attitude9Model:
     """The model with the session's magnetometer calibration: declared in the ``mag`` stream's metadata
     (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording.
@@ -94,7 +104,7 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
     Without an explicit ``model``: the solver's BROAD-chosen model (``broad_model``), with what the ``accel`` stream
     declares replacing its motion, noise, bias and gravity settings (``velocity_sigma_m_s``, ``noise_m_s2_sqrt_hz``,
     ``bias_rw_m_s2_sqrt_s``, ``sigma_deg``, ``inflation_deg_per_m_s2``) and the ``gyro`` stream's ``bias_rw_sigma`` its
-    bias walk (a data sheet's bias instability belongs with the recording):
+    bias walk and its ``noise_sigma_rad_s`` its white noise (a data sheet's figures belong with the recording):
     BROAD is hand-held motion, and a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior
     (e.g. 2 m/s)."""
     if model is None:
@@ -104,6 +114,9 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
         if "velocity_sigma_m_s" in meta:
             model = replace(model, motion=replace(model.motion, velocity_sigma_m_s=float(meta["velocity_sigma_m_s"])))
         imu = {field: float(declared[kind][key]) for kind, key, field in DECLARED_IMU if key in declared[kind]}
+        density = declared_gyro_density(session)
+        if density is not None:
+            imu["gyro_noise_rad_s_sqrt_hz"] = density
         model = replace(model, imu=replace(model.imu, **imu)) if imu else model
         if model.gravity is not None:
             model = replace(model, gravity=declared_gravity(meta, model.gravity))
@@ -291,7 +304,10 @@ def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:
         raise ValueError("the 9-axis EKF needs a magnetometer stream")
     cal = model_for(session, model).mag_calibration
     start = time.perf_counter()
-    quats = run_ekf9(data.t, data.gyro, data.accel, data.mag, Ekf9Config(mag_gain=cal.gain, mag_offset=cal.offset))
+    config = Ekf9Config(mag_gain=cal.gain, mag_offset=cal.offset)
+    if "noise_sigma_rad_s" in session.stream("gyro").meta:  # the declared per-sample sigma is the EKF's gyro noise
+        config = replace(config, gyro_sigma_rad_s=float(session.stream("gyro").meta["noise_sigma_rad_s"]))
+    quats = run_ekf9(data.t, data.gyro, data.accel, data.mag, config)
     return Estimate("ekf", data.t.copy(), quats, None, time.perf_counter() - start)
 
 

@@ -14,6 +14,8 @@ BROAD EKF's inflation with | |a| - g |, which would hide most of the braking fro
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..baselines.ekf9 import Ekf9Config, run_ekf9
@@ -129,3 +131,36 @@ def braking_rms_deg(quat: FloatArray, s: BicycleSession) -> dict[str, float]:
 RUNNERS = {"no_removal": run_no_removal, "paper_pipeline": run_pipeline, "online": run_online, "batch": run_batch}
 
 
+
+
+def declared(session: Session) -> tuple[BicycleModel, Ekf9Config, Ekf9Config]:
+    """The graph model and the two EKF settings with what the session's gyro streams declare (``noise_sigma_rad_s`` per
+    sample: the graph's white-noise density per body, sigma over the square root of the rate; the EKFs' gyro sigma,
+    the thigh's where the two bodies differ, as the paper's pipeline runs one setting on both)."""
+    from .attitude9 import declared_gyro_density
+
+    model = BicycleModel()
+    bodies = {}
+    for body in ("thigh", "frame"):
+        density = declared_gyro_density(session, f"{body}_gyro")
+        chain = getattr(model, body)
+        bodies[body] = chain if density is None else replace(chain, imu=replace(chain.imu, gyro_noise_rad_s_sqrt_hz=density))
+    model = replace(model, **bodies)
+    paper, alone = PAPER_EKF, NO_REMOVAL_EKF
+    for name in ("thigh_gyro", "frame_gyro"):
+        if name in session.streams and "noise_sigma_rad_s" in session.stream(name).meta:
+            sigma = float(session.stream(name).meta["noise_sigma_rad_s"])
+            paper, alone = replace(paper, gyro_sigma_rad_s=sigma), replace(alone, gyro_sigma_rad_s=sigma)
+            break
+    return model, paper, alone
+
+
+def run_declared(session: Session, solver: str) -> FloatArray:
+    """A bicycle session's solver (``no_removal``, ``paper_pipeline``, ``online``, ``batch``) with its declared settings."""
+    ride = from_session(session)
+    model, paper, alone = declared(session)
+    if solver == "no_removal":
+        return run_no_removal(ride, alone)
+    if solver == "paper_pipeline":
+        return run_pipeline(ride, paper)
+    return {"online": run_online, "batch": run_batch}[solver](ride, model)

@@ -1,0 +1,80 @@
+"""Reports over sessions as text and as a figure: one row per solver (means over the sessions it scored), then one
+row per session and solver; sessions without truth show what can be said without it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..systems.presets import PRESETS, flatten
+
+
+def _keys(system: str, rows: list[dict[str, float]]) -> list[str]:
+    """The preset's headline metrics that any row has (else every key the rows have)."""
+    present = set().union(*[set(r) for r in rows]) if rows else set()
+    keys = [k for k in PRESETS[system].metric_keys if k in present]
+    return keys or sorted(present)
+
+
+def format_session_report(report: dict[str, Any]) -> str:
+    """The report as a text table (numbers as the JSON holds them, 4 significant digits)."""
+    system = report["system"]
+    methods = report["methods"]
+    keys = _keys(system, [flatten(m["metrics"]) for m in methods.values()])
+    width = max([len(n) for n in methods] + [8]) + 2
+    count = len(report["sessions"])
+    lines = [f"{system}: {count} session{'s' if count != 1 else ''}; means over the sessions each solver scored",
+             f"{'solver':<{width}}" + "".join(f"{k:>22}" for k in keys) + f"{'x real time':>13}{'scored':>8}{'failed':>8}"]
+    for name, row in methods.items():
+        flat = flatten(row["metrics"])
+        cells = "".join(f"{flat[k]:22.4g}" if k in flat else f"{'-':>22}" for k in keys)
+        lines.append(f"{name:<{width}}{cells}{row['x_realtime']:13.1f}{row['sessions_scored']:8d}{row['sessions_failed']:8d}")
+    lines.append("")
+    lines.append(f"{'session':<28}{'solver':<{width}}result")
+    for session, per_solver in report["sessions"].items():
+        for name, row in per_solver.items():
+            if row["status"] != "ok":
+                text = f"FAILED {row['error']}"
+            elif row["metrics"]:
+                flat = flatten(row["metrics"])
+                text = "  ".join(f"{k} {flat[k]:.4g}" for k in _keys(system, [flat]))
+            else:
+                nt = row.get("no_truth", {})
+                text = "no truth: " + "  ".join(f"{k} {v:.4g}" for k, v in nt.items())
+            if row["status"] == "ok":
+                text += f"  ({row['x_realtime']:.1f}x real time)"
+                text += "".join(f"\n{'':<28}{'':<{width}}warning: {w}" for w in row.get("warnings", []))
+            lines.append(f"{session:<28}{name:<{width}}{text}")
+    return "\n".join(lines)
+
+
+def plot_session_report(report: dict[str, Any], path: str | Path) -> Path:
+    """Bars per session and solver of the system's first headline metric (without truth anywhere: x real time)."""
+    from .plots import grouped_bars, plt, save_figure
+
+    system = report["system"]
+    sessions = list(report["sessions"])
+    flat_rows = [flatten(r["metrics"]) for per in report["sessions"].values() for r in per.values() if r["status"] == "ok"]
+    keys = _keys(system, flat_rows)
+    key = keys[0] if keys else None
+    series: dict[str, list[float | None]] = {}
+    for solver in report["solvers"]:
+        values: list[float | None] = []
+        for session in sessions:
+            row = report["sessions"][session][solver]
+            if row["status"] != "ok":
+                values.append(None)
+            elif key is not None:
+                value = flatten(row["metrics"]).get(key)
+                values.append(None if value is None or not np.isfinite(value) else value)
+            else:
+                values.append(row["x_realtime"])
+        series[solver] = values
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(sessions) * max(1, len(series)) / 2), 4.5))
+    grouped_bars(ax, sessions, series)
+    ax.set(ylabel=key or "x real time", title=f"{system}: {key or 'speed (no truth)'} per session and solver")
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=8)
+    return save_figure(fig, path)
