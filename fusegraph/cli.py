@@ -610,9 +610,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _bench_broad(args: argparse.Namespace) -> int:
     from .evaluation.broad import bench_broad
     from .report.broad import format_broad_table, plot_broad
-    from .systems import attitude9
 
-    methods = tuple(m.strip() for m in args.methods.split(",")) if args.methods else tuple(attitude9.METHODS)
+    methods = tuple(m.strip() for m in args.methods.split(",")) if args.methods else ()
     trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
     result = bench_broad(args.directory, methods, trials)
     if args.json:

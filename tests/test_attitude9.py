@@ -255,8 +255,14 @@ def test_online_estimate_is_causal() -> None:
 
 
 @requires_shared_data("broad")
-def test_bench_on_the_attached_magnet_trial() -> None:
+def test_bench_on_the_attached_magnet_trial(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """The bench is a report over the imported trial: `import broad` + `report attitude9 DIR --json` prints its figures
+    to the last digit."""
     pytest.importorskip("vqf")
+    import json
+
+    from fusegraph.cli import main
+    from fusegraph.datasets.broad import DEFAULT_DIR
     from fusegraph.evaluation.broad import bench_broad
 
     result = bench_broad(trials=("32",), methods=("vqf", "online"), show_progress=False)
@@ -268,6 +274,15 @@ def test_bench_on_the_attached_magnet_trial() -> None:
     # the magnet rides on the sensor: VQF's heading follows it; the heading-only factor with
     # norm/dip gating and the Cauchy kernel does not (measured 2.4 deg)
     assert row["online"]["total"] < 0.5 * row["vqf"]["total"]
+    (trial,) = DEFAULT_DIR.glob("32_*.mat")
+    assert main(["import", "broad", str(trial), "--out", str(tmp_path / stem)]) == 0
+    capsys.readouterr()
+    assert main(["report", "attitude9", str(tmp_path / stem), "--solvers", "vqf,online", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    for method in ("vqf", "online"):
+        assert report["methods"][method]["metrics"] == result["methods"][method]["metrics"]
+        assert report["sessions"][stem][method]["metrics"] == result["sessions"][stem][method]["metrics"]
+        assert report["sessions"][stem][method]["metrics"]["total_deg"] == row[method]["total"]
 
 
 def test_late_attitude_tracker_in_its_own_frame_joins_the_graph() -> None:

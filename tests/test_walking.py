@@ -12,7 +12,6 @@ from conftest import SHARED_DATA, assert_jacobians_match, requires_shared_data
 
 from fusegraph.datasets import steps_oxford
 from fusegraph.datasets.plaza import load_plaza
-from fusegraph.evaluation import plaza
 from fusegraph.factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose
 from fusegraph.factors.ranging import RangeNoise, range_factor
 from fusegraph.frontends import pdr
@@ -136,6 +135,9 @@ def test_walking_methods_rank_and_wrong_fixes_do_not_pull(walk: walking.WalkingS
 
 
 def test_plaza_loader_and_a_short_run() -> None:
+    from fusegraph.datasets.importers import plaza_session
+    from fusegraph.evaluation.runner import report_sessions
+
     rec = load_plaza("Plaza2")
     assert len(rec.truth_t) == len(rec.odometry_t) + 1
     assert set(np.unique(rec.range_beacon)) <= set(rec.beacons)
@@ -143,30 +145,41 @@ def test_plaza_loader_and_a_short_run() -> None:
     far = int(np.argmax(np.linalg.norm(rec.truth_xy - rec.truth_xy[0], axis=1) > 5.0))
     d = rec.truth_xy[far] - rec.truth_xy[0]
     assert abs(math.remainder(math.atan2(d[1], d[0]) - rec.start_yaw_rad, 2 * math.pi)) < math.radians(45)
-    n = 1000
-    keep = rec.range_t <= rec.truth_t[n]
-    short = dataclasses.replace(rec, odometry_t=rec.odometry_t[:n], distance_m=rec.distance_m[:n], dyaw_rad=rec.dyaw_rad[:n],
-                                truth_t=rec.truth_t[: n + 1], truth_xy=rec.truth_xy[: n + 1], range_t=rec.range_t[keep],
-                                range_beacon=rec.range_beacon[keep], range_m=rec.range_m[keep])
-    odo, online, batch = plaza.run_odometry(short), plaza.run_online(short), plaza.run_batch(short)
-    assert plaza.rmse_m(batch, short) < 0.5 * plaza.rmse_m(odo, short)
-    assert plaza.rmse_m(online, short) < 0.8 * plaza.rmse_m(odo, short)
+    session = plaza_session("Plaza2")
+    cut = float(session.stream("odometry").t[1000])
+    short = dataclasses.replace(session, streams={name: s.select(s.t <= cut) for name, s in session.streams.items()},
+                                truth=session.truth.select(session.truth.t <= cut) if session.truth is not None else None)
+    report = report_sessions("walking", [("short", short)], ["dead_reckoning", "online", "batch"], show_progress=False)
+    rmse = {solver: row["metrics"]["rmse_m"] for solver, row in report["sessions"]["short"].items()}
+    assert rmse["batch"] < 0.5 * rmse["dead_reckoning"], rmse
+    assert rmse["online"] < 0.8 * rmse["dead_reckoning"], rmse
     with pytest.raises(ValueError, match="unknown Plaza"):
         load_plaza("Plaza9")
 
 
 @requires_shared_data("steps_oxford")
-def test_oxford_step_counts_within_three_percent() -> None:
+def test_oxford_step_counts_within_three_percent(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """Every recording within 3 % of the hand count, through `import oxford` + `report walking DIR --solvers steps`,
+    which gives the bench's counts."""
+    import json
+
+    from fusegraph.cli import main
+    from fusegraph.evaluation.walking import bench_oxford
+
     directory = SHARED_DATA / "steps_oxford"
-    stats = steps_oxford.read_stats(directory)
-    names = steps_oxford.recordings(directory)
-    assert names
-    for name in names:
-        rec = steps_oxford.load_recording(directory, name, stats)
-        counted = walking.count_steps(rec.t, rec.accel_m_s2)
-        assert abs(counted - rec.true_steps) <= 0.03 * rec.true_steps, (name, counted, rec.true_steps)
+    bench = bench_oxford(directory)
+    assert bench
+    assert main(["import", "oxford", str(directory), "--out", str(tmp_path / "oxford")]) == 0
+    capsys.readouterr()
+    assert main(["report", "walking", str(tmp_path / "oxford"), "--solvers", "steps", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    for name, row in bench.items():
+        counted, true = row["counted"], row["true"]
+        assert isinstance(counted, int) and isinstance(true, int)
+        assert abs(counted - true) <= 0.03 * true, (name, counted, true)
+        assert report["sessions"][name]["steps"]["metrics"]["steps"] == counted
         # the insoles are the dataset's reference instrument: their heel contacts are the manual count
-        assert rec.foot_switch_steps == rec.true_steps, (name, rec.foot_switch_steps, rec.true_steps)
+        assert row["foot_switches"] == true, (name, row["foot_switches"], true)
 
 
 def test_foot_switch_steps_are_heel_contacts_of_both_feet(tmp_path: object) -> None:
@@ -234,3 +247,21 @@ def test_bench_confusion_is_scored_on_the_independent_gait() -> None:
     table = confusion(walk, cycles, rides)
     assert set(table) == {"flat", "stairs_up", "stairs_down", "elevator"}
     assert sum(table["flat"].values()) == sum(a == "flat" for a in walk.step_activity)
+
+
+def test_plaza_bench_is_the_report_of_the_imported_run(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """`bench walking`'s Plaza figures are `import plaza` + `report walking DIR --json` to the last digit."""
+    import json
+
+    from fusegraph.cli import main
+    from fusegraph.evaluation.plaza import bench_plaza
+
+    bench = bench_plaza(("Plaza1",))["Plaza1"]
+    assert main(["import", "plaza", "Plaza1", "--out", str(tmp_path / "Plaza1")]) == 0
+    capsys.readouterr()
+    assert main(["report", "walking", str(tmp_path / "Plaza1"), "--solvers", "dead_reckoning,online,batch", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["sessions"]["Plaza1"]
+    assert rows["dead_reckoning"]["metrics"]["rmse_m"] == bench["odometry_rmse_m"]
+    assert rows["online"]["metrics"]["rmse_m"] == bench["online_rmse_m"]
+    assert rows["batch"]["metrics"]["rmse_m"] == bench["batch_rmse_m"]
+    assert bench["batch_rmse_m"] < 0.5 * bench["odometry_rmse_m"]

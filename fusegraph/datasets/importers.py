@@ -23,6 +23,7 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -38,22 +39,17 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
     if not source.exists():
         raise SessionError(f"{source}: not found")
     if fmt == "broad":
-        from .broad import load_broad, trial_paths
-
-        paths = [source] if source.is_file() else trial_paths(source)
-        if not paths:
-            raise SessionError(f"{source}: no BROAD trials (*.mat)")
-        if len(paths) == 1 and source.is_file():
-            return [save_session(_portable(load_broad(paths[0])), out)]
-        return [save_session(_portable(load_broad(p)), out / p.stem) for p in paths]
+        found = broad_sessions(source)
+        if source.is_file():
+            return [save_session(found[0][1], out)]
+        return [save_session(session, out / name) for name, session in found]
     if fmt == "uwb":
         return [save_session(uwb_session(source, labelled), out)]
     if fmt == "oxford":
-        from .steps_oxford import recordings
-
+        found = oxford_sessions(source)
         if (source / "stats.csv").is_file():
-            return [save_session(oxford_session(source, name), out / name) for name in recordings(source)]
-        return [save_session(oxford_session(source.parent, source.name), out)]
+            return [save_session(session, out / name) for name, session in found]
+        return [save_session(found[0][1], out)]
     if fmt == "tobii":
         from .tobii import load_tobii
 
@@ -61,27 +57,46 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
     raise SessionError(f"unknown format {fmt!r} (known: broad, oxford, plaza, tobii, uwb)")
 
 
+def broad_sessions(source: Path, trials: Sequence[str] = ()) -> list[tuple[str, Session]]:
+    """BROAD trials as ``import broad`` writes them (a trial file, or every ``*.mat`` of a folder whose name starts with one
+    of ``trials``), in memory, named by trial."""
+    from .broad import load_broad, trial_paths
+
+    paths = [source] if source.is_file() else [p for p in trial_paths(source) if not trials or any(p.stem.startswith(x) for x in trials)]
+    if not paths:
+        raise SessionError(f"{source}: no BROAD trial (*.mat)" + (f" starting with {', '.join(trials)}" if trials else ""))
+    return [(p.stem, _portable(load_broad(p))) for p in paths]
+
+
 def plaza_session(name: str) -> Session:
     """A Plaza run as a wheel-odometry walking session (see the module docstring)."""
-    from ..evaluation.plaza import ODOMETRY, RANGES, _beacon_table
-    from .plaza import RECORDINGS, load_plaza
+    from .plaza import BEACON_RANGES, RECORDINGS, WHEEL_ODOMETRY, beacon_table, load_plaza
 
     if name not in RECORDINGS:
         raise SessionError(f"plaza: SOURCE is the recording's name, one of {', '.join(RECORDINGS)} (got {name!r})")
     rec = load_plaza(name)
     t = rec.truth_t
     odometry = np.column_stack([np.r_[0.0, rec.distance_m], np.r_[0.0, rec.dyaw_rad]])
-    meta = {"distance_frac": ODOMETRY.distance_frac, "lateral_frac": ODOMETRY.lateral_frac, "floor_m": ODOMETRY.floor_m,
-            "yaw_sigma_deg": float(np.degrees(ODOMETRY.yaw_rad)), "yaw_frac": ODOMETRY.yaw_frac}
-    beacons, rows = _beacon_table(rec)
+    meta = dict(WHEEL_ODOMETRY)
+    beacons, rows = beacon_table(rec)
     order = np.argsort(rec.range_t, kind="stable")
     ranges = Stream("ranges", "beacon_ranges", rec.range_t[order], np.column_stack([rows[order], rec.range_m[order]]), KIND_COLUMNS["beacon_ranges"], 0.0,
-                    {"beacons_m": beacons.tolist(), "sigma_m": RANGES.sigma_m, "bias_sigma_m": RANGES.bias_sigma_m, "kernel_width": RANGES.kernel_width})
+                    {"beacons_m": beacons.tolist(), **BEACON_RANGES})
     truth = Stream("truth", "position", t, np.column_stack([rec.truth_xy, np.zeros(len(t))]), KIND_COLUMNS["position"])
     header = {"session": {"system": "walking", "dataset": "Plaza", "trial": name, "world_frame": "the dataset's local frame (m)",
                           "description": "vehicle: wheel odometry and ranges to identified beacons; the start is found from the ranges"}}
     return Session("walking", {"odometry": Stream("odometry", "wheel_odometry", t, odometry, KIND_COLUMNS["wheel_odometry"], 0.0, meta),
                                "ranges": ranges}, truth, header)
+
+
+def oxford_sessions(source: Path) -> list[tuple[str, Session]]:
+    """Oxford recordings as ``import oxford`` writes them (the dataset folder, with ``stats.csv``, or one recording's),
+    in memory, named by recording."""
+    from .steps_oxford import recordings
+
+    if (source / "stats.csv").is_file():
+        return [(name, oxford_session(source, name)) for name in recordings(source)]
+    return [(source.name, oxford_session(source.parent, source.name))]
 
 
 def oxford_session(directory: Path, name: str) -> Session:
@@ -94,9 +109,12 @@ def oxford_session(directory: Path, name: str) -> Session:
         raise SessionError(f"{directory / name}: {err}") from None
     rate = float(1.0 / np.median(np.diff(rec.t)))
     accel = Stream("accel", "accel", rec.t, rec.accel_m_s2, KIND_COLUMNS["accel"], 0.0, {"frame": "phone", "rate_hz": round(rate, 1)})
-    header = {"session": {"system": "walking", "dataset": "Oxford step counting", "trial": name,
+    truth_extra: dict[str, object] = {"steps": rec.true_steps}
+    if rec.foot_switch_steps is not None:
+        truth_extra["foot_switch_steps"] = rec.foot_switch_steps
+    header = {"session": {"system": "walking", "dataset": "Oxford step counting", "trial": name, "placement": rec.position,
                           "description": f"phone carried in the {rec.position}; accelerometer only"},
-              "truth_extra": {"steps": rec.true_steps}}
+              "truth_extra": truth_extra}
     return Session("walking", {"accel": accel}, None, header)
 
 

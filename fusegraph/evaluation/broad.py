@@ -1,62 +1,54 @@
-"""BROAD: every trial through every attitude9 solver and the peers, scored by the benchmark's own metric."""
+"""BROAD: every trial imported as an attitude9 session (in memory, exactly as ``fusegraph import broad`` writes it) and
+reported by ``report_sessions``: every attitude9 solver and the peers, scored by the preset's scorer (the benchmark's
+own metric), then laid out per trial with the means."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..estimate import Estimate
-from ..graphs.attitude9 import Attitude9Model
-from ..progress import progress
-from ..session import Session
-from ..systems.attitude9 import METHODS, run_batch, run_ekf, run_online
+from ..systems.attitude9 import METHODS
+from ..systems.presets import PRESETS
+from .runner import report_sessions
 
 
 def bench_broad(
     directory: str | Path | None = None,
-    methods: Sequence[str] = tuple(METHODS),
+    methods: Sequence[str] = (),
     trials: Sequence[str] = (),
-    model: Attitude9Model | None = None,
     show_progress: bool = True,
 ) -> dict[str, Any]:
     """Every BROAD trial in ``directory``, every method, in one run: RMSE (deg) and speed per trial and mean.
 
     ``trials`` keeps the files whose name starts with one of these prefixes (e.g. ``"01"``); all by default.
-    The same ``model`` (one parameter set) serves every trial; the truth is used only to score.
+    ``methods``: attitude9 solvers (default: all of them, the peers first). One parameter set serves every trial; the truth only scores.
+    JSON: ``trials.<trial>.<method>`` and ``mean.<method>`` with ``total``, ``heading``, ``inclination`` (deg) and
+    ``x_realtime`` (the mean of the trials' ratios), plus the report it was laid out from (``methods``, ``sessions``:
+    what ``report attitude9 DIR --json`` prints for the imported trials).
     """
-    from ..datasets.broad import DEFAULT_DIR, load_broad, trial_paths
-    from ..metrics import broad_errors
+    from ..datasets.broad import DEFAULT_DIR
+    from ..datasets.importers import broad_sessions
 
-    unknown = [m for m in methods if m not in METHODS]
+    names = list(methods) or list(METHODS)
+    unknown = [m for m in names if m not in PRESETS["attitude9"].solvers]
     if unknown:
-        raise ValueError(f"unknown method(s) {', '.join(unknown)} (have: {', '.join(METHODS)})")
-    paths = [p for p in trial_paths(directory or DEFAULT_DIR) if not trials or any(p.stem.startswith(x) for x in trials)]
-    if not paths:
-        raise ValueError(f"{directory or DEFAULT_DIR}: no BROAD trial (*.mat) matches")
-    runs: dict[str, Callable[[Session], Estimate]] = dict(METHODS)
-    if model is not None:
-        runs.update(online=lambda s: run_online(s, model), batch=lambda s: run_batch(s, model), ekf=lambda s: run_ekf(s, model))
+        raise ValueError(f"unknown method(s) {', '.join(unknown)} (have: {', '.join(PRESETS['attitude9'].solvers)})")
+    sessions = broad_sessions(Path(directory or DEFAULT_DIR), trials)
+    report = report_sessions("attitude9", sessions, names, show_progress=show_progress)
     out: dict[str, Any] = {"trials": {}, "mean": {}}
-    jobs = [(path, method) for path in paths for method in methods]
-    session: Session | None = None
-    for path, method in progress(jobs, desc="bench broad", enabled=None if show_progress else False):
-        if session is None or session.path is None or session.meta["session"]["trial"] != path.stem:
-            session = load_broad(path)
-        assert session.truth is not None
-        estimate = runs[method](session)
-        movement = session.stream("movement").values[:, 0]
-        errors = broad_errors(estimate.quat_wxyz, session.truth.values, movement)
-        duration = float(session.stream("gyro").t[-1] - session.stream("gyro").t[0])
-        out["trials"].setdefault(path.stem, {})[method] = {
-            "total": errors.total,
-            "heading": errors.heading,
-            "inclination": errors.inclination,
-            "x_realtime": duration / estimate.runtime_s,
-        }
-    for method in methods:
+    for trial, per_method in report["sessions"].items():
+        for method in names:
+            row = per_method[method]
+            if row["status"] != "ok":
+                raise RuntimeError(f"{trial}: {method} failed: {row['error']}")
+            metrics = row["metrics"]
+            out["trials"].setdefault(trial, {})[method] = {"total": metrics["total_deg"], "heading": metrics["heading_deg"],
+                                                           "inclination": metrics["inclination_deg"], "x_realtime": row["x_realtime"]}
+    for method in names:
         rows = [trial[method] for trial in out["trials"].values()]
         out["mean"][method] = {key: float(np.mean([r[key] for r in rows])) for key in ("total", "heading", "inclination", "x_realtime")}
+    out.update(methods=report["methods"], sessions=report["sessions"])
     return out

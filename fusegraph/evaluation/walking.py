@@ -8,7 +8,8 @@ from ..datasets import steps_oxford
 from ..frontends.pdr import SpeedModel, detect_cycles, fit_speed_model
 from ..report.walking import plot_walk
 from ..scenarios.walking import WalkingScenarioConfig, simulate_calibration_walk, simulate_walking
-from ..systems.walking import WAIST, analyse, confusion, count_steps, run_all, score
+from ..systems.walking import WAIST, analyse, confusion, run_all, score
+from .runner import report_sessions
 
 
 def calibrated_speed_model(seed: int, config: WalkingScenarioConfig | None = None) -> SpeedModel:
@@ -19,7 +20,7 @@ def calibrated_speed_model(seed: int, config: WalkingScenarioConfig | None = Non
 
 def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None) -> dict[str, object]:
     """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape."""
-    from ..evaluation import plaza as plaza_system
+    from . import plaza as plaza_system
 
     # the activity confusion on the independent (pendulum) gait, whose signals do not follow the detector's rules;
     # the first generator's figure beside it, and the positioning runs on that generator's walk as before
@@ -41,16 +42,26 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
                            "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
                            "wrong_fixes": int(session.fixes.wrong.sum())}
-    # `phone`: the phone's own step counter, which these recordings do not hold (stepcounter.csv is the foot
-    # switches, see datasets.steps_oxford); null rather than a guess. `foot_switches`: the insoles' count.
-    oxford: dict[str, dict[str, int | str | None]] = {}
-    if oxford_dir is not None and Path(oxford_dir).is_dir():
-        stats = steps_oxford.read_stats(Path(oxford_dir))
-        for name in steps_oxford.recordings(Path(oxford_dir)):
-            rec = steps_oxford.load_recording(Path(oxford_dir), name, stats)
-            oxford[name] = {"true": rec.true_steps, "counted": count_steps(rec.t, rec.accel_m_s2), "phone": None,
-                            "foot_switches": rec.foot_switch_steps, "position": rec.position}
+    oxford = bench_oxford(Path(oxford_dir)) if oxford_dir is not None and Path(oxford_dir).is_dir() else {}
     out["oxford"] = oxford
     if plaza:
         out["plaza"] = plaza_system.bench_plaza()
+    return out
+
+
+def bench_oxford(directory: Path) -> dict[str, dict[str, int | str | None]]:
+    """Every Oxford recording imported (as ``import oxford`` writes it) and counted by the walking preset's ``steps``
+    solver (``report walking DIR --solvers steps``): the true and counted steps, the insoles' count and where the phone
+    was carried. ``phone``: the phone's own step counter, which these recordings do not hold (stepcounter.csv is the
+    foot switches, see datasets.steps_oxford); null rather than a guess."""
+    from ..datasets.importers import oxford_sessions
+
+    recorded = oxford_sessions(directory)
+    report = report_sessions("walking", recorded, ["steps"], show_progress=False)
+    out: dict[str, dict[str, int | str | None]] = {}
+    for name, phone in recorded:
+        row = report["sessions"][name]["steps"]
+        extra = phone.meta.get("truth_extra", {})
+        out[name] = {"true": int(extra["steps"]), "counted": int(row["metrics"]["steps"]), "phone": None,
+                     "foot_switches": extra.get("foot_switch_steps"), "position": str(phone.meta["session"]["placement"])}
     return out

@@ -227,7 +227,13 @@ def _walking_run(session: Session, solver: str) -> Result:
     if solver == "dead_reckoning":
         run = walking.run_dead_reckoning(walk, events)
     else:
-        run = {"online": walking.run_online, "batch": walking.run_batch, "ekf": walking.run_ekf}[solver](walk, events, walk.fixes.pose)
+        vehicle = bool(session.streams_of_kind("wheel_odometry")) and "gyro" not in session.streams
+        if solver == "online":
+            run = walking.run_online(walk, events, walk.fixes.pose, walking.VEHICLE_ONLINE if vehicle else walking.ONLINE)
+        elif solver == "batch":
+            run = walking.run_batch(walk, events, walk.fixes.pose)
+        else:
+            run = walking.run_ekf(walk, events, walk.fixes.pose)
     activity = {a: sum(c.activity == a for c in cycles) for a in ("flat", "stairs_up", "stairs_down")}
     return PointEstimate(solver, run.t, run.xyz[:, None, :], ("x", "y", "z"), run.seconds, {"steps": len(cycles), "activity": activity, "rides": len(rides)})
 
@@ -378,6 +384,8 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("building.elevator_xy_m", None, "[x, y] of the elevator, m"), KeySpec("building.stairs_foot_xy_m", None, "[x, y], m"),
                       KeySpec("building.riser_m", 0.175, "stair riser, m"), KeySpec("building.tread_m", 0.28, "stair tread, m"),
                       KeySpec("truth_extra.steps", None, "steps counted by hand (scores --solver steps)"),
+                      KeySpec("truth_extra.foot_switch_steps", None, "steps of a reference's foot switches (documentation)"),
+                      KeySpec("placement", None, "where the sensor was carried, e.g. pocket, hand (documentation)"),
                       KeySpec("speed_model.intercept_m_s", None, "walking speed = intercept + slope x peak-to-peak acceleration (required: a person's own)"),
                       KeySpec("speed_model.slope_s", None, "see intercept_m_s (required)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (wrong fixes rejected at 5 sigma, solved again)", "ekf": "the paper's Kalman framework",
