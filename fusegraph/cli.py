@@ -77,7 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "thigh EKF alone (bicycle only); dead_reckoning = steps and rides only, steps = the step count of an accelerometer-only "
                      "recording (walking only); combinatorial = the paper's search "
                      "(ultrasonic only); method1, kalman, tracker, gyro = the head paper's other rows. `fusegraph sensors SYSTEM` lists a system's solvers")
-    run.add_argument("--out", type=Path, help="CSV to write (default: <session>/<estimate>_<solver>.csv); with several sessions, a folder")
+    run.add_argument("--out", type=Path, help="CSV to write (default: ./<session>_<estimate>_<solver>.csv in the current folder: never into the "
+                     "recording); with several sessions, a folder")
     run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
     run.add_argument("--json", action="store_true", help='print one JSON object and nothing else: {"system", "solver", "metrics"}')
     run.add_argument("--workers", type=int, default=None, help="several sessions: parallel processes (default: all cores)")

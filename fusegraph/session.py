@@ -109,6 +109,43 @@ class Session:
         """How errors name this session: its session.toml, or ``<system> session`` when it was not loaded from disk."""
         return f"{self.path / 'session.toml'}" if self.path else f"{self.system} session"
 
+    def validate(self) -> None:
+        """The checks ``load_session`` makes, for a Session built in memory too (every solver runs them first): each
+        stream's kind and keys are the catalogue's, its times finite and never going back, its values finite and
+        plausible (magnitudes, unit quaternions, the declared rate), the streams on one clock. A SessionError names the
+        stream and the likely cause."""
+        where = self.where
+        catalogue = sensor_catalogue()
+        if not self.streams:
+            raise SessionError(f"{where}: no streams")
+        for name, stream in self.streams.items():
+            label = f"{where}: stream '{name}'"
+            if stream.kind not in catalogue:
+                raise SessionError(f"{label}: kind = {stream.kind!r} is not one of {', '.join(catalogue)}{suggest(stream.kind, catalogue)}")
+            entry = catalogue[stream.kind]
+            try:
+                check_keys(stream.meta, entry.key_names, label)
+            except CatalogueError as err:
+                raise SessionError(f"{err} (see `fusegraph sensors {stream.kind}`)") from None
+            t, values = np.asarray(stream.t, dtype=float), np.asarray(stream.values, dtype=float)
+            if t.ndim != 1 or not len(t):
+                raise SessionError(f"{label}: no samples (the stream is empty)")
+            if values.ndim != 2 or len(values) != len(t):
+                raise SessionError(f"{label}: values of shape {values.shape} for {len(t)} times (one row of {len(entry.columns)} per sample)")
+            if not np.isfinite(t).all():
+                raise SessionError(f"{label}: sample {int(np.argmin(np.isfinite(t)))}: time is {t[~np.isfinite(t)][0]} (times must be finite)")
+            step = np.diff(t)
+            back = step < 0 if entry.repeated_times else step <= 0
+            if back.any():
+                i = int(np.argmax(back)) + 1
+                what = "goes backwards" if step[i - 1] < 0 else "repeats"
+                raise SessionError(f"{label}: sample {i}: time {what} (t = {t[i]!r} after {t[i - 1]!r})")
+            if not np.isfinite(values).all():
+                i = int(np.argmax(~np.isfinite(values).all(axis=1)))
+                raise SessionError(f"{label}: sample {i}: a value is NaN or infinite (leave the sample out for a dropout)")
+            check_plausible(entry, t, values, {k: v for k, v in stream.meta.items() if k != "units"}, label)
+        check_overlap(self.streams, where)
+
     def stream(self, name: str) -> Stream:
         """The stream called ``name``; a SessionError lists the ones that exist."""
         try:

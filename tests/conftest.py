@@ -11,6 +11,12 @@ import pytest
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
+@pytest.fixture(autouse=True)
+def _work_in_a_temporary_folder(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`fusegraph run` writes its estimate into the current folder: every test works in a folder of its own."""
+    monkeypatch.chdir(tmp_path_factory.mktemp("cwd"))
+
+
 def _kind(values: gtsam.Values, key: int) -> str:
     for kind, getter in (("rot3", values.atRot3), ("pose3", values.atPose3)):
         try:

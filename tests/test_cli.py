@@ -67,8 +67,10 @@ def test_report_with_an_assumed_latency_adds_rows_and_the_latency_block(capsys: 
     assert abs(report["latency"]["estimated"] - 0.13) < 0.01  # 3 s of motion: within 10 ms
 
 
-def test_gaze_and_bicycle_sessions_simulate_and_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """A simulated session written to disk and run back gives the same figures as the in-memory system."""
+def test_gaze_and_bicycle_sessions_simulate_and_run(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A simulated session written to disk and run back gives the same figures as the in-memory system; the estimate
+    goes into the current folder, not into the session."""
+    monkeypatch.chdir(tmp_path)
     from fusegraph.scenarios.bicycle import BicycleScenarioConfig, simulate_bicycle
     from fusegraph.systems import bicycle
 
@@ -77,7 +79,8 @@ def test_gaze_and_bicycle_sessions_simulate_and_run(tmp_path: Path, capsys: pyte
     assert main(["run", str(tmp_path / "g"), "--solver", "batch", "--json"]) == 0
     rms = json.loads(capsys.readouterr().out)["metrics"]["rms"]
     assert rms["x_mm"] < 8 and rms["z_mm"] < 8  # mm: the batch measured 3.6 and 2.2 on this seed
-    assert (tmp_path / "g" / "gaze_batch.csv").read_text().startswith("t,X_m,Z_m")
+    assert (tmp_path / "g_gaze_batch.csv").read_text().startswith("t,X_m,Z_m")
+    assert not list((tmp_path / "g").glob("gaze_*.csv"))
     assert main(["simulate", "bicycle", "--duration", "36", "--out", str(tmp_path / "b")]) == 0
     capsys.readouterr()
     assert main(["run", str(tmp_path / "b"), "--solver", "no_removal", "--json"]) == 0
@@ -90,7 +93,8 @@ def test_gaze_and_bicycle_sessions_simulate_and_run(tmp_path: Path, capsys: pyte
     assert "bicycle sessions have" in capsys.readouterr().err
 
 
-def test_walking_session_simulate_and_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_walking_session_simulate_and_run(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
     assert main(["simulate", "walking", "--out", str(tmp_path / "w")]) == 0
     capsys.readouterr()
     assert main(["run", str(tmp_path / "w"), "--solver", "dead_reckoning", "--json"]) == 0
@@ -98,7 +102,7 @@ def test_walking_session_simulate_and_run(tmp_path: Path, capsys: pytest.Capture
     assert main(["run", str(tmp_path / "w"), "--solver", "batch", "--json"]) == 0
     batch = json.loads(capsys.readouterr().out)["metrics"]
     assert batch["rmse_m"] < 0.5 * dr["rmse_m"]  # the fixes and the map pull the drift back (measured 0.91 vs 6.8 m)
-    assert (tmp_path / "w" / "trajectory_batch.csv").read_text().startswith("t,x,y,z")
+    assert (tmp_path / "w_trajectory_batch.csv").read_text().startswith("t,x,y,z")
     assert main(["simulate", "walking", "--duration", "5", "--out", str(tmp_path / "x")]) == 2  # shorter than a scorable walk
 
 

@@ -141,3 +141,24 @@ def test_a_stream_on_another_clock_is_named(tmp_path: Path) -> None:
     tracker_ms = "t,qw,qx,qy,qz\n1000,1,0,0,0\n1020,1,0,0,0\n"
     with pytest.raises(SessionError, match=r"stream 'gyro' \(0.000 .. 0.020 s\) does not overlap 'tracker' \(1000.000 .. 1020.000 s\).*\(ms\? ns\?\)"):
         load_session(write_session(tmp_path, GOOD_GYRO, tracker_ms))
+
+
+def test_a_session_built_in_memory_is_validated_by_every_solver() -> None:
+    """NaN, time going back or an unknown key in a Session made in Python: the same clear errors as a loaded one, before
+    any solver runs (not gtsam's 'Indeterminant linear system')."""
+    from dataclasses import replace
+
+    from fusegraph.systems.presets import PRESETS
+
+    session = simulate_head(0, duration_s=2.0)
+    gyro = session.stream("gyro")
+    broken = gyro.values.copy()
+    broken[10, 1] = np.nan
+    for damaged, message in (
+        (replace(gyro, values=broken), "stream 'gyro': sample 10: a value is NaN"),
+        (replace(gyro, t=gyro.t[::-1].copy()), "stream 'gyro': sample 1: time goes backwards"),
+        (replace(gyro, meta={**gyro.meta, "noise_sigma_rad": 0.01}), "unknown key 'noise_sigma_rad'"),
+    ):
+        for solver in ("online", "ekf"):
+            with pytest.raises(SessionError, match=message):
+                PRESETS["head"].solve(replace(session, streams={**session.streams, "gyro": damaged}), solver)

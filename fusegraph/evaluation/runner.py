@@ -42,10 +42,11 @@ def solve_session(session: Session, solver: str) -> Outcome:
 
 
 def run_session(path: str | Path, solver: str, out: str | Path | None = None, plot: str | Path | None = None) -> Outcome:
-    """Load, solve, score; write the estimate CSV (default ``<session>/<stem>_<solver>.csv``) and, if asked, the picture."""
+    """Load, solve, score; write the estimate CSV (default ``./<session folder>_<stem>_<solver>.csv``: in the current
+    folder, never into the recording) and, if asked, the picture."""
     session = load_session(path)
     outcome = solve_session(session, solver)
-    target = Path(out) if out is not None else Path(path) / f"{outcome.preset.estimate_name}_{solver}.csv"
+    target = Path(out) if out is not None else Path.cwd() / f"{Path(path).resolve().name}_{outcome.preset.estimate_name}_{solver}.csv"
     if target.is_dir():
         raise SessionError(f"--out {target}: is a folder; give a file name (e.g. {target / (outcome.preset.estimate_name + '_' + solver + '.csv')})")
     target.parent.mkdir(parents=True, exist_ok=True)

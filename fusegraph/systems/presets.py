@@ -75,6 +75,7 @@ class Preset:
         """Run ``solver`` on ``session``; an unknown solver is an error listing this system's."""
         if solver not in self.solvers:
             raise SessionError(f"--solver {solver}: {self.name} sessions have {', '.join(self.solvers)}")
+        session.validate()
         return self.run(session, solver)
 
 
