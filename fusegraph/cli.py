@@ -167,17 +167,37 @@ def build_parser() -> argparse.ArgumentParser:
                          "oxford: an Oxford step recording folder or the dataset folder -> walking "
                          "sessions with the phone accelerometer and the hand-counted steps (run --solver steps). plaza: Plaza1|Plaza2 (shipped with gtsam) "
                          "-> a walking session driven by wheel odometry with beacon ranges (start found from the ranges). tobii: a Tobii Pro Glasses 3 "
-                         "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth).",
+                         "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth). csv: one stream of a "
+                         "vendor's CSV export mapped onto a kind (--kind, --columns, --units, --time-units), into a new session "
+                         "(--system) or added to one. xdf: a Lab Streaming Layer recording (LabRecorder), its streams mapped "
+                         "with --map onto session streams.",
                          epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
                          "  fusegraph import uwb ../shared/data/uwb_lias --out sessions/uwb\n"
                          "  fusegraph import oxford ../shared/data/steps_oxford --out sessions/oxford\n"
                          "  fusegraph run sessions/oxford --solver steps --out studies/oxford\n"
                          "  fusegraph import plaza Plaza2 --out sessions/plaza2 && fusegraph run sessions/plaza2 --solver batch --json\n"
-                         "  fusegraph import tobii ../shared/data/gaze_tobii --out sessions/tobii && fusegraph run sessions/tobii --solver batch",
+                         "  fusegraph import tobii ../shared/data/gaze_tobii --out sessions/tobii && fusegraph run sessions/tobii --solver batch\n"
+                         "  fusegraph import csv imu.csv --system attitude9 --kind gyro --columns t=Timestamp,wx=GyrX,wy=GyrY,wz=GyrZ "
+                         "--units deg/s --time-units ms --out sessions/mine\n"
+                         "  fusegraph import csv imu.csv --kind accel --columns t=Timestamp,ax=AccX,ay=AccY,az=AccZ --units g --time-units ms "
+                         "--out sessions/mine   # adds a stream\n"
+                         "  fusegraph import xdf run1.xdf --system head --map HMD_gyro=gyro --map Polhemus=tracker:attitude --out sessions/run1",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    imp.add_argument("format", choices=["broad", "oxford", "plaza", "tobii", "uwb"])
+    imp.add_argument("format", choices=["broad", "oxford", "plaza", "tobii", "uwb", "csv", "xdf"])
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
+    imp.add_argument("--system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"],
+                     help="csv, xdf: whose session a new --out folder is (an existing session keeps its own)")
+    imp.add_argument("--kind", help="csv: the stream's kind (`fusegraph sensors` lists them)")
+    imp.add_argument("--name", help="csv: the stream's name in the session (default: the kind; e.g. tracker for an attitude stream)")
+    imp.add_argument("--columns", metavar="t=COL,wx=COL,...", help="csv: the file's column for t and for each column of the kind")
+    imp.add_argument("--units", metavar="UNIT", help="csv: the values' unit when not SI (the kind's accepted units, e.g. deg/s, g); "
+                     "xdf: STREAM=UNIT, repeatable")
+    imp.add_argument("--time-units", default="s", choices=["s", "ms", "us", "ns"], help="csv: the time column's unit (default s)")
+    imp.add_argument("--map", action="append", default=[], metavar="LSL_NAME=STREAM[:KIND]",
+                     help="xdf: an LSL stream of the file as a session stream (KIND defaults to STREAM, e.g. HMD_gyro=gyro, "
+                     "Polhemus=tracker:attitude); repeatable")
+    imp.add_argument("--truth", action="store_true", help="csv: the stream is the session's truth (kind attitude, position, ...)")
     imp.add_argument("--labelled", action="store_true", help="uwb: keep each range's tag as the ranging system reports it (a tag column); "
                      "default: unlabelled, each receiver's distances in arrival order")
 
@@ -412,8 +432,43 @@ def _cmd_import(args: argparse.Namespace) -> int:
 
     if args.labelled and args.format != "uwb":
         raise ValueError("--labelled applies to import uwb only")
+    if args.format in ("csv", "xdf"):
+        return _import_generic(args)
+    given = [flag for flag, value in (("--kind", args.kind), ("--columns", args.columns), ("--map", args.map), ("--system", args.system)) if value]
+    if given:
+        raise ValueError(f"{', '.join(given)}: for import csv / xdf")
     for path in import_recording(args.format, args.source, args.out, labelled=args.labelled):
         print(f"wrote {path}/")
+    return 0
+
+
+def _import_generic(args: argparse.Namespace) -> int:
+    from .datasets.generic import add_to_session, csv_stream, parse_columns, unmapped_xdf_streams, xdf_streams
+
+    if args.format == "csv":
+        if not args.kind or not args.columns:
+            raise ValueError("import csv needs --kind and --columns (e.g. --kind gyro --columns t=Timestamp,wx=GyrX,wy=GyrY,wz=GyrZ)")
+        stream = csv_stream(args.source, args.kind, parse_columns(args.columns, args.kind), args.name, args.units, args.time_units)
+        path = add_to_session(args.out, {stream.name: stream}, args.system, truth=args.truth)
+        print(f"wrote {path}/ (stream '{'truth' if args.truth else stream.name}': {len(stream.t)} samples of {args.kind})")
+        return 0
+    if not args.map:
+        raise ValueError("import xdf needs --map LSL_NAME=STREAM[:KIND] for each stream to use (e.g. --map HMD_gyro=gyro)")
+    mapping: dict[str, tuple[str, str]] = {}
+    for item in args.map:
+        lsl, _, ours = item.partition("=")
+        name, _, kind = ours.partition(":")
+        if not lsl or not name:
+            raise ValueError(f"--map {item!r}: write LSL_NAME=STREAM or LSL_NAME=STREAM:KIND")
+        mapping[lsl] = (name, kind or name)
+    units = dict(u.split("=", 1) for u in (args.units.split(",") if args.units else []) if "=" in u)
+    streams = xdf_streams(args.source, mapping, units)
+    path = add_to_session(args.out, streams, args.system)
+    skipped = unmapped_xdf_streams(args.source, mapping)
+    print(f"wrote {path}/ (" + ", ".join(f"'{n}': {len(s.t)} samples of {s.kind}" for n, s in streams.items()) + ")")
+    if skipped:
+        print(f"warning: {args.source}: LSL stream{'s' if len(skipped) > 1 else ''} {', '.join(repr(n) for n in skipped)} not imported "
+              "(no --map names it)", file=sys.stderr)
     return 0
 
 

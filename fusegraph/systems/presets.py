@@ -58,7 +58,8 @@ class Preset:
     def check_session(self, session: Session) -> None:
         """Top-level keys of session.toml against this preset's (a misspelled key names the nearest)."""
         where = session.where
-        tables: dict[str, list[str]] = {"session": ["system", "description", "world_frame", "scenario", "seed", "profile", "dataset", "trial"]}
+        tables: dict[str, list[str]] = {"session": ["system", "description", "world_frame", "scenario", "seed", "profile", "dataset", "trial",
+                                                  "time_origin_s"]}
         for spec in self.session_keys:
             table, _, key = spec.name.rpartition(".")
             tables.setdefault(table or "session", []).append(key)

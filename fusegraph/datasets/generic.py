@@ -1,0 +1,186 @@
+"""The formats users already have: a vendor's CSV export and a Lab Streaming Layer recording (XDF), mapped onto
+catalogue kinds and written as (or added to) a session directory.
+
+* ``import csv FILE --kind KIND --columns t=Timestamp,wx=GyrX,... [--units deg/s] [--time-units ms]``: one stream.
+  Every column of the kind is named (``fusegraph sensors KIND`` lists them), the time column too; values are converted
+  to SI on import (the kind's accepted units), times to seconds.
+* ``import xdf FILE.xdf --map LSL_NAME=STREAM[:KIND] ...``: every mapped LSL stream (LabRecorder's format, read with
+  ``pyxdf``: its clock offsets applied, so every stream is on the recording machine's clock), each channel in the
+  kind's column order. A stream of the XDF that no ``--map`` names is listed, never silently used.
+
+Into a new folder (``--system`` says whose session it is) or an existing session (the stream is added; the same
+name again is an error). ``--truth`` makes the stream the session's truth instead (kind attitude, position, ...).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..sensors import sensor_catalogue
+from ..session import KIND_COLUMNS, Session, SessionError, Stream, load_session, save_session
+
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+"""``--time-units`` -> seconds per unit."""
+
+
+def parse_columns(text: str, kind: str) -> dict[str, str]:
+    """``t=Timestamp,wx=GyrX,...`` -> {kind column: file column}; every column of the kind and ``t`` must be named."""
+    wanted = ("t", *KIND_COLUMNS[kind])
+    mapping: dict[str, str] = {}
+    for item in text.split(","):
+        ours, sep, theirs = item.partition("=")
+        if not sep or not ours.strip() or not theirs.strip():
+            raise SessionError(f"--columns {text!r}: write OURS=THEIRS pairs, e.g. {','.join(f'{c}=<header of {c}>' for c in wanted)}")
+        if ours.strip() not in wanted:
+            raise SessionError(f"--columns: {ours.strip()!r} is not a column of kind {kind} (its columns: {', '.join(wanted)})")
+        mapping[ours.strip()] = theirs.strip()
+    missing = [c for c in wanted if c not in mapping]
+    if missing:
+        raise SessionError(f"--columns: name the file's column for {', '.join(missing)} too (kind {kind} has {', '.join(wanted)})")
+    return mapping
+
+
+def csv_stream(path: str | Path, kind: str, columns: dict[str, str], name: str | None = None, units: str | None = None,
+               time_units: str = "s", delimiter: str | None = None) -> Stream:
+    """One stream of ``kind`` from a CSV with a header row, its columns picked by ``columns`` (kind column -> header)."""
+    path = Path(path)
+    entry = _entry(kind)
+    factor = _unit_factor(kind, units)
+    if time_units not in TIME_UNITS:
+        raise SessionError(f"--time-units {time_units!r}: one of {', '.join(TIME_UNITS)}")
+    if not path.is_file():
+        raise SessionError(f"{path}: not found")
+    text = path.read_text(encoding="utf-8-sig")
+    dialect_delimiter = delimiter or (csv.Sniffer().sniff(text.splitlines()[0], delimiters=",;\t").delimiter if text.strip() else ",")
+    reader = csv.reader(text.splitlines(), delimiter=dialect_delimiter)
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise SessionError(f"{path}: empty file (expected a header row)") from None
+    absent = [theirs for theirs in columns.values() if theirs not in header]
+    if absent:
+        raise SessionError(f"{path}: column{'s' if len(absent) > 1 else ''} {', '.join(repr(a) for a in absent)} not in the header "
+                           f"(have: {', '.join(header)})")
+    order = [header.index(columns[c]) for c in ("t", *entry.columns)]
+    rows: list[list[float]] = []
+    for line, row in enumerate(reader, start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        try:
+            rows.append([float(row[i]) for i in order])
+        except (ValueError, IndexError):
+            bad = next((header[i] for i in order if i >= len(row) or not _is_number(row[i])), "?")
+            raise SessionError(f"{path}: line {line}: column {bad!r} is not a number") from None
+    if not rows:
+        raise SessionError(f"{path}: no samples after the header")
+    table = np.asarray(rows, dtype=float)
+    t = table[:, 0] * TIME_UNITS[time_units]
+    meta: dict[str, object] = {"description": f"imported from {path.name} ({', '.join(f'{k}={v}' for k, v in columns.items())}"
+                                              + (f"; converted from {units}" if units else "") + ")"}
+    return Stream(name or kind, kind, t, table[:, 1:] * factor, entry.columns, 0.0, meta)
+
+
+def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: dict[str, str] | None = None) -> dict[str, Stream]:
+    """The mapped streams of an XDF file: LSL stream name -> (our stream name, kind); ``units`` by our stream name."""
+    import pyxdf
+
+    path = Path(path)
+    if not path.is_file():
+        raise SessionError(f"{path}: not found")
+    try:
+        found, _ = pyxdf.load_xdf(str(path))
+    except Exception as exc:  # noqa: BLE001 - pyxdf's own errors are many kinds; name the file
+        raise SessionError(f"{path}: not a readable XDF file ({type(exc).__name__}: {exc})") from None
+    by_name = {str(s["info"]["name"][0]): s for s in found}
+    unknown = [n for n in mapping if n not in by_name]
+    if unknown:
+        raise SessionError(f"{path}: no LSL stream {', '.join(repr(n) for n in unknown)} (the file has: {', '.join(by_name) or 'none'})")
+    out: dict[str, Stream] = {}
+    for lsl_name, (name, kind) in mapping.items():
+        entry = _entry(kind)
+        xdf = by_name[lsl_name]
+        values = np.asarray(xdf["time_series"], dtype=float)
+        t = np.asarray(xdf["time_stamps"], dtype=float)
+        if values.ndim != 2 or values.shape[1] != len(entry.columns):
+            raise SessionError(f"{path}: LSL stream {lsl_name!r} has {values.shape[1] if values.ndim == 2 else 1} channels; kind {kind} "
+                               f"needs {len(entry.columns)} ({', '.join(entry.columns)})")
+        if not len(t):
+            raise SessionError(f"{path}: LSL stream {lsl_name!r} holds no samples")
+        unit = (units or {}).get(name)
+        out[name] = Stream(name, kind, t, values * _unit_factor(kind, unit), entry.columns, 0.0,
+                           {"description": f"LSL stream {lsl_name!r} of {path.name}" + (f"; converted from {unit}" if unit else "")})
+    return out
+
+
+def unmapped_xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]]) -> list[str]:
+    """LSL streams in the file that no ``--map`` names (reported, never used)."""
+    import pyxdf
+
+    found, _ = pyxdf.load_xdf(str(path))
+    return [str(s["info"]["name"][0]) for s in found if str(s["info"]["name"][0]) not in mapping]
+
+
+def add_to_session(out: str | Path, streams: dict[str, Stream], system: str | None, truth: bool = False) -> Path:
+    """Write ``streams`` as a new session in ``out`` (``system`` required) or add them to the session already there.
+    Times start at zero at the first sample of the new session (an added stream is moved by the same origin)."""
+    root = Path(out)
+    if (root / "session.toml").is_file():
+        session = load_session(root)
+        if system is not None and system != session.system:
+            raise SessionError(f"{root / 'session.toml'}: a {session.system} session; --system {system} does not match")
+        origin = float(session.meta.get("session", {}).get("time_origin_s", 0.0))
+    else:
+        if system is None:
+            raise SessionError(f"--out {root}: a new session: say whose with --system (head, attitude9, gaze, bicycle, walking, ultrasonic)")
+        if root.exists() and any(root.iterdir()):
+            raise SessionError(f"--out {root}: a folder with other files and no session.toml; give a new folder or a session to add to")
+        origin = min(float(s.t[0]) for s in streams.values())
+        session = Session(system, {}, None, {"session": {"system": system, "time_origin_s": origin,
+                                                         "description": "imported (times from time_origin_s on the source's clock)"}})
+    moved = {name: replace(s, t=s.t - origin) for name, s in streams.items()}
+    if truth:
+        if len(moved) != 1:
+            raise SessionError("--truth: one stream at a time becomes the truth")
+        if session.truth is not None:
+            raise SessionError(f"{root / 'session.toml'}: already has a truth (remove [truth] first to replace it)")
+        (stream,) = moved.values()
+        session = replace(session, truth=replace(stream, name="truth"))
+    else:
+        clash = [n for n in moved if n in session.streams]
+        if clash:
+            raise SessionError(f"{root / 'session.toml'}: already has stream {', '.join(repr(c) for c in clash)} (import it under another --name)")
+        session = replace(session, streams={**session.streams, **moved})
+    session = replace(session, path=None)
+    for name, stream in session.streams.items():
+        if not np.all(np.diff(stream.t) >= 0):
+            raise SessionError(f"stream {name!r}: times go backwards (is --columns t= the time column?)")
+    return save_session(session, root)
+
+
+def _entry(kind: str):  # type: ignore[no-untyped-def]
+    catalogue = sensor_catalogue()
+    if kind not in catalogue:
+        raise SessionError(f"--kind {kind!r}: not a stream kind (kinds: {', '.join(catalogue)})")
+    return catalogue[kind]
+
+
+def _unit_factor(kind: str, units: str | None) -> float:
+    if units is None:
+        return 1.0
+    conversions = _entry(kind).unit_conversions
+    if units not in conversions:
+        accepted = ", ".join(conversions) or "none: the kind has one unit"
+        raise SessionError(f"--units {units!r}: kind {kind} converts {accepted}")
+    return float(conversions[units])
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

@@ -1,0 +1,99 @@
+"""import csv and import xdf on files the tests write: a vendor-style CSV export and a LabRecorder-style XDF file of a
+simulated session give back the session's streams (converted to SI), and the same figures when run."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusegraph.cli import main
+from fusegraph.scenarios import SIMULATORS
+from fusegraph.session import load_session, save_session
+
+
+def _run_json(path: Path, solver: str, capsys: pytest.CaptureFixture[str]) -> dict[str, float]:
+    capsys.readouterr()
+    assert main(["run", str(path), "--solver", solver, "--json"]) == 0
+    return json.loads(capsys.readouterr().out)["metrics"]
+
+
+def test_import_csv_maps_a_vendor_export_onto_the_catalogue(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    session = SIMULATORS["attitude9"].simulate(3, 6.0).without("mag_cal")  # no calibration recording on either side
+    save_session(session, tmp_path / "original")
+    gyro, accel, mag = (session.stream(n) for n in ("gyro", "accel", "mag"))
+    # a vendor's export: milliseconds, deg/s, g, its own column names, semicolons
+    rows = np.column_stack([1000.0 * gyro.t, np.degrees(gyro.values), accel.values / 9.80665, mag.values])
+    header = "Timestamp;GyrX;GyrY;GyrZ;AccX;AccY;AccZ;MagX;MagY;MagZ"
+    np.savetxt(tmp_path / "export.csv", rows, delimiter=";", header=header, comments="", fmt="%.17g")
+    truth = session.truth
+    assert truth is not None
+    np.savetxt(tmp_path / "optical.csv", np.column_stack([1000.0 * truth.t, truth.values]), delimiter=",", header="time,w,x,y,z", comments="", fmt="%.17g")
+    out = tmp_path / "mine"
+    common = ["--time-units", "ms", "--out", str(out)]
+    assert main(["import", "csv", str(tmp_path / "export.csv"), "--system", "attitude9", "--kind", "gyro", "--units", "deg/s",
+                 "--columns", "t=Timestamp,wx=GyrX,wy=GyrY,wz=GyrZ", *common]) == 0
+    accel_columns = "t=Timestamp,ax=AccX,ay=AccY,az=AccZ"
+    assert main(["import", "csv", str(tmp_path / "export.csv"), "--kind", "accel", "--units", "g", "--columns", accel_columns, *common]) == 0
+    assert main(["import", "csv", str(tmp_path / "export.csv"), "--kind", "mag", "--columns", "t=Timestamp,mx=MagX,my=MagY,mz=MagZ", *common]) == 0
+    assert main(["import", "csv", str(tmp_path / "optical.csv"), "--kind", "attitude", "--truth", "--columns", "t=time,qw=w,qx=x,qy=y,qz=z", *common]) == 0
+    imported = load_session(out)
+    np.testing.assert_allclose(imported.stream("gyro").values, gyro.values, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(imported.stream("accel").t + imported.meta["session"]["time_origin_s"], accel.t, atol=1e-9)
+    ours, theirs = _run_json(out, "online", capsys), _run_json(tmp_path / "original", "online", capsys)
+    assert ours["total_deg"] == pytest.approx(theirs["total_deg"], abs=1e-6)  # deg: only the unit conversions' rounding differs
+    # mistakes a user makes, each one clear line
+    assert main(["import", "csv", str(tmp_path / "export.csv"), "--kind", "gyro", "--columns", "t=Timestamp,wx=GyrX,wy=GyrY", *common]) == 2
+    assert "name the file's column for wz too" in capsys.readouterr().err
+    assert main(["import", "csv", str(tmp_path / "export.csv"), "--kind", "gyro", "--columns", "t=Timestamp,wx=GX,wy=GyrY,wz=GyrZ",
+                 "--out", str(tmp_path / "x"), "--system", "attitude9"]) == 2
+    assert "'GX' not in the header" in capsys.readouterr().err
+    assert main(["import", "csv", str(tmp_path / "export.csv"), "--kind", "gyro", "--columns", "t=Timestamp,wx=GyrX,wy=GyrY,wz=GyrZ", *common]) == 2
+    assert "already has stream 'gyro'" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------- a minimal XDF writer
+
+
+def _chunk(tag: int, content: bytes) -> bytes:
+    return struct.pack("<BQH", 8, len(content) + 2, tag) + content
+
+
+def _xdf(path: Path, streams: list[tuple[str, np.ndarray, np.ndarray]]) -> None:
+    """XDF 1.0 as LabRecorder writes it: file header, a header, samples and a footer per stream (float32 channels)."""
+    data = b"XDF:" + _chunk(1, b"<?xml version='1.0'?><info><version>1.0</version></info>")
+    for sid, (name, t, values) in enumerate(streams, start=1):
+        info = (f"<?xml version='1.0'?><info><name>{name}</name><type>IMU</type><channel_count>{values.shape[1]}</channel_count>"
+                f"<nominal_srate>0</nominal_srate><channel_format>double64</channel_format><created_at>0</created_at></info>")
+        data += _chunk(2, struct.pack("<I", sid) + info.encode())
+        samples = b"".join(struct.pack("<Bd", 8, float(ti)) + struct.pack(f"<{values.shape[1]}d", *row) for ti, row in zip(t, values, strict=True))
+        data += _chunk(3, struct.pack("<I", sid) + struct.pack("<BI", 4, len(t)) + samples)
+        footer = (f"<?xml version='1.0'?><info><first_timestamp>{t[0]}</first_timestamp><last_timestamp>{t[-1]}</last_timestamp>"
+                  f"<sample_count>{len(t)}</sample_count></info>")
+        data += _chunk(6, struct.pack("<I", sid) + footer.encode())
+    path.write_bytes(data)
+
+
+def test_import_xdf_reads_a_lab_streaming_layer_recording(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("pyxdf")
+    session = SIMULATORS["head"].simulate(2, 4.0)
+    gyro, tracker = session.stream("gyro"), session.stream("tracker")
+    offset = 5000.0  # LSL's clock: seconds since the machine started
+    extra = np.zeros((10, 3))
+    _xdf(tmp_path / "run.xdf", [("HMD_gyro", gyro.t + offset, gyro.values), ("Polhemus", tracker.t + offset, tracker.values),
+                                ("Markers", np.arange(10.0) + offset, extra)])
+    capsys.readouterr()
+    assert main(["import", "xdf", str(tmp_path / "run.xdf"), "--system", "head", "--map", "HMD_gyro=gyro", "--map", "Polhemus=tracker:attitude",
+                 "--out", str(tmp_path / "s")]) == 0
+    assert "'Markers' not imported" in capsys.readouterr().err  # nothing silently dropped
+    imported = load_session(tmp_path / "s")
+    assert imported.stream("tracker").kind == "attitude"
+    np.testing.assert_allclose(imported.stream("gyro").values, gyro.values)
+    np.testing.assert_allclose(imported.stream("tracker").t - imported.stream("gyro").t[0], tracker.t - gyro.t[0], atol=1e-9)
+    assert main(["import", "xdf", str(tmp_path / "run.xdf"), "--system", "head", "--map", "Nope=gyro", "--out", str(tmp_path / "t")]) == 2
+    assert "no LSL stream 'Nope' (the file has: HMD_gyro, Polhemus, Markers)" in capsys.readouterr().err
+    assert main(["import", "xdf", str(tmp_path / "run.xdf"), "--system", "head", "--map", "Markers=tracker:attitude", "--out", str(tmp_path / "u")]) == 2
+    assert "has 3 channels; kind attitude needs 4" in capsys.readouterr().err
