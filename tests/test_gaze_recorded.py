@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import requires_shared_data
 
-from fusegraph.evaluation.gaze_recorded import dispersion_deg, fixations, gaze_time_offset
 from fusegraph.factors.gaze import SceneCamera
+from fusegraph.frontends.gaze_timing import dispersion_deg, fixations, gaze_time_offset
 from fusegraph.geometry import matrix_from_quat, quat_from_rotvec
 from fusegraph.scenarios.gaze import GazeScenarioConfig, GazeSession
 
@@ -81,3 +81,24 @@ def test_tobii_export_loads_in_si_units_and_head_axes() -> None:
     assert inside.mean() > 0.9  # pixels from the centre of the 1920 x 1080 image (the eyes look past its edge at times: 7 %)
     data = from_session(session)
     assert data.config.target_depth_m == 2.0 and data.config.camera.focal_px == 880.0
+
+
+@requires_shared_data("gaze_tobii")
+def test_the_recorded_gaze_bench_is_the_report_of_the_imported_session(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """`import tobii` + `report gaze DIR --json` gives the bench's dispersions to the last digit: the import declares the
+    gaze delay and the unusable magnetometer, every solver applies them."""
+    import json
+
+    from fusegraph.cli import main
+    from fusegraph.datasets.tobii import DEFAULT_DIR
+    from fusegraph.evaluation.gaze_recorded import ROWS, bench_gaze_recorded
+
+    bench = bench_gaze_recorded(DEFAULT_DIR)
+    assert main(["import", "tobii", str(DEFAULT_DIR), "--out", str(tmp_path / "tobii")]) == 0
+    capsys.readouterr()
+    assert main(["report", "gaze", str(tmp_path / "tobii"), "--solvers", ",".join(ROWS), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["sessions"]["tobii"]
+    for name in ROWS:
+        assert rows[name]["metrics"]["dispersion_deg"] == bench["dispersion_deg"][name], name
+        assert rows[name]["metrics"]["fixations"] == bench["fixations"] >= 5
+    assert not bench["use_mag"] and 0.0 < bench["time_offset_s"] < 0.05

@@ -173,7 +173,7 @@ def test_gap_scores_measure_error_and_nees_inside_the_gap_only() -> None:
     angle there is 2 deg and the NEES (2/1)^2 = 4; samples outside the gap do not count (exact figures:
     the error is constructed)."""
     from fusegraph.estimate import Estimate
-    from fusegraph.systems.presets import gap_scores
+    from fusegraph.metrics import gap_scores
 
     t = np.linspace(0.0, 10.0, 101)
     truth = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))

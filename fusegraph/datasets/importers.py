@@ -51,9 +51,7 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
             return [save_session(session, out / name) for name, session in found]
         return [save_session(found[0][1], out)]
     if fmt == "tobii":
-        from .tobii import load_tobii
-
-        return [save_session(_portable(load_tobii(source)), out)]
+        return [save_session(tobii_session(source), out)]
     raise SessionError(f"unknown format {fmt!r} (known: broad, oxford, plaza, tobii, uwb)")
 
 
@@ -116,6 +114,38 @@ def oxford_session(directory: Path, name: str) -> Session:
                           "description": f"phone carried in the {rec.position}; accelerometer only"},
               "truth_extra": truth_extra}
     return Session("walking", {"accel": accel}, None, header)
+
+
+EARTH_FIELD_UT = (25.0, 65.0)
+"""The Earth's field strength anywhere on its surface, uT (the World Magnetic Model's range)."""
+
+
+def tobii_session(directory: Path) -> Session:
+    """A Tobii Pro Glasses 3 export as a gaze session, with what the data alone tells declared for every method:
+
+    * the gaze stream's delay behind the IMU (``time_offset_s``, ``frontends.gaze_timing.gaze_time_offset``: the gaze
+      and the gyro, no method's estimate), which every solver applies;
+    * whether the magnetometer can serve: a median field strength outside the Earth's (25-65 uT) with no calibration
+      recording is a field of the glasses themselves that the recording cannot calibrate: ``use_mag = false``, the
+      reason in the description (the shipped recording reads 110-131 uT).
+    """
+    from dataclasses import replace
+
+    from ..frontends.gaze_timing import gaze_time_offset
+    from ..systems.gaze import from_session
+    from .tobii import load_tobii
+
+    session = _portable(load_tobii(directory))
+    offset, sigma = gaze_time_offset(from_session(session))
+    gaze = session.stream("gaze")
+    streams = {**session.streams, "gaze": replace(gaze, meta={**gaze.meta, "time_offset_s": offset, "time_offset_sigma_s": sigma})}
+    header = dict(session.meta["session"])
+    field = float(np.median(np.linalg.norm(session.stream("mag").values, axis=1)))
+    if not EARTH_FIELD_UT[0] <= field <= EARTH_FIELD_UT[1] and "mag_cal" not in session.streams:
+        header["use_mag"] = False
+        header["description"] = (f"{header.get('description', '')}; the magnetometer reads {field:.0f} uT (the Earth's field is "
+                                 f"{EARTH_FIELD_UT[0]:g}-{EARTH_FIELD_UT[1]:g}) with no calibration recording: not used (use_mag = false)")
+    return replace(session, streams=streams, meta={**session.meta, "session": header})
 
 
 def _portable(session: Session) -> Session:

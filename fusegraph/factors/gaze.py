@@ -129,6 +129,9 @@ CATALOGUE = (
             KeySpec("width_px", 640, "image width, px"),
             KeySpec("height_px", 480, "image height, px"),
             KeySpec("pixel_sigma", 5.0, "gaze noise, px"),
+            KeySpec("time_offset_s", 0.0, "the gaze stamps' delay behind the IMU's clock, s: every method takes a sample at stamp - "
+                    "time_offset_s (import tobii finds it from the gaze and the gyro alone)"),
+            KeySpec("time_offset_sigma_s", None, "the offset's uncertainty, s (documentation)"),
         ),
         check=_pixels_in_view,
     ),

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from ..geometry import FloatArray
+from ..records import RangeEpochs
 
 
 def _assign(chi2: FloatArray, gate_chi2: float) -> np.ndarray:
@@ -182,3 +183,35 @@ def _explain(point: FloatArray, receivers: FloatArray, available: list[FloatArra
         if len(used) >= 3:
             point = refine(point, receivers[[r for r, _ in used]], np.array([available[r][j] for r, j in used]))
     return Located(point, len(used), used)
+
+
+def association_self_check(epochs: RangeEpochs, positions: FloatArray) -> float:
+    """Association accuracy to expect from the geometry alone, no labels, no truth.
+
+    Per epoch (every tenth) and receiver that heard every tag, every assignment of the measured ranges to the
+    tracked tags (``positions`` (K, T, 3)) is costed; the range noise is the robust spread of the best
+    assignments' residuals. A range set is told apart when the best assignment beats the second best by more
+    than 4 (chi-square: 2 sigma); otherwise it is a guess (right 1 time in T). Returns told + (1 - told) / T.
+    """
+    import itertools
+
+    tags = positions.shape[1]
+    perms = np.array(list(itertools.permutations(range(tags))))
+    best, second, residuals = [], [], []
+    for k in range(0, len(epochs.t), 10):  # every tenth epoch: the figure is a mean
+        predicted = np.linalg.norm(epochs.receivers[:, None, :] - positions[k][None, :, :], axis=2)  # (R, T)
+        for a in range(len(epochs.receivers)):
+            measured = np.sort(epochs.ranges[k][a][np.isfinite(epochs.ranges[k][a])])
+            if len(measured) != tags or not np.all(np.isfinite(predicted[a])):
+                continue
+            costs = ((measured[None, :] - predicted[a][perms]) ** 2).sum(axis=1)
+            order = np.argsort(costs)
+            best.append(costs[order[0]])
+            second.append(costs[order[1]])
+            residuals.append(measured - predicted[a][perms[order[0]]])
+    if not best:
+        return float("nan")
+    spread = np.concatenate(residuals)
+    sigma = 1.4826 * float(np.median(np.abs(spread - np.median(spread))))  # robust sigma of the residuals
+    told = float(np.mean((np.array(second) - np.array(best)) / max(sigma, 1e-3) ** 2 > 4.0))
+    return told + (1.0 - told) / tags

@@ -246,9 +246,22 @@ def from_session(session: Session) -> GazeSession:
     truth = np.full((len(gaze_stream), 2), np.nan)
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream):
         truth = session.truth.values[:, 1:3].copy()
-    return GazeSession(t=t, gyro_rad_s=imu["gyro"].values, accel_m_s2=imu["accel"].values, mag=imu["mag"].values, tracker_t=gaze_stream.t,
+    tracker_t = gaze_stream.t - float(gaze_stream.meta.get("time_offset_s", 0.0))  # a sample at stamp - the declared delay
+    return GazeSession(t=t, gyro_rad_s=imu["gyro"].values, accel_m_s2=imu["accel"].values, mag=imu["mag"].values, tracker_t=tracker_t,
                        gaze_px=gaze_stream.values, truth_quat_wxyz=np.full((len(t), 4), np.nan), truth_gaze_xz_m=truth, config=config,
                        head_tracker=attitude_tracker(session))
+
+
+def wall_points(session: GazeSession, world_R_head: FloatArray) -> FloatArray:
+    """Where each gaze ray, turned by a head attitude (quaternions at the gaze samples), meets the wall x = ``wall_m``
+    (or the plane at ``target_depth_m``): (X, Z) = (world y, z), metres; NaN where the ray does not reach it."""
+    from ..geometry import matrix_from_quat
+
+    depth = session.config.wall_m if session.config.target_depth_m is None else session.config.target_depth_m
+    rays = np.einsum("nij,nj->ni", matrix_from_quat(world_R_head), session.config.camera.ray(session.gaze_px))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(rays[:, 0] > 1e-6, depth / rays[:, 0], np.nan)
+    return rays[:, 1:] * scale[:, None]
 
 
 def block_size(session: GazeData, model: GazeModel, rate_hz: float | None = None) -> int:

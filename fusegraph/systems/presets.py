@@ -104,7 +104,7 @@ def _head_run(session: Session, solver: str) -> Result:
 
 
 def _head_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    from ..metrics import AXES, score_attitude
+    from ..metrics import AXES, gap_scores, score_attitude
 
     truth = session.truth
     if truth is None or not isinstance(estimate, Estimate):
@@ -122,27 +122,6 @@ def _head_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     if gaps:
         out.update(gap_scores(estimate, truth.t, truth.values, gaps))
     return out
-
-
-def gap_scores(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, gaps: list[tuple[float, float]]) -> dict[str, Any]:
-    """Scores over the truth samples strictly inside the tracker's gaps: ``gap_rms_deg`` per axis, ``gap_max_deg``
-    (largest attitude error angle) and ``gap_nees`` (mean NEES there; None without covariances), so a long dropout
-    shows whether the error stays bounded and the covariance grows with it."""
-    from ..metrics import AXES, body_errors, euler_errors, nees
-
-    inside = np.zeros(len(truth_t), dtype=bool)
-    for a, b in gaps:
-        inside |= (truth_t > a) & (truth_t < b)
-    if not inside.any():
-        return {"gap_rms_deg": dict.fromkeys(AXES, float("nan")), "gap_max_deg": float("nan"), "gap_nees": None}
-    errors = np.rad2deg(euler_errors(estimate.quat_wxyz[inside], truth_quat[inside]))
-    # a method with no estimate inside the gap fails there (NaN), it does not escape it
-    rms = np.sqrt(np.mean(errors**2, axis=0))
-    angle = np.rad2deg(np.linalg.norm(body_errors(estimate.quat_wxyz[inside], truth_quat[inside]), axis=1))
-    gap_nees = None
-    if estimate.cov is not None:
-        gap_nees = float(np.nanmean(nees(estimate.quat_wxyz[inside], estimate.cov[inside], truth_quat[inside])))
-    return {"gap_rms_deg": dict(zip(AXES, (float(v) for v in rms), strict=True)), "gap_max_deg": float(np.max(angle)), "gap_nees": gap_nees}
 
 
 # --------------------------------------------------------------------------------- attitude9
@@ -169,20 +148,46 @@ def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | Non
 
 
 def _gaze_run(session: Session, solver: str) -> Result:
+    from dataclasses import replace
+
+    from ..baselines.ekf_gaze import GazeEkfConfig
+    from ..frontends.gaze_timing import gyro_attitude
     from . import gaze
 
     data = gaze.from_session(session)
-    result = gaze.RUNNERS[solver](data)  # type: ignore[operator]
-    return PointEstimate(solver, data.tracker_t.copy(), np.asarray(result.points_xz_m)[:, None, :], ("X_m", "Z_m"), float(result.runtime_s))
+    use_mag = bool(session.meta.get("session", {}).get("use_mag", True))
+    start = time.perf_counter()
+    if solver in ("gyro", "head_frame"):
+        attitude = gyro_attitude(data) if solver == "gyro" else np.tile([1.0, 0.0, 0.0, 0.0], (len(data.tracker_t), 1))
+        points = gaze.wall_points(data, attitude)
+        return PointEstimate(solver, data.tracker_t.copy(), points[:, None, :], ("X_m", "Z_m"), time.perf_counter() - start,
+                             {"world_R_head": None if solver == "head_frame" else attitude})
+    if solver == "ekf":
+        result = gaze.run_ekf(data, replace(GazeEkfConfig(), use_mag=use_mag))
+    else:
+        model = gaze.GazeModel() if solver == "online" else gaze.batch_model()
+        model = replace(model, head=replace(model.head, use_mag=use_mag))
+        result = gaze.RUNNERS[solver](data, model)  # type: ignore[operator]
+    return PointEstimate(solver, data.tracker_t.copy(), np.asarray(result.points_xz_m)[:, None, :], ("X_m", "Z_m"), float(result.runtime_s),
+                         {"world_R_head": result.world_R_head})
 
 
 def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
+    """With a true gaze point: RMS on the wall (mm). Without (a recording): the dispersion of the world gaze ray in the
+    fixations with head motion that the gaze and the gyro alone find (``frontends.gaze_timing``), degrees."""
+    from ..frontends.gaze_timing import dispersion_deg, fixations
     from . import gaze
 
     data = gaze.from_session(session)
-    if not np.isfinite(data.truth_gaze_xz_m).any() or not isinstance(estimate, PointEstimate):
+    if not isinstance(estimate, PointEstimate):
         return None
-    return {"rms": gaze.rms_mm(estimate.points[:, 0, :], data)}
+    if np.isfinite(data.truth_gaze_xz_m).any():
+        return {"rms": gaze.rms_mm(estimate.points[:, 0, :], data)}
+    if "world_R_head" not in estimate.extras:
+        return None
+    found = fixations(data, 0.0)  # the stamps are already moved by the declared time_offset_s
+    return {"dispersion_deg": dispersion_deg(estimate.extras["world_R_head"], data, found), "fixations": len(found),
+            "fixation_samples": int(sum(len(f.rows) for f in found))}
 
 
 # ----------------------------------------------------------------------------------- bicycle
@@ -356,13 +361,16 @@ PRESETS: dict[str, Preset] = {
                               "along its first ray, m; the EKF's wall faces its first heading at this distance"),
                       KeySpec("switch_s", None, "simulations: when the subject switches to the second mark, s (documentation)"),
                       KeySpec("gaze_untracked", None, "imports: gaze lines without a measurement (blinks), count (documentation)"),
+                      KeySpec("use_mag", True, "false: no method reads the magnetometer (one that cannot be calibrated: the imports say why)"),
                       KeySpec("mag_rate_hz", None, "imports: the magnetometer's own rate before it was interpolated onto the IMU times, Hz "
                               "(documentation)")),
-        solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)"},
+        solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)",
+                 "gyro": "the raw gyro integrated from identity (no fusion, no bias estimate)",
+                 "head_frame": "no head attitude at all: the gaze in the head frame"},
         run=_gaze_run,
         score=_gaze_score,
         estimate_name="gaze",
-        metric_keys=("rms.x_mm", "rms.z_mm"),
+        metric_keys=("rms.x_mm", "rms.z_mm", "dispersion_deg"),
     ),
     "bicycle": Preset(
         name="bicycle",
