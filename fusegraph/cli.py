@@ -21,7 +21,7 @@ EPILOG = """examples:
 
 
 def _seeds_arg(text: str) -> list[int]:
-    from .evaluation.tuning import parse_seeds
+    from .evaluation.runner import parse_seeds
 
     try:
         return parse_seeds(text)
@@ -379,7 +379,7 @@ def _cmd_sensors(args: argparse.Namespace) -> int:
     if args.kind:
         if args.kind in PRESETS:
             p = PRESETS[args.kind]
-            print(f"system {p.name}: {p.summary}\nstreams: {p.streams}\nsolvers:")
+            print(f"system {p.name}: {p.summary}\nstreams: {p.streams}\ntruth: {p.truth}\naxes: {p.axes}\nsolvers:")
             for name, text in p.solvers.items():
                 print(f"  {name:<16} {text}")
             for key in p.session_keys:
@@ -393,11 +393,11 @@ def _cmd_sensors(args: argparse.Namespace) -> int:
     return 0
 
 
-def system_docs() -> list[tuple[str, str, tuple[Any, ...], tuple[str, ...]]]:
+def system_docs() -> list[tuple[str, str, tuple[Any, ...], tuple[str, ...], str, str]]:
     """Each preset's documentation rows for the catalogue page."""
     from .systems.presets import PRESETS
 
-    return [(p.name, p.streams, p.session_keys, tuple(p.solvers)) for p in PRESETS.values()]
+    return [(p.name, p.streams, p.session_keys, tuple(p.solvers), p.truth, p.axes) for p in PRESETS.values()]
 
 
 def _cmd_run(args: argparse.Namespace) -> int:

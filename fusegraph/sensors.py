@@ -33,10 +33,10 @@ FLAG = SensorKind(
 )
 
 
-def catalogue_markdown(systems: Iterable[tuple[str, str, tuple[KeySpec, ...], tuple[str, ...]]] = ()) -> str:
+def catalogue_markdown(systems: Iterable[tuple[str, str, tuple[KeySpec, ...], tuple[str, ...], str, str]] = ()) -> str:
     """The whole catalogue as Markdown (``docs/sensors.md``); ``systems`` adds each preset's tables.
 
-    ``systems``: (name, streams text, session keys, method names) per system.
+    ``systems``: (name, streams text, session keys, method names, truth file, axis conventions) per system.
     """
     catalogue = sensor_catalogue()
     out = [
@@ -56,9 +56,13 @@ def catalogue_markdown(systems: Iterable[tuple[str, str, tuple[KeySpec, ...], tu
     out += [kind_markdown(e) for e in catalogue.values()]
     systems = list(systems)
     if systems:
-        out += ["# Systems", "", "Keys of `[session]` (and other top-level tables) that each system reads.", ""]
-        for name, streams, keys, methods in systems:
-            out += [f"## system `{name}`", "", f"- streams: {streams}", f"- solvers: {', '.join(f'`{m}`' for m in methods)}", ""]
+        out += ["# Systems", "", "Each system's streams, solvers, truth file, axis conventions and the keys of `[session]` (and other",
+                "top-level tables) it reads.", ""]
+        for name, streams, keys, methods, truth, axes in systems:
+            out += [f"## system `{name}`", "", f"- streams: {streams}", f"- solvers: {', '.join(f'`{m}`' for m in methods)}"]
+            out += [f"- truth: {truth}"] if truth else []
+            out += [f"- axes: {axes}"] if axes else []
+            out.append("")
             if keys:
                 out += ["| key | default | meaning |", "|---|---|---|"]
                 out += [f"| `{k.name}` | {_cell(k.default)} | {k.meaning} |" for k in keys]

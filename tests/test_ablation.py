@@ -103,9 +103,10 @@ def test_a_failing_run_is_a_row_with_its_error_and_the_study_goes_on(tmp_path: P
 def test_without_gyro_the_graph_tracks_with_a_constant_velocity_model() -> None:
     import numpy as np
 
+    from fusegraph.evaluation.ablation import without_gyro
     from fusegraph.metrics import score_attitude
     from fusegraph.scenarios import simulate_head
-    from fusegraph.systems.head import run_batch, without_gyro
+    from fusegraph.systems.head import run_batch
 
     session = simulate_head(3, profile="ideal", duration_s=4.0)
     clock_only, model = without_gyro(session)

@@ -9,7 +9,7 @@ import pytest
 
 from fusegraph.cli import main
 from fusegraph.estimate import Estimate
-from fusegraph.evaluation.tuning import parse_seeds
+from fusegraph.evaluation.runner import parse_seeds
 
 
 def test_simulate_run_and_read_back(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -10,7 +10,7 @@ error; the study goes on.
 Head variants: ``drop tracker`` keeps only the tracker's first sample (the gyro alone, aligned
 once at start-up); ``drop gyro`` leaves the tracker alone: the EKF row becomes the paper's
 tracker-only Kalman filter, and fusegraph runs its graph as a constant-angular-velocity model
-(``systems.head.without_gyro``). ``vary`` names: see ``HEAD_PARAMETERS``.
+(``without_gyro``). ``vary`` names: see ``HEAD_PARAMETERS``.
 """
 
 from __future__ import annotations
@@ -22,13 +22,17 @@ import json
 import time
 import tomllib
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..factors.gyro import GyroNoise
+from ..graphs.head import HeadModel, head_model_for
 from ..progress import progress
+from ..session import Session
+from ..tuned import value as tuned_value
 
 #: ``--vary`` names for the head system -> fields of the head scenario.
 HEAD_PARAMETERS: dict[str, str] = {
@@ -153,7 +157,7 @@ def load_study(path: str | Path) -> Study:
         table = tomllib.loads(path.read_text())["study"]
     except (OSError, tomllib.TOMLDecodeError, KeyError) as exc:
         raise ValueError(f"{path}: cannot read a [study] table ({exc})") from None
-    from .tuning import parse_seeds
+    from .runner import parse_seeds
 
     seeds = table.get("seeds", [0])
     return Study(
@@ -276,7 +280,7 @@ def _solve_head(spec: Mapping[str, Any]) -> tuple[Any, Any, Any]:
         if method == "method2":
             method = "kalman"  # the paper's tracker-only filter; the gyro's clock only sets output times
         else:
-            session, model = head.without_gyro(session)
+            session, model = without_gyro(session)
     truth = session.truth
     assert truth is not None
     return head.run_method(session, method, model), truth.t, truth.values
@@ -522,3 +526,28 @@ def write_summary(summary: Sequence[SummaryRow], out_dir: str | Path) -> list[Pa
     fig.savefig(png, dpi=100)
     plt.close(fig)
     return [csv_path, png]
+
+
+#: Constant-angular-velocity model used when the gyro is dropped (see ``without_gyro``). Its angular-acceleration noise
+#: (rad/s/sqrt(s)) is chosen by ``fusegraph tune head_no_gyro`` on seeds 100-119 (``tuned.toml``).
+NO_GYRO_MODEL = GyroNoise(white_sigma_rad_s=0.01, bias_rw_sigma=float(tuned_value("head_no_gyro", "bias_rw_sigma")), bias_prior_sigma_rad_s=2.0)
+
+
+def without_gyro(session: Session) -> tuple[Session, HeadModel]:
+    """The session with the gyro reduced to a clock, and the model that makes the graph tracker-only.
+
+    With every measured rate zero, the gyro model omega = omega_measured - bias makes the "bias" minus
+    the angular velocity: each AHRSFactor becomes X(k+1) = X(k) Exp(omega dt) and the bias random walk
+    an angular-velocity random walk (``bias_rw_sigma`` is then the angular-acceleration noise, rad/s
+    per sqrt(s)). So the same graph, solvers and latency handling run a constant-angular-velocity
+    model on the tracker alone; the clock only says when to report.
+    """
+    gyro = session.stream("gyro")
+    clock = replace(gyro, values=np.zeros_like(gyro.values), meta={**gyro.meta, "calibrated": True})
+    tracker_only = replace(session, streams={**session.streams, "gyro": clock})
+    model = replace(head_model_for(tracker_only), gyro=replace(NO_GYRO_MODEL, sample_rate_hz=float(gyro.meta.get("rate_hz", 100.0))), gyro_calibration=None)
+    # no gyro to carry a reading between keyframes with: a keyframe per tracker sample (its period)
+    stamps = session.stream("tracker").t
+    if len(stamps) > 1:
+        model = replace(model, keyframe_period_s=float(np.median(np.diff(stamps))))
+    return tracker_only, model

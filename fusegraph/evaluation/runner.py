@@ -5,6 +5,7 @@ Library functions that ``fusegraph run`` and ``fusegraph report`` wrap; generic 
 
 from __future__ import annotations
 
+import argparse
 import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -312,3 +313,20 @@ def simulated_sessions(system: str, seeds: Sequence[int], duration_s: float | No
     from ..scenarios import SIMULATORS
 
     return [(f"seed{seed}", SIMULATORS[system].simulate(seed, duration_s, **options)) for seed in seeds]
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0-9`` or ``0,3,5`` or ``0-4,8`` -> list of seeds."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        if "-" in part[1:]:
+            lo, hi = part.split("-", 1) if not part.startswith("-") else (part, part)
+            seeds.extend(range(int(lo), int(hi) + 1))
+        else:
+            seeds.append(int(part))
+    if not seeds:
+        raise argparse.ArgumentTypeError(f"no seeds in {text!r} (use e.g. 0-9 or 0,2,5)")
+    return seeds

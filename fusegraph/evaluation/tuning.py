@@ -326,7 +326,8 @@ def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
     from dataclasses import replace
 
     from ..metrics import score_attitude
-    from ..systems.head import run_isam2, without_gyro
+    from ..systems.head import run_isam2
+    from .ablation import without_gyro
 
     session = _simulated("head", seed)
     tracker_only, model = without_gyro(session)
@@ -440,18 +441,3 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``0-9`` or ``0,3,5`` or ``0-4,8`` -> list of seeds."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        if "-" in part[1:]:
-            lo, hi = part.split("-", 1) if not part.startswith("-") else (part, part)
-            seeds.extend(range(int(lo), int(hi) + 1))
-        else:
-            seeds.append(int(part))
-    if not seeds:
-        raise argparse.ArgumentTypeError(f"no seeds in {text!r} (use e.g. 0-9 or 0,2,5)")
-    return seeds

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..baselines.ekf import HeadEkfConfig, run_head_ekf
 from ..estimate import Estimate
-from ..factors.gyro import GyroNoise, integrate_gyro
+from ..factors.gyro import integrate_gyro
 from ..geometry import (
     FloatArray,
     matrix_from_quat,
@@ -37,7 +37,7 @@ from ..progress import progress as progress_bar
 from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
 from ..solvers.online import OnlineConfig, OnlineSmoother
-from ..tuned import tuned, value
+from ..tuned import tuned
 
 P = ParamSpec("P")
 
@@ -610,26 +610,3 @@ def run_method(session: Session, method: str, model: HeadModel | None = None) ->
 # ------------------------------------------------------------------------------ without a gyro
 
 
-#: Constant-angular-velocity model used when the gyro is dropped (see ``without_gyro``). Its angular-acceleration noise
-#: (rad/s/sqrt(s)) is chosen by ``fusegraph tune head_no_gyro`` on seeds 100-119 (``tuned.toml``).
-NO_GYRO_MODEL = GyroNoise(white_sigma_rad_s=0.01, bias_rw_sigma=float(value("head_no_gyro", "bias_rw_sigma")), bias_prior_sigma_rad_s=2.0)
-
-
-def without_gyro(session: Session) -> tuple[Session, HeadModel]:
-    """The session with the gyro reduced to a clock, and the model that makes the graph tracker-only.
-
-    With every measured rate zero, the gyro model omega = omega_measured - bias makes the "bias" minus
-    the angular velocity: each AHRSFactor becomes X(k+1) = X(k) Exp(omega dt) and the bias random walk
-    an angular-velocity random walk (``bias_rw_sigma`` is then the angular-acceleration noise, rad/s
-    per sqrt(s)). So the same graph, solvers and latency handling run a constant-angular-velocity
-    model on the tracker alone; the clock only says when to report.
-    """
-    gyro = session.stream("gyro")
-    clock = replace(gyro, values=np.zeros_like(gyro.values), meta={**gyro.meta, "calibrated": True})
-    tracker_only = replace(session, streams={**session.streams, "gyro": clock})
-    model = replace(head_model_for(tracker_only), gyro=replace(NO_GYRO_MODEL, sample_rate_hz=float(gyro.meta.get("rate_hz", 100.0))), gyro_calibration=None)
-    # no gyro to carry a reading between keyframes with: a keyframe per tracker sample (its period)
-    stamps = session.stream("tracker").t
-    if len(stamps) > 1:
-        model = replace(model, keyframe_period_s=float(np.median(np.diff(stamps))))
-    return tracker_only, model

@@ -54,6 +54,10 @@ class Preset:
     """Scalar metrics a study summarises (keys of ``score``'s result, flattened with dots)."""
     notes: tuple[str, ...] = field(default_factory=tuple)
     """Further lines of documentation (``fusegraph sensors``)."""
+    truth: str = ""
+    """The truth file a session may carry: kind, columns, frame, units and the times it must be on (documentation)."""
+    axes: str = ""
+    """The axis and sign conventions the streams need (documentation)."""
 
     def check_session(self, session: Session) -> None:
         """Top-level keys of session.toml against this preset's (a misspelled key names the nearest)."""
@@ -332,6 +336,11 @@ PRESETS: dict[str, Preset] = {
                  "ekf": "the paper's Method II (joint update)", "method1": "the paper's Method I (sequential updates)",
                  "kalman": "the paper's tracker-only Kalman filter", "tracker": "the latest arrived tracker sample", "gyro": "dead reckoning",
                  "method2_paper_values": "Method II with the paper's own noise figures (ekf/method1/method2/kalman are tuned on seeds 100-119)"},
+        truth="truth.csv, kind attitude: t, qw, qx, qy, qz (scalar first), world_R_head (a head-frame vector to the world), a lag-free "
+        "reference at the gyro's sample times; scored per axis (azimuth, elevation, roll) after the first second",
+        axes="gyro: the head's angular rate in the head frame, rad/s (any right-handed head frame: simulations use x forward, y left, "
+        "z up); tracker: world_R_head of the SAME head frame in the tracker's world, scalar first, stamped with its sample time "
+        "(latency_s: how much later it arrives); accel (optional): specific force in the head frame, +9.81 m/s^2 up at rest",
         run=_head_run,
         score=_head_score,
         metric_keys=("rms_deg.azimuth", "rms_deg.elevation", "rms_deg.roll", "nees"),
@@ -347,6 +356,12 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("truth_extra.mag_offset_uT", None, "simulations: the true magnetometer offset (documentation)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (two passes: the field model from the first)", "ekf": "the papers' 9-axis EKF on roll-pitch-yaw",
                  "vqf": "VQF online (the peer)", "vqf_offline": "VQF offline (the peer)"},
+        truth="truth.csv, kind attitude: t, qw, qx, qy, qz, world_R_sensor with the world ENU (east, north, up), at the IMU's sample "
+        "times; NaN rows where the reference lost the sensor (occluded markers); scored where the optional movement flag is 1 (BROAD's "
+        "metric: total, heading, inclination RMSE, no alignment of any kind)",
+        axes="gyro, accel, mag: one right-handed sensor frame, sampled together; accel is specific force (reads +9.81 m/s^2 along "
+        "the sensor's up at rest); mag in any unit (say which in unit), calibrated by calibration_gain/offset or a mag_cal recording; "
+        "heading is to magnetic north (world ENU with y = magnetic north)",
         run=_attitude9_run,
         score=_attitude9_score,
         metric_keys=("total_deg", "heading_deg", "inclination_deg"),
@@ -367,6 +382,13 @@ PRESETS: dict[str, Preset] = {
         solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)",
                  "gyro": "the raw gyro integrated from identity (no fusion, no bias estimate)",
                  "head_frame": "no head attitude at all: the gaze in the head frame"},
+        truth="truth.csv, kind position: t, x, y, z, the true gaze point in the world (ENU; the wall is x = wall_m) at the gaze samples' "
+        "times (one row per gaze sample); scored as RMS of X = world y and Z = world z in mm. Without truth (a recording): the "
+        "dispersion of the world gaze ray in the fixations with head motion that the gaze and gyro find, degrees",
+        axes="head IMU (gyro, accel, mag sampled together) in the head frame: x forward (the scene camera's optical axis), y left, "
+        "z up; gaze pixels (u, v) from the image centre, u to the RIGHT and v UP, in the head-fixed scene camera (focal_px, width_px, "
+        "height_px); a tracker's v pointing down or pixels from the top-left corner must be converted; time_offset_s: the gaze stamps' "
+        "delay behind the IMU",
         run=_gaze_run,
         score=_gaze_score,
         estimate_name="gaze",
@@ -380,6 +402,10 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("brake_s", None, "start of the braking phase that the report scores, s")),
         solvers={"online": "iSAM2 causal, both bodies in one graph", "batch": "smoother", "ekf": "the paper's pipeline (frame EKF -> subtract -> thigh EKF)",
                  "paper_pipeline": "same as ekf", "no_removal": "the thigh EKF alone"},
+        truth="truth.csv, kind attitude: t, qw, qx, qy, qz, world_R_thigh (ENU) at the IMU sample times (one row per sample); scored "
+        "as thigh pitch and roll RMS in the braking phase brake_s .. brake_s + 5 s",
+        axes="thigh_* and frame_* gyro, accel, mag: each IMU in its own right-handed frame, all six streams sampled together; the "
+        "frame IMU's x along the bicycle's direction of travel (the non-holonomic factor assumes it); accel is specific force",
         run=_bicycle_run,
         score=_bicycle_score,
         metric_keys=("rms.pitch_deg", "rms.roll_deg"),
@@ -400,6 +426,12 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("speed_model.slope_s", None, "see intercept_m_s (required)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (wrong fixes rejected at 5 sigma, solved again)", "ekf": "the paper's Kalman framework",
                  "dead_reckoning": "steps and rides only", "steps": "step count of the accelerometer alone (a phone's step recording; no trajectory)"},
+        truth="truth.csv, kind position: t, x, y, z of the waist in the building frame (ENU, z up from the ground floor), one row per "
+        "IMU sample (a vehicle: per odometry row); scored as RMSE and final error, m. An accelerometer-only recording: the hand "
+        "count as [truth_extra] steps",
+        axes="waist gyro and accel sampled together in the sensor's own frame (its orientation on the belt is found from gravity and "
+        "the walking direction); accel specific force; fixes (kind pose): x, y, z, yaw in the building frame, yaw from east "
+        "counter-clockwise; wheel_odometry: per-row distance and heading change",
         run=_walking_run,
         score=_walking_score,
         estimate_name="trajectory",
@@ -413,6 +445,11 @@ PRESETS: dict[str, Preset] = {
                               "and applied to the truth, s (documentation)"),),
         solvers={"online": "association + multiple-model tracks per epoch", "batch": "the tracks smoothed over the session with the online association",
                  "combinatorial": "the paper's combinatorial search per epoch"},
+        truth="truth.csv, kind tag_position: t, tag, x, y, z, one row per tag at each range epoch's time (the same t as ranges.csv), "
+        "room frame (receivers_m's); scored by matching tags to the truth each epoch: association accuracy, RMSE, track loss (in x, y "
+        "when planar); the optional truth_label column of ranges.csv (scoring only)",
+        axes="receivers_m in a room frame (z up, ceiling receivers above the tags); one row per distance heard, the rows of an epoch "
+        "sharing t; ranges in metres (a UWB export in mm must be converted); tag_offsets_m in the rigid body's frame",
         run=_ultrasonic_run,
         score=_ultrasonic_score,
         estimate_name="tags",
