@@ -216,6 +216,8 @@ def build_parser() -> argparse.ArgumentParser:
     tun.add_argument("--seeds", type=_seeds_arg, help="tuning seeds (default 100-119; test seeds 0-9 are refused)")
     tun.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias: which estimate they tune")
     tun.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml, which the reports and benches read")
+    tun.add_argument("--sessions", nargs="+", type=Path, default=[], metavar="DIR",
+                     help="BROAD studies: choose on these sessions (or folders of them, e.g. imported trials) by leave-one-recording-out")
     tun.add_argument("--workers", type=int, default=1, help="processes scoring the grid: a simulated study's settings, or BROAD's trials (default 1)")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
@@ -691,6 +693,8 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     from .evaluation.tuning import main as tune_main
 
     argv = [args.study, "--solver", args.solver, "--workers", str(args.workers)] + (["--write"] if args.write else [])
+    if args.sessions:
+        argv += ["--sessions", *(str(p) for p in args.sessions)]
     if args.seeds:
         argv += ["--seeds", str(min(args.seeds)), str(max(args.seeds))]
     return tune_main(argv)

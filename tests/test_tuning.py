@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from conftest import requires_shared_data
 
 from fusegraph.evaluation.tuning import STUDIES, TEST_SEEDS, TUNING_SEEDS, Study, format_study, run_study
 
@@ -127,3 +128,22 @@ def test_a_broad_bias_point_changes_the_bias_model_only() -> None:
     # the other studies' choices stay as tuned
     assert model.mag == base.mag and model.motion == base.motion and model.gravity == base.gravity
     assert imu.accel_noise_m_s2_sqrt_hz == base.imu.accel_noise_m_s2_sqrt_hz
+
+
+@requires_shared_data("broad")
+def test_a_broad_study_on_imported_sessions_chooses_as_on_the_trial_files(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """`tune broad_online --sessions DIR` (imported trials) gives the trial files' leave-one-trial-out figures exactly."""
+    from fusegraph.cli import main
+    from fusegraph.datasets.broad import DEFAULT_DIR
+    from fusegraph.evaluation.tuning import broad_graph_logo
+
+    trials = [next(DEFAULT_DIR.glob(f"{prefix}_*.mat")) for prefix in ("01", "24")]
+    (tmp_path / "files").mkdir()
+    for trial in trials:
+        (tmp_path / "files" / trial.name).symlink_to(trial)
+        assert main(["import", "broad", str(trial), "--out", str(tmp_path / "sessions" / trial.stem)]) == 0
+    on_files = broad_graph_logo("broad_online", str(tmp_path / "files"))
+    on_sessions = broad_graph_logo("broad_online", sessions=[tmp_path / "sessions"])
+    assert on_sessions["chosen"] == on_files["chosen"] and on_sessions["all"] == on_files["all"]
+    assert on_sessions["cross_validated"] == on_files["cross_validated"]
+    assert set(on_sessions["held_out"]) == {t.stem for t in trials}

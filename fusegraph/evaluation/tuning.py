@@ -115,18 +115,39 @@ def grid_settings(grid: Mapping[str, Sequence[float]]) -> dict[str, dict[str, fl
     return {" ".join(f"{k}={v}" for k, v in point.items()): point for point in points}
 
 
-def broad_ekf_logo(directory: str | None = None) -> dict[str, Any]:
+def recordings(directory: str | None = None, sessions: Sequence[str | Path] = ()) -> list[Path]:
+    """What a BROAD study runs on: session directories (``--sessions``: imported BROAD trials or any attitude9 sessions
+    with truth and a movement flag), else the BROAD trial files (*.mat) in ``directory``."""
+    from ..datasets.broad import DEFAULT_DIR, trial_paths
+    from .runner import session_dirs
+
+    return session_dirs(sessions) if sessions else trial_paths(directory or DEFAULT_DIR)
+
+
+def _recording(path: Path) -> Any:
+    """A recording of a BROAD study as a Session (a session directory, or a trial file)."""
+    from ..datasets.broad import load_broad
+    from ..session import load_session
+
+    if (path / "session.toml").is_file():
+        session = load_session(path)
+        if session.truth is None or "movement" not in session.streams:
+            raise ValueError(f"{path}: a BROAD study needs the truth and the movement flag (an imported BROAD trial has both)")
+        return session
+    return load_broad(path)
+
+
+def broad_ekf_logo(directory: str | None = None, sessions: Sequence[str | Path] = ()) -> dict[str, Any]:
     """The 9-axis EKF's open settings (gyro noise; the accelerometer-noise inflation with | |a| - g |, which no
-    paper has) chosen by leave-one-trial-out on the BROAD trials: total RMSE, degrees."""
+    paper has) chosen by leave-one-trial-out on the BROAD trials (or ``sessions``): total RMSE, degrees."""
     from ..baselines.ekf9 import Ekf9Config, run_ekf9
-    from ..datasets.broad import DEFAULT_DIR, load_broad, trial_paths
     from ..metrics import broad_errors
     from ..systems.attitude9 import imu9, model_for
 
     grid = grid_settings(BROAD_EKF_GRID)
     scores: dict[str, dict[str, float]] = {name: {} for name in grid}
-    for path in trial_paths(directory or DEFAULT_DIR):
-        session = load_broad(path)
+    for path in recordings(directory, sessions):
+        session = _recording(path)
         data, cal = imu9(session), model_for(session).mag_calibration
         movement = session.stream("movement").values[:, 0]
         for name, point in grid.items():
@@ -195,13 +216,11 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
 
 def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
     """Every grid point of a BROAD study on one trial (``job``: path, study, solver): total RMSE, degrees."""
-    from ..datasets.broad import load_broad
     from ..metrics import broad_errors
     from ..systems import attitude9
 
     path, study, solver = job
-
-    session = load_broad(Path(path))
+    session = _recording(Path(path))
     movement = session.stream("movement").values[:, 0]
     out = {}
     for name, point in grid_settings(BROAD_GRIDS[study]).items():
@@ -214,15 +233,14 @@ def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
     return out
 
 
-def broad_graph_logo(study: str, directory: str | None = None, solver: str = "online", workers: int = 1) -> dict[str, Any]:
+def broad_graph_logo(study: str, directory: str | None = None, solver: str = "online", workers: int = 1,
+                     sessions: Sequence[str | Path] = ()) -> dict[str, Any]:
     """Our graph's settings of one BROAD study (``broad_mag``: heading sigma, disturbance gains, Cauchy width;
     ``broad_motion``: the velocity prior, gyro and accelerometer noise, gravity sigma and its inflation; ``broad_bias``: the
     accelerometer bias's prior and walk, the gyro bias's walk; ``broad_online``: the online solver's relinearisation
     checks) chosen by leave-one-trial-out on the BROAD trials for ``solver`` (online or batch), the other study's settings
-    as tuned: total RMSE, degrees."""
-    from ..datasets.broad import DEFAULT_DIR, trial_paths
-
-    paths = [str(p) for p in trial_paths(directory or DEFAULT_DIR)]
+    as tuned (``sessions``: imported session directories instead of the trial files): total RMSE, degrees."""
+    paths = [str(p) for p in recordings(directory, sessions)]
     per_trial = _in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers)
     scores: dict[str, dict[str, float]] = {name: {} for name in grid_settings(BROAD_GRIDS[study])}
     for path, trial in zip(paths, per_trial, strict=True):
@@ -405,13 +423,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     parser.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml (what the reports read)")
     parser.add_argument("--workers", type=int, default=1, help="processes scoring the grid (simulated studies)")
+    parser.add_argument("--sessions", nargs="+", default=[], help="BROAD studies: session directories (or folders of them) to choose on "
+                        "by leave-one-recording-out, instead of ../shared/data/broad's trial files")
     args = parser.parse_args(argv)
+    if args.sessions and args.study not in BROAD_GRIDS:
+        raise ValueError(f"--sessions: {args.study} is a simulated study (tuning seeds); the recorded studies are {', '.join(BROAD_GRIDS)}")
     if args.study not in (*STUDIES, *BROAD_GRIDS):
         raise ValueError(f"unknown study {args.study!r} (have: {', '.join([*STUDIES, *BROAD_GRIDS])})")
     if args.study in BROAD_GRIDS:
         if args.solver == "batch" and args.study not in BROAD_PER_SOLVER:
             raise ValueError(f"{args.study} has no batch variant (--solver batch is for {', '.join(BROAD_PER_SOLVER)})")
-        result = broad_ekf_logo() if args.study == "broad_ekf" else broad_graph_logo(args.study, solver=args.solver, workers=args.workers)
+        result = (broad_ekf_logo(sessions=args.sessions) if args.study == "broad_ekf"
+                  else broad_graph_logo(args.study, solver=args.solver, workers=args.workers, sessions=args.sessions))
         for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
             print(f"{setting:<44} in-sample mean total RMSE {score:7.2f} deg")
         print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.2f} deg, leave-one-trial-out {result['cross_validated']:.2f} deg")
