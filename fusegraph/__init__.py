@@ -5,9 +5,20 @@ from .session import ArrivalEvent, Session, SessionError, Stream, load_session, 
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name: str) -> object:
+    """``fusegraph.OnlineHeadTracker`` (the live head tracker) without importing gtsam's graphs at ``import fusegraph``."""
+    if name == "OnlineHeadTracker":
+        from .systems.head import OnlineHeadTracker
+
+        return OnlineHeadTracker
+    raise AttributeError(f"module 'fusegraph' has no attribute {name!r}")
+
+
 __all__ = [
     "ArrivalEvent",
     "Estimate",
+    "OnlineHeadTracker",
     "Session",
     "SessionError",
     "Stream",

@@ -108,3 +108,11 @@ def test_systems_hold_no_table_figure_or_bench() -> None:
         names = [n.name for n in tree.body if isinstance(n, ast.FunctionDef | ast.ClassDef)]
         offending = [n for n in names if n.startswith(("format_", "plot_", "bench_", "simulate_", "load_")) or n.endswith(("_report", "_picture"))]
         assert not offending, f"{path.name}: {offending}"
+
+
+def test_what_other_tools_read_stays_importable() -> None:
+    import fusegraph
+    from fusegraph.systems.head import OnlineHeadTracker
+
+    assert fusegraph.OnlineHeadTracker is OnlineHeadTracker
+    assert callable(fusegraph.load_session) and hasattr(fusegraph.Session, "stream")
