@@ -198,6 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="xdf: an LSL stream of the file as a session stream (KIND defaults to STREAM, e.g. HMD_gyro=gyro, "
                      "Polhemus=tracker:attitude); repeatable")
     imp.add_argument("--truth", action="store_true", help="csv: the stream is the session's truth (kind attitude, position, ...)")
+    imp.add_argument("--calibration", type=Path, metavar="FILE", help="uwb: a range calibration per anchor and tag "
+                     "(anchor,tag,bias_m,slope,sigma_m; default: the folder's calibration.csv when there is one)")
     imp.add_argument("--labelled", action="store_true", help="uwb: keep each range's tag as the ranging system reports it (a tag column); "
                      "default: unlabelled, each receiver's distances in arrival order")
 
@@ -439,7 +441,9 @@ def _cmd_import(args: argparse.Namespace) -> int:
     given = [flag for flag, value in (("--kind", args.kind), ("--columns", args.columns), ("--map", args.map), ("--system", args.system)) if value]
     if given:
         raise ValueError(f"{', '.join(given)}: for import csv / xdf")
-    for path in import_recording(args.format, args.source, args.out, labelled=args.labelled):
+    if args.calibration and args.format != "uwb":
+        raise ValueError("--calibration applies to import uwb only")
+    for path in import_recording(args.format, args.source, args.out, labelled=args.labelled, calibration=args.calibration):
         print(f"wrote {path}/")
     return 0
 

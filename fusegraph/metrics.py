@@ -10,6 +10,7 @@ import numpy as np
 
 from .estimate import Estimate
 from .geometry import FloatArray, euler_zyx_from_quat, quat_conjugate, quat_multiply, quat_normalize, rotvec_from_quat, wrap_angle
+from .records import RangeEpochs
 
 AXES = ("azimuth", "elevation", "roll")
 
@@ -125,3 +126,86 @@ def gap_scores(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, 
     if estimate.cov is not None:
         gap_nees = float(np.nanmean(nees(estimate.quat_wxyz[inside], estimate.cov[inside], truth_quat[inside])))
     return {"gap_rms_deg": dict(zip(AXES, (float(v) for v in rms), strict=True)), "gap_max_deg": float(np.max(angle)), "gap_nees": gap_nees}
+
+
+def identity_map(estimate: FloatArray, truth: FloatArray) -> np.ndarray:
+    """Method's transmitter index -> truth index by an optimal matching of positions (one epoch)."""
+    from scipy.optimize import linear_sum_assignment
+
+    cost = np.linalg.norm(estimate[:, None, :] - truth[None, :, :], axis=2)
+    rows, cols = linear_sum_assignment(np.nan_to_num(cost, nan=1e6))
+    mapping = np.full(len(estimate), -1)
+    mapping[rows] = cols
+    return mapping
+
+
+@dataclass(frozen=True)
+class AssociationScore:
+    """Association accuracy (fractions) and position accuracy of one run."""
+
+    assoc_acc: float
+    """Over all distances: direct ones given their transmitter, echoes left out."""
+    assoc_acc_unambiguous: float
+    """Over echoes and the direct distances more than 2 cm from every other transmitter's at that receiver."""
+    rmse_m: float
+    """Position RMSE over the transmitter-epochs that are tracked (within ``lost_beyond_m``), metres."""
+    rmse_all_m: float
+    """Position RMSE over every transmitter-epoch with an estimate, lost ones included, metres."""
+    lost_frac: float
+    """Transmitter-epochs with no estimate within ``lost_beyond_m`` (track loss)."""
+    identity_swaps: int
+    """Times the matching of the method's transmitters to the truth changed from one epoch to the next."""
+
+
+def lost_beyond_m(epochs: RangeEpochs) -> float:
+    """A track is lost when its error exceeds what the range noise explains: 3 declared range sigmas, at least 5 cm
+    (the ultrasonic simulations' 5 mm ranges: 5 cm; UWB's 10 cm ranges: 30 cm). Set before any run was scored."""
+    return max(0.05, 3.0 * epochs.range_sigma_m)
+
+
+def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: FloatArray | None) -> AssociationScore:
+    """Score a run. Each epoch, the method's transmitters are matched to the truth by position (the
+    association question is which distance belongs to which transmitter; keeping identities over time
+    is counted apart, as swaps). ``positions`` None: the labels are truth indices already (oracle). A planar session
+    is scored in x, y. A track is lost beyond ``lost_beyond_m(epochs)``."""
+    assert epochs.labels is not None and epochs.positions is not None
+    dims = 2 if epochs.planar else 3
+    correct = total = correct_u = total_u = 0
+    errors, swaps, previous = [], 0, None
+    for k in range(len(epochs.t)):
+        truth_k = epochs.positions[k]
+        mapping = None
+        if positions is not None:
+            mapping = identity_map(positions[k][:, :dims], truth_k[:, :dims])
+            if previous is not None:
+                swaps += int(np.sum(mapping != previous)) // 2
+            previous = mapping
+            matched = np.full((epochs.transmitters, dims), np.nan)
+            matched[mapping[mapping >= 0]] = positions[k][mapping >= 0, :dims]
+            errors.append(np.linalg.norm(matched - truth_k[:, :dims], axis=1))
+        direct = np.linalg.norm(truth_k[None, :, :] - epochs.receivers[:, None, :], axis=2)
+        for r in range(len(epochs.receivers)):
+            truth = epochs.labels[k][r]
+            guess = labels[k][r]
+            if mapping is not None:
+                guess = np.where(guess >= 0, mapping[np.clip(guess, 0, None)], -1)
+            want = np.where(truth >= 0, truth, -1)
+            hit = guess == want
+            correct += int(hit.sum())
+            total += len(truth)
+            # unambiguous: echoes, and direct distances > 2 cm from every OTHER transmitter's direct distance
+            own = np.clip(truth, 0, None)
+            others = np.abs(direct[r][None, :] - direct[r][own][:, None])
+            others[np.arange(len(truth)), own] = np.inf
+            clear = (truth < 0) | (others.min(axis=1, initial=np.inf) > 0.02)
+            correct_u += int(hit[clear].sum())
+            total_u += int(clear.sum())
+    rmse = rmse_all = lost = float("nan")
+    if errors:
+        err = np.nan_to_num(np.array(errors), nan=np.inf)
+        finite = np.isfinite(err)
+        tracked = err <= lost_beyond_m(epochs)
+        rmse = float(np.sqrt(np.mean(err[tracked] ** 2))) if tracked.any() else float("nan")
+        rmse_all = float(np.sqrt(np.mean(err[finite] ** 2))) if finite.any() else float("nan")
+        lost = float(np.mean(~tracked))
+    return AssociationScore(correct / max(total, 1), correct_u / max(total_u, 1), rmse, rmse_all, lost, swaps)

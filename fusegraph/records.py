@@ -264,6 +264,8 @@ class RangeEpochs:
     labelled: bool = False
     """The ranging system knows each range's tag (a ``tag`` column): ranges[k][r] is then in tag order, NaN where
     receiver r did not hear that tag."""
+    calibration: tuple[FloatArray, FloatArray, FloatArray] | None = None
+    """A range calibration per receiver and tag the session declares: (bias_m, scale, sigma_m), each (R, N)."""
 
     @property
     def transmitters(self) -> int:
@@ -356,8 +358,19 @@ def epochs_from_session(session: Session) -> RangeEpochs:
         if tag_offsets.ndim != 2 or tag_offsets.shape[1] != 3 or len(tag_offsets) != n:
             raise SessionError(f"{where}: [streams.{stream.name}] tag_offsets_m must be {n} rows of [x, y, z] (one per transmitter; "
                                f"got shape {tag_offsets.shape})")
+    calibration = None
+    if "range_bias_m" in stream.meta:
+        parts = []
+        for key, default in (("range_bias_m", None), ("range_scale", 1.0), ("range_sigma_m", None)):
+            if stream.meta.get(key, default) is None:
+                raise SessionError(f"{where}: [streams.{stream.name}] range_bias_m needs {key} too (a calibration per receiver and tag)")
+            value = np.asarray(stream.meta.get(key, default), dtype=float) * np.ones((len(receivers), n))
+            if value.shape != (len(receivers), n):
+                raise SessionError(f"{where}: [streams.{stream.name}] {key} must be {len(receivers)} rows (receivers) of {n} (tags)")
+            parts.append(value)
+        calibration = (parts[0], parts[1], parts[2])
     return RangeEpochs(times, receivers, ranges, labels, positions, float(stream.meta.get("sigma_m", 0.005)), tag_offsets,
-                       bool(stream.meta.get("planar", False)), n, tag_all is not None)
+                       bool(stream.meta.get("planar", False)), n, tag_all is not None, calibration)
 
 
 def _column(session: Session, name: str, column: str) -> FloatArray | None:

@@ -318,6 +318,9 @@ def check_plausible(entry: SensorKind, t: FloatArray, values: FloatArray, keys: 
     for spec in entry.keys:
         value = keys.get(spec.name)
         positive = spec.name.endswith(("sigma_rad_s", "sigma_deg", "sigma_m", "_sigma")) and spec.name != "markov_sigma_deg"
+        if positive and isinstance(value, list):  # one per receiver and tag (a calibration table): each must be > 0
+            flat = np.asarray(value, dtype=float).reshape(-1) if all(isinstance(v, int | float | list) for v in value) else np.array([np.nan])
+            value = float(flat.min()) if flat.size and np.isfinite(flat).all() else float("nan")
         if positive and value is not None and (not isinstance(value, int | float) or not math.isfinite(value) or value <= 0):
             raise SessionError(f"{label}: {spec.name} = {value!r} must be a number > 0 (a sensor with no noise makes the graph singular)")
     finite = np.all(np.isfinite(values), axis=1)

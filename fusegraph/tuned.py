@@ -50,7 +50,7 @@ SYSTEM_STUDIES: dict[str, tuple[str, ...]] = {
     "gaze": ("gaze_ekf", "gaze_fixation", "gaze_fixation_batch"),
     "bicycle": ("bicycle_ekf", "bicycle_no_removal"),
     "walking": ("walking_fixes",),
-    "ultrasonic": ("stonesoup_gnn", "stonesoup_jpda"),
+    "ultrasonic": ("stonesoup_gnn", "stonesoup_jpda", "uwb_calibrated"),
 }
 """The studies whose chosen values each system's methods (its baselines and its graphs) run with."""
 

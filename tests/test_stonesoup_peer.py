@@ -7,8 +7,8 @@ import pytest
 
 from fusegraph.baselines.stonesoup_peer import StoneSoupConfig, _stonesoup, run_stonesoup
 from fusegraph.evaluation.ultrasonic import _head
+from fusegraph.metrics import score_run
 from fusegraph.scenarios.ultrasonic import simulate_ultrasonic
-from fusegraph.systems.ultrasonic import score_run
 
 
 def test_receiver_range_model_and_its_jacobian() -> None:

@@ -31,7 +31,7 @@ import numpy as np
 from ..session import KIND_COLUMNS, Session, SessionError, Stream, save_session
 
 
-def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bool = False) -> list[Path]:
+def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bool = False, calibration: Path | None = None) -> list[Path]:
     """Write the recording at ``source`` as session directories under ``out``; returns them."""
     if fmt == "plaza":
         return [save_session(plaza_session(str(source)), Path(out))]
@@ -44,7 +44,7 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
             return [save_session(found[0][1], out)]
         return [save_session(session, out / name) for name, session in found]
     if fmt == "uwb":
-        return [save_session(uwb_session(source, labelled), out)]
+        return [save_session(uwb_session(source, labelled, calibration), out)]
     if fmt == "oxford":
         found = oxford_sessions(source)
         if (source / "stats.csv").is_file():
@@ -155,17 +155,20 @@ def _portable(session: Session) -> Session:
     return replace(session, path=None)
 
 
-def uwb_session(directory: Path, labelled: bool = False) -> Session:
+def uwb_session(directory: Path, labelled: bool = False, calibration: Path | None = None) -> Session:
     """A UWB run as an ultrasonic session (see the module docstring).
 
     The tags ride one trolley: the stream declares their offsets (``tag_offsets_m``) and that they move in a plane
     (``planar``). The motion capture is moved onto the UWB clock by the offset the raw ranges give against it
     (``clock_offset_from_ranges``: no estimate enters) and written at the UWB epochs it covers. ``labelled``: the
     ranges keep the tag each was measured to (a ``tag`` column), as a UWB system that knows its tags reports them.
+    A range calibration per anchor and tag (``calibration``, else the folder's ``calibration.csv`` when there is one) is
+    declared on the stream (``range_bias_m``, ``range_scale``, ``range_sigma_m``).
     """
-    from .uwb_lias import clock_offset_from_ranges, load_uwb_lias
+    from .uwb_lias import clock_offset_from_ranges, load_uwb_lias, read_calibration
 
     rec = load_uwb_lias(directory)
+    calibration = calibration or (directory / "calibration.csv" if (directory / "calibration.csv").is_file() else None)
     t0 = float(rec.t[0])
     k, a, tag = np.nonzero(np.isfinite(rec.ranges))
     table = np.column_stack([rec.t[k] - t0, a, rec.ranges[k, a, tag], tag])
@@ -173,6 +176,8 @@ def uwb_session(directory: Path, labelled: bool = False) -> Session:
     table = table[order]
     meta = {"receivers_m": rec.anchors.tolist(), "transmitters": int(rec.ranges.shape[2]), "sigma_m": 0.1,
             "tag_offsets_m": rec.tag_offsets.tolist(), "planar": True,
+            **({} if calibration is None else dict(zip(("range_bias_m", "range_scale", "range_sigma_m"),
+                                                       (v.tolist() for v in read_calibration(calibration, *rec.ranges.shape[1:])), strict=True))),
             "description": "UWB anchors as receivers; " + ("each range's tag in the tag column" if labelled else "tag labels kept only as truth_label")}
     columns = (*KIND_COLUMNS["ranges"], "truth_label", "tag") if labelled else (*KIND_COLUMNS["ranges"], "truth_label")
     values = np.column_stack([table[:, 1:4], table[:, 3]]) if labelled else table[:, 1:4]

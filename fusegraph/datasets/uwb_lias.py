@@ -148,3 +148,35 @@ def clock_offset_from_ranges(rec: UwbRecording, search_s: float = 1.0, step_s: f
     fine = step_s * np.round(np.arange(centre - 0.03, centre + 0.03 + 1e-9, step_s) / step_s)
     costs = [cost(float(o)) for o in fine]
     return float(fine[int(np.argmin(costs))])
+
+
+def read_calibration(path: str | Path, anchors: int, tags: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """A ``calibration.csv`` (``anchor,tag,bias_m,slope,sigma_m``: the dataset authors' static calibration) as (bias_m,
+    scale = 1 + slope, sigma_m), each (anchors, tags); a pair the file lacks is an error naming it."""
+    path = Path(path)
+    if not path.is_file():
+        raise SessionError(f"{path}: calibration file not found")
+    lines = path.read_text().splitlines()
+    header = [h.strip() for h in lines[0].split(",")] if lines else []
+    wanted = ("anchor", "tag", "bias_m", "slope", "sigma_m")
+    if any(w not in header for w in wanted):
+        raise SessionError(f"{path}: header must name {', '.join(wanted)} (have: {', '.join(header)})")
+    table = np.full((3, anchors, tags), np.nan)
+    for row, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        cells = dict(zip(header, (c.strip() for c in line.split(",")), strict=False))
+        try:
+            a, t = int(cells["anchor"]), int(cells["tag"])
+            values = (float(cells["bias_m"]), 1.0 + float(cells["slope"]), float(cells["sigma_m"]))
+        except (KeyError, ValueError):
+            raise SessionError(f"{path}: row {row}: not anchor,tag,bias_m,slope,sigma_m numbers ({line!r})") from None
+        if not (0 <= a < anchors and 0 <= t < tags):
+            raise SessionError(f"{path}: row {row}: anchor {a} / tag {t} outside the run's {anchors} anchors and {tags} tags")
+        table[:, a, t] = values
+    missing = np.argwhere(np.isnan(table[0]))
+    if len(missing):
+        raise SessionError(f"{path}: no calibration for anchor {missing[0][0]}, tag {missing[0][1]} ({len(missing)} pairs missing)")
+    if np.any(table[2] <= 0):
+        raise SessionError(f"{path}: sigma_m must be > 0")
+    return table[0], table[1], table[2]

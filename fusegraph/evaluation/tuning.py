@@ -249,6 +249,40 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     return leave_one_group_out(scores)
 
 
+UWB_CALIBRATED_GRID: Mapping[str, Sequence[float]] = {"range_sigma_m": (0.05, 0.1, 0.2)}
+"""The range noise of a moving tag tried by ``uwb_calibrated`` (the rigid-body UWB tracker with a declared range
+calibration): the static calibration's own residuals are 1-4 cm; motion, multipath and timing add to them."""
+
+
+def uwb_calibrated_logo(sessions: Sequence[str | Path] = ()) -> dict[str, Any]:
+    """The calibrated UWB tracker's range noise by leave-one-run-out: each run's unlabelled online tracking (every
+    estimate's RMSE, m, the preset's ``rmse_all_m``) at every grid point. ``sessions``: imported UWB sessions that declare a
+    calibration; default: ../shared/data's runs (each folder with its ``calibration.csv``), imported in memory."""
+    from ..datasets.importers import uwb_session
+    from ..datasets.uwb_lias import DEFAULT_DIR
+    from ..metrics import score_run
+    from ..records import epochs_from_session
+    from ..session import load_session
+    from ..systems.uwb import RangeCalibration, calibrated_config, track_rigid
+    from .runner import session_dirs
+
+    if sessions:
+        runs = [(p.name, load_session(p)) for p in session_dirs(sessions)]
+    else:
+        folders = [d for d in sorted(DEFAULT_DIR.parent.glob("uwb_lias*")) if (d / "calibration.csv").is_file()]
+        runs = [(d.name, uwb_session(d)) for d in folders]
+    scores: dict[str, dict[str, float]] = {name: {} for name in grid_settings(UWB_CALIBRATED_GRID)}
+    for run_name, session in runs:
+        epochs = epochs_from_session(session)
+        if epochs.calibration is None or epochs.tag_offsets_m is None:
+            raise ValueError(f"{run_name}: uwb_calibrated needs a rigid-body UWB session with a range calibration (import uwb DIR with calibration.csv)")
+        for name, point in grid_settings(UWB_CALIBRATED_GRID).items():
+            run = track_rigid(epochs, epochs.tag_offsets_m, calibrated_config(point), labelled=epochs.labelled,
+                              calibration=RangeCalibration(*epochs.calibration))
+            scores[name][run_name] = score_run(epochs, run.labels, run.positions).rmse_all_m
+    return leave_one_group_out(scores)
+
+
 BROAD_GRIDS: dict[str, Mapping[str, Sequence[float]]] = {"broad_ekf": BROAD_EKF_GRID, "broad_mag": BROAD_MAG_GRID, "broad_motion": BROAD_MOTION_GRID,
                                                           "broad_bias": BROAD_BIAS_GRID, "broad_online": BROAD_ONLINE_GRID}
 """The BROAD studies' grids by name."""
@@ -357,7 +391,7 @@ def _head_no_gyro_score(setting: dict[str, Any], seed: int) -> float:
 
 def _stonesoup_score(setting: dict[str, Any], seed: int, method: str) -> float:
     from ..baselines.stonesoup_peer import StoneSoupConfig, run_stonesoup
-    from ..systems.ultrasonic import score_run
+    from ..metrics import score_run
 
     epochs = _simulated("ultrasonic", seed)
     run = run_stonesoup(epochs, STONESOUP_TUNING_N, method, StoneSoupConfig(**setting))
@@ -414,6 +448,20 @@ STUDIES: dict[str, Study] = {
 """Every study by name."""
 
 
+def _main_recorded(args: argparse.Namespace, result: dict[str, Any], grid: Mapping[str, Sequence[float]], unit: str, groups: str) -> int:
+    """Print a leave-one-recording-out study (the cross-validated figure beside the in-sample one) and, with --write, file it."""
+    for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
+        print(f"{setting:<44} in-sample mean {score:9.4f}")
+    print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.4f}, leave-one-out {result['cross_validated']:.4f} ({unit})")
+    for held_name, held in result["held_out"].items():
+        print(f"  held out {held_name:<40} chosen {held['chosen']:<30} {held['score']:9.4f}")
+    if args.write:
+        entries = {**grid_settings(grid)[result["chosen"]], groups: sorted(result["held_out"]), "in_sample": round(result["in_sample"], 4),
+                   "cross_validated": round(result["cross_validated"], 4), "unit": unit}
+        print(f"wrote {write_tuned(args.study, entries)}")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.evaluation.tuning", description=__doc__)
     parser.add_argument("study",
@@ -426,10 +474,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--sessions", nargs="+", default=[], help="BROAD studies: session directories (or folders of them) to choose on "
                         "by leave-one-recording-out, instead of ../shared/data/broad's trial files")
     args = parser.parse_args(argv)
+    if args.study == "uwb_calibrated":
+        return _main_recorded(args, uwb_calibrated_logo(args.sessions), UWB_CALIBRATED_GRID, "m, every estimate's RMSE of the unlabelled "
+                              "online tracker (leave-one-run-out)", "runs")
     if args.sessions and args.study not in BROAD_GRIDS:
         raise ValueError(f"--sessions: {args.study} is a simulated study (tuning seeds); the recorded studies are {', '.join(BROAD_GRIDS)}")
-    if args.study not in (*STUDIES, *BROAD_GRIDS):
-        raise ValueError(f"unknown study {args.study!r} (have: {', '.join([*STUDIES, *BROAD_GRIDS])})")
+    if args.study not in (*STUDIES, *BROAD_GRIDS, "uwb_calibrated"):
+        raise ValueError(f"unknown study {args.study!r} (have: {', '.join([*STUDIES, *BROAD_GRIDS, 'uwb_calibrated'])})")
     if args.study in BROAD_GRIDS:
         if args.solver == "batch" and args.study not in BROAD_PER_SOLVER:
             raise ValueError(f"{args.study} has no batch variant (--solver batch is for {', '.join(BROAD_PER_SOLVER)})")

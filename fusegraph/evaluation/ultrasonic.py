@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from ..frontends.association import assign_ranges
+from ..metrics import identity_map, score_run
 from ..records import RangeEpochs
 from ..report.ultrasonic import plot_ultrasonic
-from ..systems.ultrasonic import TrackingRun, identity_map, run_combinatorial, run_fusegraph, score_run
+from ..systems.ultrasonic import TrackingRun, run_combinatorial, run_fusegraph
 
 
 def oracle_labels(epochs: RangeEpochs, gate_chi2: float = 16.0) -> list[list[np.ndarray]]:

@@ -122,6 +122,10 @@ CATALOGUE = (
             KeySpec("tag_offsets_m", None, "the transmitters are tags on one rigid body: their positions in its frame [[x, y, z], ...], m "
                     "(then tracked as one body, either handedness)"),
             KeySpec("planar", False, "the tags move in a horizontal plane at the receivers' mean height: tracked and scored in x, y"),
+            KeySpec("range_bias_m", None, "a range calibration per receiver and tag (measured = range_scale x true + range_bias_m): "
+                    "[[bias of tag 0, tag 1, ...] per receiver], m; with tag_offsets_m, the prior of a constant bias the tracker refines"),
+            KeySpec("range_scale", None, "the calibration's scale (1 + slope) per receiver and tag, same layout"),
+            KeySpec("range_sigma_m", None, "the calibration's residual sigma per receiver and tag, m: the bias prior's sigma"),
         ),
         repeated_times=True,
     ),

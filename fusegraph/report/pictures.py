@@ -90,9 +90,9 @@ def _ultrasonic_picture(session: Session, estimates: list[Result], out: Path) ->
     """The receivers and every tag's track in 3D, and each tag's error over time."""
     import matplotlib.pyplot as plt
 
+    from ..metrics import identity_map
     from ..records import epochs_from_session
     from .plots import save_figure
-    from .ultrasonic import identity_map
 
     epochs = epochs_from_session(session)
     fig = plt.figure(figsize=(14, 6))

@@ -6,8 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..metrics import identity_map
 from ..records import RangeEpochs
-from ..systems.ultrasonic import TrackingRun, identity_map
+from ..systems.ultrasonic import TrackingRun
 
 
 def plot_ultrasonic(epochs: RangeEpochs, run: TrackingRun, path: str | Path) -> None:

@@ -294,7 +294,9 @@ def _ultrasonic_run(session: Session, solver: str) -> Result:
     if solver == "combinatorial":
         run = ultrasonic.run_combinatorial(epochs, n)
     elif epochs.tag_offsets_m is not None:  # the tags of one rigid body: its pose, not N free points
-        run = uwb.track_rigid(epochs, epochs.tag_offsets_m, labelled=epochs.labelled)
+        calibration = None if epochs.calibration is None else uwb.RangeCalibration(*epochs.calibration)
+        config = None if calibration is None else uwb.calibrated_config()
+        run = uwb.track_rigid(epochs, epochs.tag_offsets_m, config, labelled=epochs.labelled, calibration=calibration)
     else:
         run = ultrasonic.run_fusegraph(epochs, n)
     if solver == "batch":
@@ -307,15 +309,15 @@ def _ultrasonic_run(session: Session, solver: str) -> Result:
 def _ultrasonic_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     from dataclasses import asdict
 
+    from ..metrics import score_run
     from ..records import epochs_from_session
-    from . import ultrasonic
 
     if not isinstance(estimate, PointEstimate):
         return None
     epochs = estimate.extras.get("epochs") or epochs_from_session(session)
     if epochs.labels is None or epochs.positions is None:
         return None
-    score = ultrasonic.score_run(epochs, estimate.extras["labels"], estimate.points)
+    score = score_run(epochs, estimate.extras["labels"], estimate.points)
     out: dict[str, Any] = asdict(score)
     out["ms_per_epoch"] = float(np.mean(estimate.extras["ms_per_epoch"]))
     if "assoc_expected_geometry" in estimate.extras:

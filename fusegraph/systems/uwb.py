@@ -61,16 +61,31 @@ def _state_motion(dt: float, psd: float, psd_turn: float, bias_walk: float, bias
     return F, whitening(Q)
 
 
-class UwbTracker:
-    """The trolley's planar pose (tags at their fixed offsets) and a range bias per anchor and tag."""
+@dataclass(frozen=True)
+class RangeCalibration:
+    """A range calibration per receiver and tag (a static calibration recording's): measured = scale x true + bias."""
 
-    def __init__(self, anchors: FloatArray, tag_offsets: FloatArray, config: UwbConfig | None = None):
+    bias_m: FloatArray
+    """(R, T) range bias, metres."""
+    scale: FloatArray
+    """(R, T) range scale (1 + slope)."""
+    sigma_m: FloatArray
+    """(R, T) residual sigma of the calibration fit, metres: the prior sigma of the bias the tracker refines."""
+
+
+class UwbTracker:
+    """The trolley's planar pose (tags at their fixed offsets) and a range bias per anchor (and tag)."""
+
+    def __init__(self, anchors: FloatArray, tag_offsets: FloatArray, config: UwbConfig | None = None,
+                 calibration: RangeCalibration | None = None):
         self.anchors = np.asarray(anchors, dtype=float)
         self.offsets = np.asarray(tag_offsets, dtype=float)
         self.config = config or UwbConfig()
         self.height = float(self.anchors[:, 2].mean())
         self.tags = len(self.offsets)
-        self._bias_tags = self.tags if self.config.bias_per_tag else 1
+        self.calibration = calibration
+        self._bias_tags = self.tags if self.config.bias_per_tag or calibration is not None else 1
+        self._scale = np.ones((len(self.anchors), self.tags)) if calibration is None else np.asarray(calibration.scale, dtype=float)
         self.mirror = 1.0
         self.layout = self.offsets[:, :2] - self.offsets[:, :2].mean(0)
         self.x: FloatArray | None = None  # x, y, heading, their rates, biases (anchor-major: a * tags + t)
@@ -129,8 +144,12 @@ class UwbTracker:
         self.mirror = best[2]
         cfg = self.config
         biases = len(self.anchors) * self._bias_tags
-        self.x = np.r_[c, best[1], np.zeros(3), np.full(biases, common_bias)]
-        self.sqrt_info = np.diag(np.r_[[1 / 0.3] * 2, 1 / 0.3, [1 / 0.5] * 2, 1 / 1.0, [1 / cfg.bias_prior_m] * biases])
+        if self.calibration is None:
+            self.x = np.r_[c, best[1], np.zeros(3), np.full(biases, common_bias)]
+            self.sqrt_info = np.diag(np.r_[[1 / 0.3] * 2, 1 / 0.3, [1 / 0.5] * 2, 1 / 1.0, [1 / cfg.bias_prior_m] * biases])
+        else:  # the calibration's bias (anchor-major) with its own residual sigma as the prior
+            self.x = np.r_[c, best[1], np.zeros(3), np.asarray(self.calibration.bias_m, dtype=float).reshape(-1)]
+            self.sqrt_info = np.diag(np.r_[[1 / 0.3] * 2, 1 / 0.3, [1 / 0.5] * 2, 1 / 1.0, 1 / np.asarray(self.calibration.sigma_m).reshape(-1)])
 
     def step(self, t: float, ranges: FloatArray, labelled: bool) -> tuple[FloatArray, FloatArray]:
         """One epoch of (A, T) ranges (NaN = missing; ``labelled`` False: each row's order is meaningless).
@@ -152,7 +171,7 @@ class UwbTracker:
             labels[np.isfinite(ranges)] = np.broadcast_to(np.arange(self.tags), ranges.shape)[np.isfinite(ranges)]
         else:
             bias = pred[6:].reshape(n_anchor, self._bias_tags).T  # (1 or T, A)
-            predicted = self._predicted_ranges(self.tag_xy(pred)) + bias
+            predicted = self._scale.T * self._predicted_ranges(self.tag_xy(pred)) + bias
             for a in range(n_anchor):
                 heard = np.isfinite(ranges[a])
                 found = assign_ranges(ranges[a][heard], predicted[:, a], np.full(self.tags, 2 * cfg.range_sigma_m), cfg.gate_chi2)
@@ -174,13 +193,14 @@ class UwbTracker:
                 diff = np.column_stack([x_new[:2] + turned - self.anchors[a_idx, :2], self.height - self.anchors[a_idx, 2]])
                 rho = np.linalg.norm(diff, axis=1)
                 bias_col = 6 + (a_idx * self.tags + tag_of if self._bias_tags > 1 else a_idx)
-                h = rho + x_new[bias_col]
+                gain = self._scale[a_idx, tag_of]
+                h = gain * rho + x_new[bias_col]
                 weights = np.ones(len(z))
                 if iteration == 1:
                     scaled = (z - h) / (cfg.cauchy_k * cfg.range_sigma_m)
                     weights = 1.0 / np.sqrt(1.0 + scaled**2)
                     self.cost += float(np.log1p(scaled**2).sum())
-                u = diff[:, :2] / rho[:, None]
+                u = gain[:, None] * diff[:, :2] / rho[:, None]
                 A = np.zeros((len(z), n))
                 A[:, :2] = u
                 A[:, 2] = np.einsum("ij,ij->i", u, d_turned)
@@ -191,6 +211,16 @@ class UwbTracker:
             R, x_new = step.solve(*rows)
         self.x, self.sqrt_info = x_new, R
         return self.tag_xy(self.x), labels
+
+
+def calibrated_config(setting: dict[str, float] | None = None) -> UwbConfig:
+    """The tracker when the session declares a range calibration: the biases constant (the calibration's, refined by
+    the data: a walk of 1e-6 m/sqrt(s) is numerically constant over hours) and the range noise of a moving tag as
+    ``tune uwb_calibrated`` chose it by leave-one-run-out (``tuned.toml``)."""
+    from ..tuned import tuned
+
+    chosen = setting if setting is not None else tuned("uwb_calibrated")
+    return UwbConfig(range_sigma_m=float(chosen["range_sigma_m"]), bias_walk_m_sqrt_s=1e-6)
 
 
 def ranges_by_receiver(epochs: RangeEpochs, tags: int) -> FloatArray:
@@ -205,7 +235,7 @@ def ranges_by_receiver(epochs: RangeEpochs, tags: int) -> FloatArray:
 
 
 def track_rigid(epochs: RangeEpochs, tag_offsets_m: FloatArray, config: UwbConfig | None = None, labelled: bool = False,
-                select_s: float = 20.0) -> TrackingRun:
+                select_s: float = 20.0, calibration: RangeCalibration | None = None) -> TrackingRun:
     """Every tag of one rigid body from its ranges (unlabelled: each receiver's distances in arrival order).
 
     The offsets' handedness seen from above is not decidable from one epoch (a motion-capture body frame may be
@@ -220,12 +250,12 @@ def track_rigid(epochs: RangeEpochs, tag_offsets_m: FloatArray, config: UwbConfi
     window = int(np.searchsorted(epochs.t, epochs.t[0] + select_s))
     costs = {}
     for handed in (1.0, -1.0):
-        trial = UwbTracker(epochs.receivers, offsets, config)
+        trial = UwbTracker(epochs.receivers, offsets, config, calibration)
         trial.start(first, labelled, mirror=handed)
         for k in range(window):
             trial.step(float(epochs.t[k]), ranges[k], labelled)
         costs[handed] = trial.cost
-    tracker = UwbTracker(epochs.receivers, offsets, config)
+    tracker = UwbTracker(epochs.receivers, offsets, config, calibration)
     tracker.start(first, labelled, mirror=min(costs, key=costs.__getitem__))
     positions = np.zeros((len(epochs.t), tags, 3))
     labels: list[list[np.ndarray]] = []
