@@ -303,6 +303,12 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(COMMANDS[args.command](args) or 0)
+    except BrokenPipeError:  # `fusegraph sensors | head`: the reader has gone; nothing to say to it
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
     except Exception as exc:  # user-facing: one clear line, not a traceback (FUSEGRAPH_DEBUG=1 shows it)
         import os
 
@@ -411,7 +417,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if len(paths) == 1 and (Path(args.session[0]) / "session.toml").is_file():
         outcome = run_session(paths[0], args.solver, args.out, args.plot)
         if args.json:
-            print(json.dumps(outcome.as_json(), indent=2))
+            print(_dump(outcome.as_json()))
         else:
             print(describe(outcome))
             for extra in outcome.files[1:]:
@@ -425,7 +431,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     rows = run_many(paths, args.solver, args.out, workers=args.workers or os.cpu_count() or 1, scheduler=args.scheduler)
     if args.json:
-        print(json.dumps(rows, indent=2))
+        print(_dump(rows))
     else:
         print(format_many(rows))
     return 1 if any(r.get("status") != "ok" for r in rows) else 0
@@ -510,7 +516,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         seeds = tuple(args.seeds)
         found = make(seeds, plot=str(args.plot) if args.plot else None)
         found.update(_seeds_block(seeds, args.system))
-        print(json.dumps(found, indent=2) if args.json else table(found))
+        print(_dump(found) if args.json else table(found))
         if args.plot:
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
         return 0
@@ -523,7 +529,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         found = generic_report(args.system, chosen, args.duration, solvers)
         found.pop("per_seed")
         found.update(_seeds_block(chosen, args.system))
-        print(json.dumps(found, indent=2) if args.json else format_generic_report(found))
+        print(_dump(found) if args.json else format_generic_report(found))
         if args.plot:
             from .evaluation.runner import solve_session
             from .report.pictures import PICTURES
@@ -540,7 +546,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     duration = 10.0 if args.duration is None else args.duration
     report = head.head_report(args.seeds, args.profile, duration, latency_true_s=args.latency_true, latency_assumed_s=args.latency_assumed)
     if args.json:
-        print(json.dumps({**report.as_json(), **_seeds_block(args.seeds, "head")}, indent=2))
+        print(_dump({**report.as_json(), **_seeds_block(args.seeds, "head")}))
     else:
         print(report.table())
     if args.plot:
@@ -560,10 +566,15 @@ def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int
     if given:
         raise ValueError(f"{', '.join(given)}: for simulated reports; session folders are reported as recorded")
     found = report_sessions(args.system, load_sessions(args.sessions), solvers)
-    print(json.dumps(_json_safe(found), indent=2) if args.json else format_session_report(found))
+    print(_dump(found) if args.json else format_session_report(found))
     if args.plot:
         print(f"wrote {plot_session_report(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
     return 0
+
+
+def _dump(value: Any) -> str:
+    """JSON as every command prints it: NaN and infinities as null (JSON has no NaN; a reader's parser would fail)."""
+    return json.dumps(_json_safe(value), indent=2)
 
 
 def _json_safe(value: Any) -> Any:
@@ -599,7 +610,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         soak = head_soak(3600.0 if args.duration == 600.0 else args.duration)
         if args.json:
-            print(json.dumps(soak, indent=2))
+            print(_dump(soak))
         else:
             print(f"online head tracker over {soak['duration_s']:g} s of data: x real time per {soak['block_s']:g} s: "
                   + ", ".join(f"{x:.1f}" for x in soak["x_realtime_per_block"])
@@ -609,7 +620,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from .live import bench_live, format_bench_live
 
         found = bench_live(60.0 if args.duration == 600.0 else args.duration, seed=(args.seeds or (0,))[0], estimate_first=args.estimate_first)
-        print(json.dumps(found, indent=2) if args.json else format_bench_live(found))
+        print(_dump(found) if args.json else format_bench_live(found))
         return 0
     if args.system == "head-recorded":
         from .evaluation import head_recorded
@@ -617,7 +628,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
         found = head_recorded.bench_head_recorded(args.directory, workers=args.workers, trials=trials,
                                                   progress=lambda line: print(line, file=sys.stderr))
-        print(json.dumps(found, indent=2) if args.json else head_recorded.format_head_recorded(found))
+        print(_dump(found) if args.json else head_recorded.format_head_recorded(found))
         if args.plot:
             print(f"wrote {head_recorded.plot_head_recorded(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
         return 0
@@ -626,7 +637,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         recorded = gaze_recorded.analyse_gaze_recording(args.directory, use_mag=args.use_mag)
         found = gaze_recorded.gaze_recorded_json(recorded)
-        print(json.dumps(found, indent=2) if args.json else gaze_recorded.format_gaze_recorded(found))
+        print(_dump(found) if args.json else gaze_recorded.format_gaze_recorded(found))
         if args.plot:
             print(f"wrote {gaze_recorded.plot_gaze_recorded(recorded, args.plot)}", file=sys.stderr if args.json else sys.stdout)
         return 0
@@ -640,7 +651,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise FileNotFoundError(f"Oxford recordings not found at {oxford} (use --oxford DIR or --oxford none)")
         seed = (args.seeds or (0,))[0]
         walk = walking.bench_walking(seed, oxford, plaza=not args.no_plaza, plot=args.plot)
-        print(json.dumps(walk, indent=2) if args.json else format_walking_table(walk))
+        print(_dump(walk) if args.json else format_walking_table(walk))
         return 0
     if args.system == "ultrasonic":
         from .evaluation import ultrasonic
@@ -651,7 +662,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             counts, tuple(args.seeds or (0, 1, 2)), duration_s=20.0 if args.duration == 600.0 else args.duration,
             uwb_dir=None if args.uwb == "none" else args.uwb, plot=args.plot,
         )
-        print(json.dumps(found, indent=2) if args.json else format_ultrasonic_table(found))
+        print(_dump(found) if args.json else format_ultrasonic_table(found))
         return 0
     if args.directory is not None:
         raise ValueError("bench head takes no directory (it simulates its session)")
@@ -659,7 +670,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     result = head.head_bench(args.duration, args.repeat, profile=args.profile)
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(_dump(result))
     else:
         print(f"head bench, {args.profile} profile, {args.duration:g} s session, median of {args.repeat}:")
         print(f"  online loop, first minute : {result['x_realtime_first_minute']:8.1f} x real time")
@@ -677,7 +688,7 @@ def _bench_broad(args: argparse.Namespace) -> int:
     trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
     result = bench_broad(args.directory, methods, trials)
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(_dump(result))
     else:
         print(format_broad_table(result))
     if args.plot:

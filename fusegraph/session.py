@@ -31,6 +31,8 @@ from .sensors import sensor_catalogue
 FloatArray = NDArray[np.float64]
 
 #: Columns after ``t`` that each stream kind must have, in order (from the sensor catalogue).
+RATE_KINDS = ("gyro", "accel", "mag", "pixel", "wheel_odometry")
+"""Stream kinds sampled at a rate: integrated or differenced, so one sample is no recording."""
 KIND_COLUMNS: dict[str, tuple[str, ...]] = {kind: entry.columns for kind, entry in sensor_catalogue().items()}
 
 #: Quaternions whose norm departs from 1 by more than this are an error (less: normalised).
@@ -134,6 +136,8 @@ class Session:
                 raise SessionError(f"{label}: values of shape {values.shape} for {len(t)} times (one row of {len(entry.columns)} per sample)")
             if not np.isfinite(t).all():
                 raise SessionError(f"{label}: sample {int(np.argmin(np.isfinite(t)))}: time is {t[~np.isfinite(t)][0]} (times must be finite)")
+            if len(t) < 2 and stream.kind in RATE_KINDS:
+                raise SessionError(f"{label}: one sample: a {stream.kind} stream needs at least two (a truncated export, or the wrong file?)")
             step = np.diff(t)
             back = step < 0 if entry.repeated_times else step <= 0
             if back.any():

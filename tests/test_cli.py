@@ -141,3 +141,23 @@ def test_damaged_copies_of_a_head_session_are_one_clear_line_each(tmp_path: Path
             assert main(["run", str(path), "--solver", solver, "--json"]) == 2, (cause, solver)
             err = capsys.readouterr().err
             assert cause in err and err.count("\n") == 1 and "Traceback" not in err, err
+
+
+def test_a_closed_pipe_a_one_sample_stream_and_nan_are_user_facing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`fusegraph sensors | head` exits quietly; a one-sample gyro is a clear error naming it (not 'a bug'); JSON holds
+    null where a figure is NaN."""
+    import subprocess
+    import sys
+
+    from fusegraph.cli import _dump
+
+    done = subprocess.run(f"{sys.executable} -m fusegraph.cli sensors | head -1", shell=True, capture_output=True, text=True, check=False)
+    assert done.stdout.strip() == "# Sensor catalogue" and "Error" not in done.stderr and "bug" not in done.stderr, done.stderr
+    assert main(["simulate", "head", "--duration", "2", "--out", str(tmp_path / "h")]) == 0
+    gyro = (tmp_path / "h" / "gyro.csv").read_text().splitlines()
+    (tmp_path / "h" / "gyro.csv").write_text("\n".join(gyro[:2]) + "\n")
+    capsys.readouterr()
+    assert main(["run", str(tmp_path / "h"), "--solver", "online"]) == 2
+    err = capsys.readouterr().err
+    assert "stream 'gyro': one sample" in err and "bug" not in err
+    assert json.loads(_dump({"rmse_m": float("nan"), "x": [float("inf"), 1.0]})) == {"rmse_m": None, "x": [None, 1.0]}
