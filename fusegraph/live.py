@@ -21,7 +21,7 @@ covariance's 9 entries (rad^2, NaN when the solver does not compute it); gaze's 
 point ``gaze_x_m gaze_y_m gaze_z_m`` (world frame) and the head attitude ``qw qx qy qz`` at the gaze sample.
 Each estimate is stamped with the sample time it describes; the stream's nominal rate is the gyro's (head), the
 gaze input's (gaze) or irregular (attitude9, one per keyframe).
-``--record DIR`` writes what was received as a session directory, so ``fusegraph run DIR --solver batch``
+``--record DIR`` writes what was received as a session directory (and ``DIR.xdf`` beside it), so ``fusegraph run DIR --solver batch``
 smooths the live run afterwards.
 """
 
@@ -533,7 +533,12 @@ def save_recording(system: str, declared: Session, recorded: dict[str, list[tupl
         latency = source.latency_s if source is not None and source.latency_s > 0 else (lateness_s or {}).get(name, 0.0)
         streams[name] = Stream(name, kind, t, values, KIND_COLUMNS[kind], latency, {} if source is None else dict(source.meta))
     meta = {"session": {**declared.meta.get("session", {}), "system": system, "description": "recorded live over LSL by fusegraph live"}}
-    return save_session(Session(system, streams, None, meta), directory)
+    session = Session(system, streams, None, meta)
+    written = save_session(session, directory)
+    from .datasets.generic import write_xdf
+
+    write_xdf(session, Path(directory).with_suffix(".xdf"))  # the same streams in LabRecorder's format, beside the folder
+    return written
 
 
 # ------------------------------------------------------------------------------------------ bench

@@ -97,3 +97,18 @@ def test_import_xdf_reads_a_lab_streaming_layer_recording(tmp_path: Path, capsys
     assert "no LSL stream 'Nope' (the file has: HMD_gyro, Polhemus, Markers)" in capsys.readouterr().err
     assert main(["import", "xdf", str(tmp_path / "run.xdf"), "--system", "head", "--map", "Markers=tracker:attitude", "--out", str(tmp_path / "u")]) == 2
     assert "has 3 channels; kind attitude needs 4" in capsys.readouterr().err
+
+
+def test_write_xdf_round_trips_through_import_xdf(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """What `live --record` writes beside the session (write_xdf) reads back through `import xdf` to the same samples."""
+    pytest.importorskip("pyxdf")
+    from fusegraph.datasets.generic import write_xdf
+
+    session = SIMULATORS["attitude9"].simulate(1, 3.0).without("mag_cal")
+    write_xdf(session, tmp_path / "rec.xdf")
+    maps = [arg for name in ("gyro", "accel", "mag") for arg in ("--map", f"{name}={name}")]
+    assert main(["import", "xdf", str(tmp_path / "rec.xdf"), "--system", "attitude9", *maps, "--out", str(tmp_path / "s")]) == 0
+    back = load_session(tmp_path / "s")
+    for name in ("gyro", "accel", "mag"):
+        np.testing.assert_array_equal(back.stream(name).values, session.stream(name).values)
+        np.testing.assert_allclose(back.stream(name).t + back.meta["session"]["time_origin_s"], session.stream(name).t, atol=1e-12)

@@ -116,6 +116,36 @@ def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: di
     return out
 
 
+def write_xdf(session: Session, path: str | Path) -> Path:
+    """The session's streams as an XDF 1.0 file (LabRecorder's format): one LSL stream per session stream, named after
+    it, its kind as the stream type, double64 channels in the kind's column order, every sample with its time stamp
+    (``import xdf PATH --map NAME=NAME`` reads it back). What ``fusegraph live --record`` writes beside the session."""
+    import struct
+    from xml.sax.saxutils import escape
+
+    def chunk(tag: int, content: bytes) -> bytes:
+        return struct.pack("<BQH", 8, len(content) + 2, tag) + content
+
+    data = b"XDF:" + chunk(1, b"<?xml version='1.0'?><info><version>1.0</version></info>")
+    for sid, (name, stream) in enumerate(session.streams.items(), start=1):
+        values = np.asarray(stream.values, dtype=float)
+        columns = "".join(f"<channel><label>{escape(c)}</label></channel>" for c in stream.columns)
+        info = (f"<?xml version='1.0'?><info><name>{escape(name)}</name><type>{escape(stream.kind)}</type>"
+                f"<channel_count>{values.shape[1]}</channel_count><nominal_srate>0</nominal_srate><channel_format>double64</channel_format>"
+                f"<source_id>fusegraph:{escape(session.system)}:{escape(name)}</source_id><created_at>0</created_at>"
+                f"<desc><channels>{columns}</channels></desc></info>")
+        data += chunk(2, struct.pack("<I", sid) + info.encode())
+        samples = np.column_stack([stream.t, values])
+        body = b"".join(struct.pack("<Bd", 8, row[0]) + struct.pack(f"<{values.shape[1]}d", *row[1:]) for row in samples)
+        data += chunk(3, struct.pack("<I", sid) + struct.pack("<BI", 4, len(samples)) + body)
+        footer = (f"<?xml version='1.0'?><info><first_timestamp>{stream.t[0]!r}</first_timestamp><last_timestamp>{stream.t[-1]!r}"
+                  f"</last_timestamp><sample_count>{len(stream.t)}</sample_count></info>")
+        data += chunk(6, struct.pack("<I", sid) + footer.encode())
+    path = Path(path)
+    path.write_bytes(data)
+    return path
+
+
 def unmapped_xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]]) -> list[str]:
     """LSL streams in the file that no ``--map`` names (reported, never used)."""
     import pyxdf
