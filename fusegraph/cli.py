@@ -766,8 +766,10 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
     workers = args.workers or os.cpu_count() or 1
     result = ablation.run_study(study, args.out, workers=workers, scheduler=args.scheduler, retry_failed=args.retry_failed, force=args.force)
     summary = ablation.summarize(result.rows)
-    print(ablation.summary_table(summary))
-    files = ablation.write_summary(summary, args.out)
+    from .report.ablation import summary_table, write_summary
+
+    print(summary_table(summary))
+    files = write_summary(summary, args.out)
     failed = sum(r["status"] != "ok" for r in result.rows)
     idle = ablation.settings_without_effect(result.rows, study)
     if idle:

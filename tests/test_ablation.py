@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from fusegraph.evaluation.ablation import METRIC_COLUMNS, Study, _result_or_failure, read_rows, run_study, summarize, summary_table
+from fusegraph.evaluation.ablation import METRIC_COLUMNS, Study, _result_or_failure, read_rows, run_study, summarize
+from fusegraph.report.ablation import summary_table
 
 SMALL = Study(system="head", drops=(("tracker",), ("gyro",)), vary=(("latency", (0.05, 0.1)),), seeds=(0, 1), solvers=("ekf", "online"),
               duration_s=2.0, profile="ideal")

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..frontends.association import assign_ranges, association_self_check
 from ..geometry import FloatArray
+from ..progress import progress
 from ..records import RangeEpochs
 from ..solvers.sequential import MarginalStep, constant_velocity, whitening
 from .ultrasonic import TrackingRun
@@ -260,7 +261,7 @@ def track_rigid(epochs: RangeEpochs, tag_offsets_m: FloatArray, config: UwbConfi
     positions = np.zeros((len(epochs.t), tags, 3))
     labels: list[list[np.ndarray]] = []
     times = np.zeros(len(epochs.t))
-    for k, t in enumerate(epochs.t):
+    for k, t in progress(enumerate(epochs.t), len(epochs.t), "rigid-body tracks (epochs)"):
         start = time.perf_counter()
         xy, given = tracker.step(float(t), ranges[k], labelled)
         times[k] = 1e3 * (time.perf_counter() - start)
