@@ -33,6 +33,11 @@ FloatArray = NDArray[np.float64]
 #: Columns after ``t`` that each stream kind must have, in order (from the sensor catalogue).
 RATE_KINDS = ("gyro", "accel", "mag", "pixel", "wheel_odometry")
 """Stream kinds sampled at a rate: integrated or differenced, so one sample is no recording."""
+FAST_KINDS = ("gyro", "accel", "pixel")
+"""Kinds that sample motion many times a second (an IMU, an eye tracker): a median spacing beyond
+``MAX_FAST_SPACING_S`` is time stamps in other units, not a sensor."""
+MAX_FAST_SPACING_S = 0.5
+"""No IMU or eye tracker samples slower than 2 Hz; stamps in ms of a 100 Hz IMU are 10 "s" apart."""
 KIND_COLUMNS: dict[str, tuple[str, ...]] = {kind: entry.columns for kind, entry in sensor_catalogue().items()}
 
 #: Quaternions whose norm departs from 1 by more than this are an error (less: normalised).
@@ -138,6 +143,11 @@ class Session:
                 raise SessionError(f"{label}: sample {int(np.argmin(np.isfinite(t)))}: time is {t[~np.isfinite(t)][0]} (times must be finite)")
             if len(t) < 2 and stream.kind in RATE_KINDS:
                 raise SessionError(f"{label}: one sample: a {stream.kind} stream needs at least two (a truncated export, or the wrong file?)")
+            if stream.kind in FAST_KINDS and len(t) > 2:
+                spacing = float(np.median(np.diff(t)))
+                if spacing > MAX_FAST_SPACING_S:
+                    raise SessionError(f"{label}: median sample interval {spacing:.4g} s ({1 / spacing:.3g} Hz): a {stream.kind} samples far "
+                                       "faster; time stamps in milliseconds (or us, ns)? convert them to seconds")
             step = np.diff(t)
             back = step < 0 if entry.repeated_times else step <= 0
             if back.any():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -161,3 +162,18 @@ def test_a_closed_pipe_a_one_sample_stream_and_nan_are_user_facing(tmp_path: Pat
     err = capsys.readouterr().err
     assert "stream 'gyro': one sample" in err and "bug" not in err
     assert json.loads(_dump({"rmse_m": float("nan"), "x": [float("inf"), 1.0]})) == {"rmse_m": None, "x": [None, 1.0]}
+
+
+def test_stamps_in_milliseconds_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A head session written with every stamp in milliseconds and no rate_hz: exit 2 naming the stream and the unit
+    (it ran to 77 deg RMS before)."""
+    from fusegraph.scenarios import simulate_head
+    from fusegraph.session import save_session
+
+    session = simulate_head(0, duration_s=3.0)
+    in_ms = {name: replace(s, t=1000.0 * s.t, meta={k: v for k, v in s.meta.items() if k != "rate_hz"}) for name, s in session.streams.items()}
+    save_session(replace(session, streams=in_ms, truth=None), tmp_path / "ms")
+    capsys.readouterr()
+    assert main(["run", str(tmp_path / "ms"), "--solver", "online"]) == 2
+    err = capsys.readouterr().err
+    assert "stream 'gyro'" in err and "milliseconds" in err, err
