@@ -48,6 +48,31 @@ class AttitudeScore:
         return {"rms_rad": dict(zip(AXES, (float(v) for v in self.rms_rad), strict=True)), "nees": self.nees, "samples": self.samples, "missing": self.missing}
 
 
+def on_truth_times(estimate: Estimate, truth_t: FloatArray) -> Estimate:
+    """The estimate at the truth's times (the truth may be on any grid: an optical system's own rate, occluded rows
+    dropped): a truth time that matches an estimate time (to 1 us) takes that sample unchanged, any other the slerp
+    between its two neighbours and the nearer one's covariance; NaN outside the estimate's span. Equal grids are returned
+    as they are."""
+    from .geometry import quat_from_rotvec, quat_normalize
+
+    if estimate.t.shape == truth_t.shape and np.allclose(estimate.t, truth_t, rtol=0.0, atol=1e-6):
+        return estimate
+    t, q = estimate.t, estimate.quat_wxyz
+    right = np.clip(np.searchsorted(t, truth_t), 1, max(len(t) - 1, 1))
+    left = right - 1
+    span = np.maximum(t[right] - t[left], 1e-12)
+    fraction = np.clip((truth_t - t[left]) / span, 0.0, 1.0)
+    step = quat_multiply(quat_conjugate(q[left]), q[right])
+    step = np.where(step[:, :1] < 0, -step, step)  # the short way round
+    quat = quat_normalize(quat_multiply(q[left], quat_from_rotvec(fraction[:, None] * rotvec_from_quat(step))))
+    exact = np.isclose(t[left], truth_t, rtol=0.0, atol=1e-6) | np.isclose(t[right], truth_t, rtol=0.0, atol=1e-6)
+    nearest = np.where(np.abs(t[right] - truth_t) < np.abs(truth_t - t[left]), right, left)
+    quat[exact] = q[nearest[exact]]
+    quat[(truth_t < t[0] - 1e-6) | (truth_t > t[-1] + 1e-6)] = np.nan
+    cov = None if estimate.cov is None else estimate.cov[nearest]
+    return Estimate(estimate.method, np.asarray(truth_t, dtype=float).copy(), quat, cov, estimate.runtime_s, estimate.extras)
+
+
 def score_attitude(estimate: Estimate, truth_t: FloatArray, truth_quat: FloatArray, start_s: float = 1.0) -> AttitudeScore:
     """Score an estimate sampled at the truth's times, from ``start_s`` after the first truth sample."""
     if estimate.t.shape != truth_t.shape or not np.allclose(estimate.t, truth_t):

@@ -188,3 +188,28 @@ def test_gap_scores_measure_error_and_nees_inside_the_gap_only() -> None:
     assert scores["gap_nees"] == pytest.approx(4.0, rel=1e-9)
     assert scores["gap_rms_deg"]["azimuth"] == pytest.approx(2.0, abs=1e-9)
     assert gap_scores(Estimate("x", t, estimate_q, None), t, truth, [(3.0, 6.0)])["gap_nees"] is None
+
+
+def test_truth_on_another_grid_is_scored(tmp_path: Path) -> None:
+    """A reference at a third of the estimate's rate (and with rows dropped): the estimate is taken at the truth's times
+    (slerp), so the figures are those of the full grid within what the missing rows change; equal grids are untouched."""
+    from dataclasses import replace
+
+    from fusegraph.metrics import on_truth_times
+    from fusegraph.scenarios import SIMULATORS
+    from fusegraph.systems.presets import PRESETS
+
+    for system, key in (("head", "rms_deg"), ("attitude9", "total_deg")):
+        session = SIMULATORS[system].simulate(0, 6.0)
+        preset = PRESETS[system]
+        estimate = preset.solve(session, "online")
+        full = preset.score(session, estimate)
+        assert on_truth_times(estimate, session.truth.t) is estimate  # equal grids: as it is
+        keep = (np.arange(len(session.truth.t)) % 3 == 0) & (np.arange(len(session.truth.t)) % 17 != 0)
+        coarse = preset.score(replace(session, truth=session.truth.select(keep)), estimate)
+        assert full is not None and coarse is not None and 0 < coarse["truth_samples_scored"] < full["truth_samples_scored"]
+        if system == "head":
+            for axis in ("azimuth", "elevation", "roll"):  # deg: a third of the samples of the same errors
+                assert coarse[key][axis] == pytest.approx(full[key][axis], rel=0.15)
+        else:
+            assert coarse[key] == pytest.approx(full[key], rel=0.15)

@@ -108,18 +108,18 @@ def _head_run(session: Session, solver: str) -> Result:
 
 
 def _head_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    from ..metrics import AXES, gap_scores, score_attitude
+    from ..metrics import AXES, gap_scores, on_truth_times, score_attitude
 
     truth = session.truth
     if truth is None or not isinstance(estimate, Estimate):
         return None
-    if estimate.t.shape != truth.t.shape or not np.allclose(estimate.t, truth.t):
-        return None
+    estimate = on_truth_times(estimate, truth.t)  # the truth on any grid
     score = score_attitude(estimate, truth.t, truth.values)
     out: dict[str, Any] = {
         "rms_deg": dict(zip(AXES, (float(v) for v in np.rad2deg(score.rms_rad)), strict=True)),
         "rms_rad": dict(zip(AXES, (float(v) for v in score.rms_rad), strict=True)),
         "nees": score.nees,
+        "truth_samples_scored": score.samples,
     }
     trackers = session.streams_of_kind("attitude")
     gaps = trackers[0].gaps() if trackers else []
@@ -138,14 +138,21 @@ def _attitude9_run(session: Session, solver: str) -> Result:
 
 
 def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    from ..metrics import broad_errors
+    from ..metrics import broad_errors, on_truth_times
 
     truth = session.truth
-    if truth is None or not isinstance(estimate, Estimate) or estimate.t.shape != truth.t.shape:
+    if truth is None or not isinstance(estimate, Estimate):
         return None
-    movement = session.stream("movement").values[:, 0] if "movement" in session.streams else np.ones(len(estimate.t))
+    estimate = on_truth_times(estimate, truth.t)  # the truth on any grid
+    movement = np.ones(len(truth.t))
+    if "movement" in session.streams:  # the flag at each truth time (its nearest sample)
+        flag = session.stream("movement")
+        after = np.clip(np.searchsorted(flag.t, truth.t), 1, max(len(flag.t) - 1, 1))
+        nearest = np.where(np.abs(flag.t[after] - truth.t) < np.abs(truth.t - flag.t[after - 1]), after, after - 1)
+        nearest = nearest if len(flag.t) > 1 else np.zeros(len(truth.t), int)
+        movement = flag.values[:, 0] if len(flag.t) == len(truth.t) and np.array_equal(flag.t, truth.t) else flag.values[nearest, 0]
     errors = broad_errors(estimate.quat_wxyz, truth.values, movement)
-    return {"total_deg": errors.total, "heading_deg": errors.heading, "inclination_deg": errors.inclination}
+    return {"total_deg": errors.total, "heading_deg": errors.heading, "inclination_deg": errors.inclination, "truth_samples_scored": errors.samples}
 
 
 # -------------------------------------------------------------------------------------- gaze
