@@ -455,7 +455,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
 
 
 def _import_generic(args: argparse.Namespace) -> int:
-    from .datasets.generic import add_to_session, csv_stream, parse_columns, unmapped_xdf_streams, xdf_streams
+    from .datasets.generic import add_to_session, csv_stream, parse_columns, xdf_streams
 
     if args.format == "csv":
         if not args.kind or not args.columns:
@@ -474,9 +474,8 @@ def _import_generic(args: argparse.Namespace) -> int:
             raise ValueError(f"--map {item!r}: write LSL_NAME=STREAM or LSL_NAME=STREAM:KIND")
         mapping[lsl] = (name, kind or name)
     units = dict(u.split("=", 1) for u in (args.units.split(",") if args.units else []) if "=" in u)
-    streams = xdf_streams(args.source, mapping, units)
+    streams, skipped = xdf_streams(args.source, mapping, units)
     path = add_to_session(args.out, streams, args.system)
-    skipped = unmapped_xdf_streams(args.source, mapping)
     print(f"wrote {path}/ (" + ", ".join(f"'{n}': {len(s.t)} samples of {s.kind}" for n, s in streams.items()) + ")")
     if skipped:
         print(f"warning: {args.source}: LSL stream{'s' if len(skipped) > 1 else ''} {', '.join(repr(n) for n in skipped)} not imported "

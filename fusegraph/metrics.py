@@ -48,6 +48,14 @@ class AttitudeScore:
         return {"rms_rad": dict(zip(AXES, (float(v) for v in self.rms_rad), strict=True)), "nees": self.nees, "samples": self.samples, "missing": self.missing}
 
 
+def nearest_samples(t: FloatArray, times: FloatArray) -> np.ndarray:
+    """Index of the sample of ``t`` (sorted) nearest each of ``times``."""
+    if len(t) < 2:
+        return np.zeros(len(times), dtype=int)
+    right = np.clip(np.searchsorted(t, times), 1, len(t) - 1)
+    return np.where(np.abs(t[right] - times) < np.abs(times - t[right - 1]), right, right - 1)
+
+
 def on_truth_times(estimate: Estimate, truth_t: FloatArray) -> Estimate:
     """The estimate at the truth's times (the truth may be on any grid: an optical system's own rate, occluded rows
     dropped): a truth time that matches an estimate time (to 1 us) takes that sample unchanged, any other the slerp
@@ -66,7 +74,7 @@ def on_truth_times(estimate: Estimate, truth_t: FloatArray) -> Estimate:
     step = np.where(step[:, :1] < 0, -step, step)  # the short way round
     quat = quat_normalize(quat_multiply(q[left], quat_from_rotvec(fraction[:, None] * rotvec_from_quat(step))))
     exact = np.isclose(t[left], truth_t, rtol=0.0, atol=1e-6) | np.isclose(t[right], truth_t, rtol=0.0, atol=1e-6)
-    nearest = np.where(np.abs(t[right] - truth_t) < np.abs(truth_t - t[left]), right, left)
+    nearest = nearest_samples(t, truth_t)
     quat[exact] = q[nearest[exact]]
     quat[(truth_t < t[0] - 1e-6) | (truth_t > t[-1] + 1e-6)] = np.nan
     cov = None if estimate.cov is None else estimate.cov[nearest]

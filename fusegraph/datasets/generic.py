@@ -84,8 +84,9 @@ def csv_stream(path: str | Path, kind: str, columns: dict[str, str], name: str |
     return Stream(name or kind, kind, t, table[:, 1:] * factor, entry.columns, 0.0, meta)
 
 
-def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: dict[str, str] | None = None) -> dict[str, Stream]:
-    """The mapped streams of an XDF file: LSL stream name -> (our stream name, kind); ``units`` by our stream name."""
+def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: dict[str, str] | None = None) -> tuple[dict[str, Stream], list[str]]:
+    """The mapped streams of an XDF file (LSL stream name -> (our stream name, kind); ``units`` by our stream name) and the
+    names of the file's LSL streams that no mapping names (reported, never used)."""
     import pyxdf
 
     path = Path(path)
@@ -113,7 +114,7 @@ def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: di
         unit = (units or {}).get(name)
         out[name] = Stream(name, kind, t, values * _unit_factor(kind, unit), entry.columns, 0.0,
                            {"description": f"LSL stream {lsl_name!r} of {path.name}" + (f"; converted from {unit}" if unit else "")})
-    return out
+    return out, [n for n in by_name if n not in mapping]
 
 
 def write_xdf(session: Session, path: str | Path) -> Path:
@@ -144,14 +145,6 @@ def write_xdf(session: Session, path: str | Path) -> Path:
     path = Path(path)
     path.write_bytes(data)
     return path
-
-
-def unmapped_xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]]) -> list[str]:
-    """LSL streams in the file that no ``--map`` names (reported, never used)."""
-    import pyxdf
-
-    found, _ = pyxdf.load_xdf(str(path))
-    return [str(s["info"]["name"][0]) for s in found if str(s["info"]["name"][0]) not in mapping]
 
 
 def add_to_session(out: str | Path, streams: dict[str, Stream], system: str | None, truth: bool = False) -> Path:

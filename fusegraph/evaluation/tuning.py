@@ -448,8 +448,10 @@ STUDIES: dict[str, Study] = {
 """Every study by name."""
 
 
-def _main_recorded(args: argparse.Namespace, result: dict[str, Any], grid: Mapping[str, Sequence[float]], unit: str, groups: str) -> int:
-    """Print a leave-one-recording-out study (the cross-validated figure beside the in-sample one) and, with --write, file it."""
+def _main_recorded(args: argparse.Namespace, result: dict[str, Any], grid: Mapping[str, Sequence[float]], unit: str, groups: str,
+                   name: str | None = None) -> int:
+    """Print a leave-one-recording-out study (the cross-validated figure beside the in-sample one) and, with --write, file it
+    in ``tuned.toml`` as ``name`` (default: the study's)."""
     for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
         print(f"{setting:<44} in-sample mean {score:9.4f}")
     print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.4f}, leave-one-out {result['cross_validated']:.4f} ({unit})")
@@ -458,7 +460,7 @@ def _main_recorded(args: argparse.Namespace, result: dict[str, Any], grid: Mappi
     if args.write:
         entries = {**grid_settings(grid)[result["chosen"]], groups: sorted(result["held_out"]), "in_sample": round(result["in_sample"], 4),
                    "cross_validated": round(result["cross_validated"], 4), "unit": unit}
-        print(f"wrote {write_tuned(args.study, entries)}")
+        print(f"wrote {write_tuned(name or args.study, entries)}")
     return 0
 
 
@@ -486,19 +488,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"{args.study} has no batch variant (--solver batch is for {', '.join(BROAD_PER_SOLVER)})")
         result = (broad_ekf_logo(sessions=args.sessions) if args.study == "broad_ekf"
                   else broad_graph_logo(args.study, solver=args.solver, workers=args.workers, sessions=args.sessions))
-        for setting, score in sorted(result["all"].items(), key=lambda row: row[1]):
-            print(f"{setting:<44} in-sample mean total RMSE {score:7.2f} deg")
-        print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.2f} deg, leave-one-trial-out {result['cross_validated']:.2f} deg")
-        for trial, held in result["held_out"].items():
-            print(f"  held out {trial:<40} chosen {held['chosen']:<40} {held['score']:7.2f} deg")
-        if args.write:
-            name = f"{args.study}_batch" if args.study in BROAD_PER_SOLVER and args.solver == "batch" else args.study
-            chosen = grid_settings(BROAD_GRIDS[args.study])[result["chosen"]]
-            unit = "deg, mean total RMSE" + (f" of the {args.solver} estimate" if args.study != "broad_ekf" else "") + " (leave-one-trial-out)"
-            entries = {**chosen, "trials": sorted(result["held_out"]), "in_sample": round(result["in_sample"], 4),
-                       "cross_validated": round(result["cross_validated"], 4), "unit": unit}
-            print(f"wrote {write_tuned(name, entries)}")
-        return 0
+        name = f"{args.study}_batch" if args.study in BROAD_PER_SOLVER and args.solver == "batch" else args.study
+        unit = "deg, mean total RMSE" + (f" of the {args.solver} estimate" if args.study != "broad_ekf" else "") + " (leave-one-trial-out)"
+        return _main_recorded(args, result, BROAD_GRIDS[args.study], unit, "trials", name)
     seeds = tuple(range(args.seeds[0], args.seeds[1] + 1))
     study = STUDIES[args.study]
     rows = run_study(study, seeds, workers=args.workers)

@@ -138,7 +138,7 @@ def _attitude9_run(session: Session, solver: str) -> Result:
 
 
 def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    from ..metrics import broad_errors, on_truth_times
+    from ..metrics import broad_errors, nearest_samples, on_truth_times
 
     truth = session.truth
     if truth is None or not isinstance(estimate, Estimate):
@@ -147,10 +147,7 @@ def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | Non
     movement = np.ones(len(truth.t))
     if "movement" in session.streams:  # the flag at each truth time (its nearest sample)
         flag = session.stream("movement")
-        after = np.clip(np.searchsorted(flag.t, truth.t), 1, max(len(flag.t) - 1, 1))
-        nearest = np.where(np.abs(flag.t[after] - truth.t) < np.abs(truth.t - flag.t[after - 1]), after, after - 1)
-        nearest = nearest if len(flag.t) > 1 else np.zeros(len(truth.t), int)
-        movement = flag.values[:, 0] if len(flag.t) == len(truth.t) and np.array_equal(flag.t, truth.t) else flag.values[nearest, 0]
+        movement = flag.values[nearest_samples(flag.t, truth.t), 0]
     errors = broad_errors(estimate.quat_wxyz, truth.values, movement)
     return {"total_deg": errors.total, "heading_deg": errors.heading, "inclination_deg": errors.inclination, "truth_samples_scored": errors.samples}
 
