@@ -100,7 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "(frame EKF -> subtract -> thigh EKF), fusegraph online and batch (both bodies in one graph).\n"
                          "attitude9, walking, ultrasonic: every solver on each simulated seed, means over seeds.",
                          epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
+                         "  fusegraph import broad ../shared/data/broad --system head --out sessions/broad_head\n"
                          "  fusegraph report attitude9 sessions/broad --json > broad.json\n"
+                         "  fusegraph report head sessions/broad_head --solvers online,batch,ekf\n"
                          "  fusegraph report ultrasonic sessions/uwb --solvers online,batch --plot uwb.png\n"
                          "  fusegraph report head --seeds 0-9 --plot head.png\n  fusegraph report gaze --seeds 0-4 --json\n"
                          "  fusegraph report bicycle --seeds 0-2 --json --plot bicycle.png",
@@ -172,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "(--system) or added to one. xdf: a Lab Streaming Layer recording (LabRecorder), its streams mapped "
                          "with --map onto session streams.",
                          epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
+                         "  fusegraph import broad ../shared/data/broad --system head --out sessions/broad_head\n"
                          "  fusegraph import uwb ../shared/data/uwb_lias --out sessions/uwb\n"
                          "  fusegraph import oxford ../shared/data/steps_oxford --out sessions/oxford\n"
                          "  fusegraph run sessions/oxford --solver steps --out studies/oxford\n"
@@ -187,7 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
     imp.add_argument("--system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"],
-                     help="csv, xdf: whose session a new --out folder is (an existing session keeps its own)")
+                     help="csv, xdf: whose session a new --out folder is (an existing session keeps its own); broad: head writes head "
+                     "sessions (recorded gyro, optical attitude as a 50 Hz tracker 100 ms late) instead of attitude9 ones")
     imp.add_argument("--kind", help="csv: the stream's kind (`fusegraph sensors` lists them)")
     imp.add_argument("--name", help="csv: the stream's name in the session (default: the kind; e.g. tracker for an attitude stream)")
     imp.add_argument("--columns", metavar="t=COL,wx=COL,...", help="csv: the file's column for t and for each column of the kind")
@@ -444,12 +448,12 @@ def _cmd_import(args: argparse.Namespace) -> int:
         raise ValueError("--labelled applies to import uwb only")
     if args.format in ("csv", "xdf"):
         return _import_generic(args)
-    given = [flag for flag, value in (("--kind", args.kind), ("--columns", args.columns), ("--map", args.map), ("--system", args.system)) if value]
+    given = [flag for flag, value in (("--kind", args.kind), ("--columns", args.columns), ("--map", args.map)) if value]
     if given:
         raise ValueError(f"{', '.join(given)}: for import csv / xdf")
     if args.calibration and args.format != "uwb":
         raise ValueError("--calibration applies to import uwb only")
-    for path in import_recording(args.format, args.source, args.out, labelled=args.labelled, calibration=args.calibration):
+    for path in import_recording(args.format, args.source, args.out, labelled=args.labelled, calibration=args.calibration, system=args.system):
         print(f"wrote {path}/")
     return 0
 

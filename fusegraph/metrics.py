@@ -81,11 +81,28 @@ def on_truth_times(estimate: Estimate, truth_t: FloatArray) -> Estimate:
     return Estimate(estimate.method, np.asarray(truth_t, dtype=float).copy(), quat, cov, estimate.runtime_s, estimate.extras)
 
 
-def score_attitude(estimate: Estimate, truth_t: FloatArray, truth_quat: FloatArray, start_s: float = 1.0) -> AttitudeScore:
-    """Score an estimate sampled at the truth's times, from ``start_s`` after the first truth sample."""
+EULER_DOMAIN_DEG = 80.0
+"""Elevation bound of the Euler-angle domain, degrees: near +-90 deg azimuth and roll are not separate angles, and an
+Euler-angle filter's rate matrix (1/cos(elevation): 5.8 at 80 deg) amplifies a rate error that much."""
+
+
+def in_euler_domain(quat_wxyz: FloatArray) -> np.ndarray:
+    """Attitudes whose ZYX elevation is inside ``EULER_DOMAIN_DEG`` (a NaN attitude is not)."""
+    finite = np.all(np.isfinite(quat_wxyz), axis=1)
+    inside = np.zeros(len(quat_wxyz), dtype=bool)
+    inside[finite] = np.abs(euler_zyx_from_quat(quat_wxyz[finite])[:, 1]) < np.deg2rad(EULER_DOMAIN_DEG)
+    return inside
+
+
+def score_attitude(estimate: Estimate, truth_t: FloatArray, truth_quat: FloatArray, start_s: float = 1.0,
+                   mask: np.ndarray | None = None) -> AttitudeScore:
+    """Score an estimate sampled at the truth's times, from ``start_s`` after the first truth sample, where the truth is
+    finite and (``mask``) where the caller scores (a movement flag, the Euler-angle domain)."""
     if estimate.t.shape != truth_t.shape or not np.allclose(estimate.t, truth_t):
         raise ValueError(f"estimate '{estimate.method}' is not sampled at the truth times")
-    scored = truth_t >= truth_t[0] + start_s
+    scored = (truth_t >= truth_t[0] + start_s) & np.all(np.isfinite(truth_quat), axis=1)
+    if mask is not None:
+        scored &= mask
     have = scored & np.all(np.isfinite(estimate.quat_wxyz), axis=1)
     errors = euler_errors(estimate.quat_wxyz[have], truth_quat[have])
     rms = np.sqrt(np.mean(errors**2, axis=0)) if have.any() else np.full(3, np.nan)

@@ -3,7 +3,9 @@
 A session written here runs through ``run``, ``view`` and ``ablate`` like a simulated one. Formats:
 
 * ``broad``: a BROAD trial (.mat) or a folder of them -> one attitude9 session per trial (gyro,
-  accel, mag at the IMU rate, the movement flag; the optical attitude as truth).
+  accel, mag at the IMU rate, the movement flag; the optical attitude as truth); with ``system="head"`` one
+  head session per trial instead (the recorded gyro, the optical attitude as a late 50 Hz tracker with the
+  realistic profile's errors: ``datasets.broad_head``).
 * ``oxford``: an Oxford step recording folder (``accelerometer.csv``) or the dataset folder (with
   ``stats.csv``) -> walking sessions with the phone's accelerometer only and the hand-counted steps in
   ``[truth_extra] steps``: ``run --solver steps`` counts them (there is no gyro for a trajectory).
@@ -31,15 +33,19 @@ import numpy as np
 from ..session import KIND_COLUMNS, Session, SessionError, Stream, save_session
 
 
-def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bool = False, calibration: Path | None = None) -> list[Path]:
-    """Write the recording at ``source`` as session directories under ``out``; returns them."""
+def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bool = False, calibration: Path | None = None,
+                     system: str | None = None) -> list[Path]:
+    """Write the recording at ``source`` as session directories under ``out``; returns them. ``system``: whose sessions
+    a dataset that serves two systems becomes (BROAD: ``attitude9``, the default, or ``head``)."""
+    if system is not None and not (fmt == "broad" and system in ("head", "attitude9")):
+        raise SessionError(f"--system {system}: import {fmt} writes {'head or attitude9' if fmt == 'broad' else 'its own system'}'s sessions")
     if fmt == "plaza":
         return [save_session(plaza_session(str(source)), Path(out))]
     source, out = Path(source), Path(out)
     if not source.exists():
         raise SessionError(f"{source}: not found")
     if fmt == "broad":
-        found = broad_sessions(source)
+        found = broad_head_sessions(source) if system == "head" else broad_sessions(source)
         if source.is_file():
             return [save_session(found[0][1], out)]
         return [save_session(session, out / name) for name, session in found]
@@ -64,6 +70,17 @@ def broad_sessions(source: Path, trials: Sequence[str] = ()) -> list[tuple[str, 
     if not paths:
         raise SessionError(f"{source}: no BROAD trial (*.mat)" + (f" starting with {', '.join(trials)}" if trials else ""))
     return [(p.stem, _portable(load_broad(p))) for p in paths]
+
+
+def broad_head_sessions(source: Path, trials: Sequence[str] = ()) -> list[tuple[str, Session]]:
+    """BROAD trials as ``import broad --system head`` writes them (see ``datasets.broad_head``), in memory, named by trial."""
+    from .broad import trial_paths
+    from .broad_head import head_session_from_broad
+
+    paths = [source] if source.is_file() else [p for p in trial_paths(source) if not trials or any(p.stem.startswith(x) for x in trials)]
+    if not paths:
+        raise SessionError(f"{source}: no BROAD trial (*.mat)" + (f" starting with {', '.join(trials)}" if trials else ""))
+    return [(p.stem, _portable(head_session_from_broad(p))) for p in paths]
 
 
 def plaza_session(name: str) -> Session:

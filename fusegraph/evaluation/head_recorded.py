@@ -1,24 +1,16 @@
-"""Head tracking on recorded motion: BROAD trials turned into head sessions (``fusegraph bench head-recorded``).
+"""Head tracking on recorded motion (``fusegraph bench head-recorded``): BROAD trials imported as head sessions
+(``import broad --system head``, see ``datasets.broad_head``) through the head preset, as ``report head`` runs them.
 
-Each BROAD trial gives what a head-tracking rig records, minus the tracker's own errors:
+The bench is a report over those sessions whose open settings are chosen by leave-one-trial-out: each grid point is the
+same session DECLARING the setting (the paper's EKF figures in ``[ekf]``, the graph's gyro noise and bias walk on the
+gyro stream), run by ``runner.solve_session`` (what ``fusegraph run`` calls) and scored by the head preset (movement
+flag, Euler-angle domain, first second skipped). A held-out trial's row is exactly ``report head`` on that trial's
+session declaring the setting chosen without it.
 
-* gyro: the trial's recorded gyro as it is (its real bias, scale factors and misalignment; ~286 Hz);
-* tracker: the optical attitude decimated to 50 Hz (the gyro sample nearest each 20 ms instant),
-  100 ms late, with the realistic head profile's tracker errors added (white 0.4 deg plus a
-  0.7 deg, 2 s Gauss-Markov error; ``scenarios.head.tracker_errors``, fixed seed), 2 % dropped,
-  and no sample where the optical markers were occluded;
-* reference: the optical attitude at the gyro rate (lag-free), scored while the trial's
-  ``movement`` flag is set.
-
-The gyro's delay against the tracker is found from those two streams (``head.gyro_delay_from_tracker``; never
-from the reference) and declared on the gyro stream, where every method reads it.
-
-The paper's Method II is an Euler-angle filter: near +-90 deg elevation its rate matrix
-(1/cos(elevation)) is singular, and BROAD's rotation trials pass within a degree of it. Where the
-filter's own elevation estimate leaves ``EULER_DOMAIN_DEG`` the trial's Method II figures are not
-averaged: they are reported with the reason (``excluded``), so no mean hides a singular filter.
-The Euler-angle errors of every method are scored only where the reference's elevation is inside
-the same domain (near the singularity azimuth and roll are not separate angles).
+The paper's Method II is an Euler-angle filter: near +-90 deg elevation its rate matrix (1/cos(elevation)) is singular,
+and BROAD's rotation trials pass within a degree of it. Where the filter's own elevation estimate leaves the domain the
+preset gives it no figure (``metrics.excluded``) and the trial is not averaged: it is listed with the reason, so no mean
+hides a singular filter.
 """
 
 from __future__ import annotations
@@ -31,102 +23,16 @@ from typing import Any
 import numpy as np
 
 from ..baselines.ekf import HeadEkfConfig
-from ..datasets.broad import DEFAULT_DIR, load_broad, trial_paths
-from ..estimate import Estimate
-from ..geometry import FloatArray, euler_zyx_from_quat, quat_from_rotvec, quat_multiply, quat_normalize
-from ..metrics import AXES, euler_errors
-from ..scenarios.head import HeadScenarioConfig, tracker_errors
-from ..session import KIND_COLUMNS, Session, Stream
-from ..systems import head
+from ..geometry import FloatArray
+from ..metrics import AXES, EULER_DOMAIN_DEG
+from ..session import Session, SessionError
+from .runner import solve_session
 
 METHODS = ("tracker", "method2", "method2_paper_values", "isam2", "batch")
 """Rows of the table and keys of the JSON, in order (the targets use ``tracker, method2, isam2, batch``)."""
 
-EULER_DOMAIN_DEG = 80.0
-"""Elevation bound of the Euler-angle domain, degrees: 1/cos(80 deg) = 5.8 amplifies a rate error that much."""
-
-TRACKER_SEED = 0
-"""Seed of the added tracker errors and drops (fixed: every run of the bench sees the same tracker)."""
-
-
-@dataclass(frozen=True)
-class RecordedHeadConfig:
-    """How a BROAD trial becomes a head session."""
-
-    tracker_rate_hz: float = 50.0
-    """Rate of the simulated tracker, Hz (the optical attitude is decimated to it)."""
-    tracker_latency_s: float = 0.1
-    """Transport delay of every tracker sample, seconds (declared in the session: known)."""
-    drop_fraction: float = 0.02
-    """Fraction of tracker samples dropped at random."""
-    errors: HeadScenarioConfig = HeadScenarioConfig(profile="realistic", tracker_rate_hz=50.0)
-    """Source of the tracker error model (the realistic head profile's)."""
-    gyro_noise_sigma_rad_s: float = 0.015
-    """Gyro white noise per sample the session declares, rad/s (the head model's default: BROAD's IMU
-    data sheet is not given; the graph estimates scale and misalignment because ``calibrated`` is false)."""
-    estimate_gyro_delay: bool = True
-    """Declare the gyro's delay on the session's gyro stream as found from the gyro and the tracker alone
-    (``head.gyro_delay_from_tracker``), so every method, Method II as well, runs on one clock. BROAD's gyro lags its
-    optical attitude by ~4 ms (1.0-1.2 samples on all eleven trials): at 100-300 deg/s that is 0.4-1.2 deg."""
-
-
-def head_session_from_broad(path: str | Path, config: RecordedHeadConfig | None = None, seed: int = TRACKER_SEED) -> Session:
-    """A head session from one BROAD trial (streams ``gyro``, ``tracker``, ``movement``; truth at the gyro rate)."""
-    cfg = config or RecordedHeadConfig()
-    trial = load_broad(path)
-    gyro_in = trial.stream("gyro")
-    assert trial.truth is not None
-    optical = trial.truth.values
-    rate = float(gyro_in.meta["rate_hz"])
-    instants = np.arange(0.0, gyro_in.t[-1], 1.0 / cfg.tracker_rate_hz)
-    idx = np.unique(np.clip(np.round(instants * rate).astype(int), 0, len(gyro_in) - 1))
-    rng = np.random.default_rng(seed)
-    error = tracker_errors(rng, idx.size, replace(cfg.errors, tracker_rate_hz=cfg.tracker_rate_hz))
-    keep = rng.random(idx.size) >= cfg.drop_fraction
-    keep &= np.all(np.isfinite(optical[idx]), axis=1)  # occluded markers: the tracker reports nothing
-    quat = quat_multiply(quat_normalize(np.where(np.isfinite(optical[idx]), optical[idx], [1.0, 0, 0, 0])), quat_from_rotvec(error))
-    gyro = Stream(
-        "gyro",
-        "gyro",
-        gyro_in.t.copy(),
-        gyro_in.values.copy(),
-        KIND_COLUMNS["gyro"],
-        0.0,
-        {"rate_hz": rate, "frame": "head", "noise_sigma_rad_s": cfg.gyro_noise_sigma_rad_s, "calibrated": False},
-    )
-    e = cfg.errors
-    tracker = Stream(
-        "tracker",
-        "attitude",
-        gyro_in.t[idx][keep],
-        quat[keep],
-        KIND_COLUMNS["attitude"],
-        cfg.tracker_latency_s,
-        {
-            "rate_hz": cfg.tracker_rate_hz,
-            "frame": "world_R_head",
-            "noise_sigma_deg": e.tracker_white_sigma_realistic_deg,
-            "markov_sigma_deg": e.tracker_gm_sigma_deg,
-            "markov_tau_s": e.tracker_gm_tau_s,
-        },
-    )
-    if cfg.estimate_gyro_delay:  # from the two streams the estimators get; the reference is not read
-        delay = head.gyro_delay_from_tracker(Session("head", {"gyro": gyro, "tracker": tracker}, None, {}, trial.path))
-        gyro = replace(gyro, meta={**gyro.meta, "delay_s": delay.delay_s, "delay_sigma_s": delay.sigma_s})
-    truth = replace(trial.truth, meta={**trial.truth.meta, "frame": "world_R_head"})
-    meta = {
-        "session": {
-            "system": "head",
-            "dataset": "BROAD",
-            "trial": Path(path).stem,
-            "world_frame": "ENU (optical)",
-            "description": f"head session from BROAD trial {Path(path).stem}: recorded gyro, optical attitude as a late tracker",
-        }
-    }
-    return Session("head", {"gyro": gyro, "tracker": tracker, "movement": trial.stream("movement")}, truth, meta, trial.path)
-
-
-# ------------------------------------------------------------------------------------ scoring
+SOLVER_OF = {"tracker": "tracker", "method2": "ekf", "method2_paper_values": "method2_paper_values", "isam2": "online", "batch": "batch"}
+"""The head preset's solver behind each row."""
 
 #: Method II's open settings, chosen by leave-one-trial-out (``_choose``) over the trials of the run (the paper's values
 #: fit its own hardware and rate): process noise (x the paper's w1, w2) and gyro sigma; the tracker sigma
@@ -140,58 +46,6 @@ EKF_GRID: tuple[tuple[float, float], ...] = tuple((p, g) for p in (1 / 256, 1 / 
 def ekf_setting_name(setting: tuple[float, float]) -> str:
     """A grid point as text (``process_scale=0.25 gyro_sigma_rad_s=0.45``)."""
     return f"process_scale={setting[0]:g} gyro_sigma_rad_s={setting[1]:g}"
-
-
-def ekf_config(setting: tuple[float, float]) -> HeadEkfConfig:
-    """Method II's figures at a grid point (process noise scaled from the paper's, gyro sigma replaced)."""
-    return head.ekf_config_from({"process_scale": setting[0], "gyro_sigma_rad_s": setting[1]})
-
-
-def scored_samples(session: Session, start_s: float = 1.0) -> FloatArray:
-    """Samples scored: movement flag set, reference finite and inside the Euler-angle domain, after the first second."""
-    assert session.truth is not None
-    truth = session.truth.values
-    finite = np.all(np.isfinite(truth), axis=1)
-    elevation = np.full(len(truth), np.inf)
-    elevation[finite] = np.abs(euler_zyx_from_quat(truth[finite])[:, 1])
-    moving = session.stream("movement").values[:, 0] > 0
-    return moving & finite & (elevation < np.deg2rad(EULER_DOMAIN_DEG)) & (session.truth.t >= session.truth.t[0] + start_s)
-
-
-@dataclass(frozen=True)
-class MethodResult:
-    """One method on one trial."""
-
-    rms_deg: FloatArray
-    """RMS of the azimuth, elevation and roll errors over the scored samples, degrees (NaN: not valid)."""
-    invalid: str | None
-    """Why the figures are not valid (the estimate not finite, an Euler filter outside its domain), or None."""
-    runtime_s: float
-    """Wall time of the run, seconds."""
-    raw_rms_deg: FloatArray
-    """The same RMS even where the figures are not valid (an Euler filter outside its domain: what the choice of its
-    settings compares); NaN where the run failed."""
-
-
-def _score(estimate: Estimate, session: Session, scored: FloatArray, euler_filter: bool = False) -> MethodResult:
-    assert session.truth is not None
-    quat = estimate.quat_wxyz
-    finite = np.all(np.isfinite(quat), axis=1)
-    invalid = None
-    if not finite[scored].all():
-        invalid = f"{estimate.method}: estimate not finite on {int((~finite[scored]).sum())} scored samples"
-    elif euler_filter:
-        elevation = np.rad2deg(np.abs(euler_zyx_from_quat(quat[finite])[:, 1]))
-        t = estimate.t[finite]
-        outside = elevation >= EULER_DOMAIN_DEG
-        if outside.any():
-            invalid = (
-                f"{estimate.method}: its elevation estimate reached {elevation.max():.1f} deg (first at t = {t[outside][0]:.1f} s), "
-                f"outside the Euler-angle domain |elevation| < {EULER_DOMAIN_DEG:g} deg"
-            )
-    use = scored & finite
-    rms = np.rad2deg(np.sqrt(np.mean(euler_errors(quat[use], session.truth.values[use]) ** 2, axis=0)))
-    return MethodResult(np.full(3, np.nan) if invalid else rms, invalid, estimate.runtime_s, rms)
 
 
 GRAPH_GYRO_GRID: tuple[tuple[float, float], ...] = tuple((w, q) for w in (0.0005, 0.0015) for q in (1e-3, 3e-4, 1e-4, 3e-5, 1e-5))
@@ -214,48 +68,114 @@ def graph_setting_name(setting: tuple[float, float]) -> str:
 
 
 @dataclass(frozen=True)
+class MethodResult:
+    """One row's run on one trial (one grid point), from the head preset's metrics."""
+
+    rms_deg: FloatArray
+    """RMS of the azimuth, elevation and roll errors over the scored samples, degrees (NaN: no valid figure)."""
+    invalid: str | None
+    """Why there is no figure (the preset's ``excluded``, scored samples without an estimate, a failed run), or None."""
+    runtime_s: float
+    """Wall time of the run, seconds."""
+
+
+def result_from(outcome_metrics: dict[str, Any], runtime_s: float, label: str) -> MethodResult:
+    """A row from the head preset's metrics of one run."""
+    rms = np.array([np.nan if (v := outcome_metrics["rms_deg"][a]) is None else v for a in AXES], dtype=float)
+    invalid = outcome_metrics.get("excluded")
+    if invalid is None and outcome_metrics.get("truth_samples_missing", 0):
+        invalid = f"{label}: estimate not finite on {outcome_metrics['truth_samples_missing']} scored samples"
+    return MethodResult(np.full(3, np.nan) if invalid else rms, invalid, runtime_s)
+
+
+def declare_ekf(session: Session, setting: tuple[float, float]) -> Session:
+    """The session declaring Method II's figures at a grid point (``[ekf]``)."""
+    return replace(session, meta={**session.meta, "ekf": {"process_scale": setting[0], "gyro_sigma_rad_s": setting[1]}})
+
+
+def declare_gyro(session: Session, setting: tuple[float, float]) -> Session:
+    """The session whose gyro declares a graph grid point (``noise_sigma_rad_s``, ``bias_rw_sigma``)."""
+    gyro = session.stream("gyro")
+    meta = {**gyro.meta, "noise_sigma_rad_s": setting[0], "bias_rw_sigma": setting[1]}
+    return replace(session, streams={**session.streams, "gyro": replace(gyro, meta=meta)})
+
+
+def _run(session: Session, row: str) -> MethodResult:
+    """One row on one (declared) session through ``solve_session``; a failed run is a row with its reason."""
+    try:
+        outcome = solve_session(session, SOLVER_OF[row])
+    except RuntimeError as exc:  # gtsam's indeterminate system: this declaration fails here, reported as such
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        return MethodResult(np.full(3, np.nan), f"{row}: gtsam: {first_line}", 0.0)
+    if not outcome.metrics:
+        raise SessionError(f"{session.where}: no truth to score (bench head-recorded needs the optical reference)")
+    return result_from(outcome.metrics, float(outcome.estimate.runtime_s), row)
+
+
+@dataclass(frozen=True)
 class TrialRuns:
     """Everything measured on one trial (what a worker returns)."""
 
     stem: str
-    """Trial file name without extension."""
+    """Trial (session) name."""
     methods: dict[str, MethodResult]
-    """Results of the methods without a free setting (``tracker``, ``method2_paper_values``)."""
+    """Results of the rows without a free setting (``tracker``, ``method2_paper_values``)."""
     grids: dict[str, dict[str, MethodResult]]
-    """Per tuned method (``TUNED_METHODS``), its result at every grid point, for the leave-one-trial-out choice."""
+    """Per tuned row (``TUNED_METHODS``), its result at every grid point, for the leave-one-trial-out choice."""
     scored_fraction: float
     """Scored samples over the samples in movement."""
     duration_s: float
     """Length of the trial, seconds."""
     gyro_delay_s: tuple[float, float] | None = None
-    """The gyro delay the session declares and its sigma, seconds (None: not estimated)."""
+    """The gyro delay the session declares and its sigma, seconds (None: not declared)."""
 
 
-def run_trial(path: str | Path) -> TrialRuns:
-    """Every method at every grid point on one BROAD trial turned head session."""
-    session = head_session_from_broad(path)
-    scored = scored_samples(session)
-    methods = {"tracker": _score(head.run_tracker_only(session), session, scored)}
-    paper = replace(head.run_ekf(session, "method2", HeadEkfConfig()), method="method2_paper_values")
-    methods["method2_paper_values"] = _score(paper, session, scored, euler_filter=True)
+@dataclass(frozen=True)
+class TrialJob:
+    """One trial for a worker: a BROAD file to import, or an imported session directory, and the grids."""
+
+    source: Path
+    """A BROAD trial (.mat) or a head session directory."""
+    ekf_grid: tuple[tuple[float, float], ...]
+    """Method II's grid."""
+    graph_grid: tuple[tuple[float, float], ...]
+    """The graph's gyro grid."""
+
+
+def trial_session(source: Path) -> tuple[str, Session]:
+    """A trial's head session: imported from a BROAD file as ``import broad --system head`` does, or loaded."""
+    from ..datasets.importers import broad_head_sessions
+    from ..session import load_session
+
+    if source.suffix == ".mat":
+        return broad_head_sessions(source)[0]
+    session = load_session(source)
+    if session.system != "head":
+        raise SessionError(f"{source}: a {session.system} session, not head (import BROAD trials with `import broad DIR --system head`)")
+    return source.name, session
+
+
+def run_trial(job: TrialJob) -> TrialRuns:
+    """Every row at every grid point on one trial's head session."""
+    from ..metrics import in_euler_domain, nearest_samples
+
+    stem, session = trial_session(job.source)
+    methods = {row: _run(session, row) for row in ("tracker", "method2_paper_values")}
     grids: dict[str, dict[str, MethodResult]] = {m: {} for m in TUNED_METHODS}
-    for setting in EKF_GRID:
-        grids["method2"][ekf_setting_name(setting)] = _score(head.run_ekf(session, "method2", ekf_config(setting)), session, scored, euler_filter=True)
-    gyro = session.stream("gyro")
-    for setting in GRAPH_GYRO_GRID:  # the same session, its gyro declaring another noise
-        meta = {**gyro.meta, "noise_sigma_rad_s": setting[0], "bias_rw_sigma": setting[1]}
-        declared = replace(session, streams={**session.streams, "gyro": replace(gyro, meta=meta)})
-        for name, run in (("isam2", head.run_isam2), ("batch", head.run_batch)):
-            try:
-                result = _score(run(declared), session, scored)
-            except RuntimeError as exc:  # gtsam's indeterminate system: this declaration fails here, reported as such
-                first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-                result = MethodResult(np.full(3, np.nan), f"{name} with {graph_setting_name(setting)}: gtsam: {first_line}", 0.0, np.full(3, np.nan))
-            grids[name][graph_setting_name(setting)] = result
-    moving = session.stream("movement").values[:, 0] > 0
+    for setting in job.ekf_grid:
+        grids["method2"][ekf_setting_name(setting)] = _run(declare_ekf(session, setting), "method2")
+    for setting in job.graph_grid:
+        declared = declare_gyro(session, setting)
+        for row in ("isam2", "batch"):
+            grids[row][graph_setting_name(setting)] = _run(declared, row)
+    assert session.truth is not None
+    truth = session.truth
+    flag = session.stream("movement")
+    moving = flag.values[nearest_samples(flag.t, truth.t), 0] > 0
+    scored = moving & in_euler_domain(truth.values) & (truth.t >= truth.t[0] + 1.0)
     gyro_meta = session.stream("gyro").meta
     delay = (float(gyro_meta["delay_s"]), float(gyro_meta["delay_sigma_s"])) if "delay_sigma_s" in gyro_meta else None
-    return TrialRuns(Path(path).stem, methods, grids, float(scored.sum() / max(moving.sum(), 1)), session.duration_s, delay)
+    return TrialRuns(stem, methods, grids, float(scored.sum() / max(moving.sum(), 1)), session.duration_s, delay)
 
 
 # ------------------------------------------------------------------------------------ bench
@@ -264,11 +184,16 @@ def _rms_json(rms_deg: FloatArray) -> dict[str, float | None]:
     return {axis: (float(v) if np.isfinite(v) else None) for axis, v in zip(AXES, rms_deg, strict=True)}
 
 
+def _point(name: str) -> tuple[float, ...]:
+    """A grid point's values from its text (``a=1 b=2``)."""
+    return tuple(float(part.split("=")[1]) for part in name.split())
+
+
 def _choose(runs: dict[str, TrialRuns], method: str, stems: list[str], scored_with: tuple[str, ...] = ()) -> tuple[dict[str, str], dict[str, Any]]:
     """One method's setting per trial by leave-one-trial-out. Method II: over the trials where every grid point stayed
     inside its Euler domain (outside it the figures are the singularity's: choosing by them once picked settings 2x
-    worse on the trials inside it); trials outside that set get the best over all of it. The graph: over every trial,
-    a grid point that failed on a trial (not finite, or gtsam refused the system) scoring as far off there.
+    worse on the trials inside it); trials outside that set get the best over all of it. Any row: a grid point without a
+    figure on a trial (not finite, outside the domain, or gtsam refused the system) scores as far off there.
     ``scored_with``: the methods whose mean RMS scores a grid point (the graph's gyro declaration is one property of
     the sensor that online and batch share: chosen once for both)."""
     from .tuning import leave_one_group_out
@@ -278,7 +203,7 @@ def _choose(runs: dict[str, TrialRuns], method: str, stems: list[str], scored_wi
     settings = list(runs[stems[0]].grids[method])
     # a setting that returned nothing finite on a trial scores as far off (it must not win by failing)
     together = scored_with or (method,)
-    scores = {s: {stem: float(np.mean([np.nan_to_num(np.mean(runs[stem].grids[m][s].raw_rms_deg), nan=1e3) for m in together])) for stem in tuning_trials}
+    scores = {s: {stem: float(np.mean([np.nan_to_num(np.mean(runs[stem].grids[m][s].rms_deg), nan=1e3) for m in together])) for stem in tuning_trials}
               for s in settings}
     logo = leave_one_group_out(scores)
     chosen = {stem: logo["held_out"][stem]["chosen"] if stem in logo["held_out"] else logo["chosen"] for stem in stems}
@@ -288,21 +213,30 @@ def _choose(runs: dict[str, TrialRuns], method: str, stems: list[str], scored_wi
 
 
 def bench_head_recorded(
-    directory: str | Path | None = None, workers: int = 2, progress: Callable[[str], None] | None = None, trials: Sequence[str] = ()
+    directory: str | Path | None = None, workers: int = 2, progress: Callable[[str], None] | None = None, trials: Sequence[str] = (),
+    ekf_grid: Sequence[tuple[float, float]] = EKF_GRID, graph_grid: Sequence[tuple[float, float]] = GRAPH_GYRO_GRID,
 ) -> dict[str, Any]:
-    """Every BROAD trial in ``directory`` as a head session through every method; the JSON of
-    ``fusegraph bench head-recorded`` (see the module docstring). ``trials``: file-name prefixes to keep."""
+    """Every trial in ``directory`` (BROAD's ``*.mat``, imported here as ``import broad --system head`` would, or a folder
+    of head sessions that command wrote) through every row; the JSON of ``fusegraph bench head-recorded`` (see the module
+    docstring). ``trials``: name prefixes to keep."""
+    from ..datasets.broad import DEFAULT_DIR, trial_paths
     from .cluster import completed
+    from .runner import session_dirs
 
-    paths = [p for p in trial_paths(directory or DEFAULT_DIR) if not trials or any(p.stem.startswith(t) for t in trials)]
+    folder = Path(directory or DEFAULT_DIR)
+    found = trial_paths(folder) if list(folder.glob("*.mat")) else session_dirs([folder])
+    paths = [p for p in found if not trials or any(p.name.startswith(t) for t in trials)]
     if len(paths) < 2:
-        raise ValueError(f"{directory or DEFAULT_DIR}: need at least two BROAD trials (settings are chosen leaving one out), found {len(paths)}")
+        raise ValueError(f"{folder}: need at least two trials (BROAD .mat files or head sessions; settings are chosen leaving one out), "
+                         f"found {len(paths)}")
+    jobs = [TrialJob(p, tuple(ekf_grid), tuple(graph_grid)) for p in paths]
     runs: dict[str, TrialRuns] = {}
-    for n, (path, future) in enumerate(completed(run_trial, paths, workers, None)):
-        runs[Path(path).stem] = future.result()
+    for n, (_job, future) in enumerate(completed(run_trial, jobs, workers, None)):
+        run = future.result()
+        runs[run.stem] = run
         if progress is not None:
-            progress(f"{Path(path).stem} done ({n + 1}/{len(paths)})")
-    stems = [p.stem for p in paths]
+            progress(f"{run.stem} done ({n + 1}/{len(jobs)})")
+    stems = sorted(runs, key=lambda stem: [p.stem if p.suffix == ".mat" else p.name for p in paths].index(stem))
     graph = _choose(runs, "isam2", stems, scored_with=("isam2", "batch"))
     choices = {"method2": _choose(runs, "method2", stems), "isam2": graph, "batch": graph}
     result: dict[str, Any] = {"trials": {}, "excluded": {}, "scored_fraction": {}, "runtime_s": {m: 0.0 for m in METHODS}}
@@ -339,6 +273,9 @@ def bench_head_recorded(
     result["tuning"]["failed_grid_points"] = {stem: reasons for stem, reasons in failed.items() if reasons}
     result["tuning"]["method2"]["tracker_sigma_rad"] = HeadEkfConfig().tracker_sigma_rad
     result["paper_values"] = ekf_setting_name((1.0, HeadEkfConfig().gyro_sigma_rad_s))
+    result["chosen_setting"] = {stem: {"ekf": dict(zip(("process_scale", "gyro_sigma_rad_s"), _point(choices["method2"][0][stem]), strict=True)),
+                                       "gyro": dict(zip(("noise_sigma_rad_s", "bias_rw_sigma"), _point(choices["isam2"][0][stem]), strict=True))}
+                                for stem in stems}
     result["scoring"] = (
         f"RMS of ZYX Euler-angle errors against the optical attitude at the gyro rate, over samples in movement with "
         f"|reference elevation| < {EULER_DOMAIN_DEG:g} deg, after the first second"

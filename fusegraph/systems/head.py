@@ -34,7 +34,7 @@ from ..geometry import (
 )
 from ..graphs.head import HeadGraphBuilder, HeadModel, X, head_model_for, time_ordering
 from ..progress import progress as progress_bar
-from ..session import Session, replay_in_arrival_order
+from ..session import Session, SessionError, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from ..tuned import tuned
@@ -584,14 +584,30 @@ def run_ekf(session: Session, mode: str, config: HeadEkfConfig | None = None) ->
     return Estimate(mode, gyro.t.copy(), quats, covs, time.perf_counter() - start)
 
 
+EULER_FILTERS = ("kalman", "method1", "method2", "method1_paper_values", "method2_paper_values")
+"""The paper's filters, whose state is ZYX Euler angles (singular at +-90 deg elevation)."""
+
+
+def declared_ekf(session: Session) -> HeadEkfConfig | None:
+    """The paper's EKF figures a session declares in ``[ekf]`` (``process_scale``, ``gyro_sigma_rad_s``, optional
+    ``tracker_sigma_rad``), or None."""
+    table = session.meta.get("ekf")
+    if not table:
+        return None
+    missing = [key for key in ("process_scale", "gyro_sigma_rad_s") if key not in table]
+    if missing:
+        raise SessionError(f"{session.where}: [ekf] needs {' and '.join(missing)} too (the paper's EKF figures are declared together)")
+    return ekf_config_from(table)
+
+
 def run_method(session: Session, method: str, model: HeadModel | None = None) -> Estimate:
-    """Any method of ``METHODS`` by name."""
+    """Any method of ``METHODS`` by name (the paper's EKFs with the figures the session declares in ``[ekf]``)."""
     if method == "tracker":
         return run_tracker_only(session)
     if method == "gyro":
         return run_gyro_only(session)
     if method in ("kalman", "method1", "method2"):
-        return run_ekf(session, method)
+        return run_ekf(session, method, declared_ekf(session))
     if method in ("method1_paper_values", "method2_paper_values"):
         return replace(run_ekf(session, method.removesuffix("_paper_values"), HeadEkfConfig()), method=method)
     if method == "isam2":
@@ -599,12 +615,6 @@ def run_method(session: Session, method: str, model: HeadModel | None = None) ->
     if method == "batch":
         return run_batch(session, model)
     raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
-
-
-# ------------------------------------------------------------------------------------ report
-
-
-# ------------------------------------------------------------------------------------- bench
 
 
 # ------------------------------------------------------------------------------ without a gyro

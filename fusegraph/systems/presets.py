@@ -108,19 +108,29 @@ def _head_run(session: Session, solver: str) -> Result:
 
 
 def _head_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    from ..metrics import AXES, gap_scores, on_truth_times, score_attitude
+    from ..metrics import AXES, EULER_DOMAIN_DEG, gap_scores, in_euler_domain, nearest_samples, on_truth_times, score_attitude
+    from .head import EULER_FILTERS
 
     truth = session.truth
     if truth is None or not isinstance(estimate, Estimate):
         return None
+    # an Euler-angle filter whose own elevation left the domain gives the singularity's figures, not its own: none
+    left = estimate.method in EULER_FILTERS and not in_euler_domain(estimate.quat_wxyz[np.isfinite(estimate.quat_wxyz).all(axis=1)]).all()
     estimate = on_truth_times(estimate, truth.t)  # the truth on any grid
-    score = score_attitude(estimate, truth.t, truth.values)
+    mask = in_euler_domain(truth.values)  # the errors are per Euler angle: scored where those are three angles
+    if "movement" in session.streams:  # BROAD's flag at each truth time (its nearest sample)
+        mask &= session.stream("movement").values[nearest_samples(session.stream("movement").t, truth.t), 0] > 0
+    score = score_attitude(estimate, truth.t, truth.values, mask=mask)
+    rms_rad = np.full(3, np.nan) if left else score.rms_rad
     out: dict[str, Any] = {
-        "rms_deg": dict(zip(AXES, (float(v) for v in np.rad2deg(score.rms_rad)), strict=True)),
-        "rms_rad": dict(zip(AXES, (float(v) for v in score.rms_rad), strict=True)),
-        "nees": score.nees,
+        "rms_deg": dict(zip(AXES, (float(v) for v in np.rad2deg(rms_rad)), strict=True)),
+        "rms_rad": dict(zip(AXES, (float(v) for v in rms_rad), strict=True)),
+        "nees": None if left else score.nees,
         "truth_samples_scored": score.samples,
+        "truth_samples_missing": score.missing,
     }
+    if left:
+        out["excluded"] = f"{estimate.method}: its elevation estimate left the Euler-angle domain |elevation| < {EULER_DOMAIN_DEG:g} deg"
     trackers = session.streams_of_kind("attitude")
     gaps = trackers[0].gaps() if trackers else []
     if gaps:
@@ -337,13 +347,18 @@ PRESETS: dict[str, Preset] = {
         name="head",
         summary="HMD head attitude at the gyro rate from a gyro and a ~100 ms late magnetic tracker (optionally the IMU's accelerometer)",
         streams="gyro (kind gyro), tracker (kind attitude, latency_s), optional accel (kind accel)",
-        session_keys=(),
+        session_keys=(KeySpec("ekf.process_scale", None, "the paper's EKFs (ekf, method1, kalman): x the paper's process noise (w1, w2); "
+                              "with ekf.gyro_sigma_rad_s (absent: each filter's figures tuned on seeds 100-119)"),
+                      KeySpec("ekf.gyro_sigma_rad_s", None, "the paper's EKFs: gyro noise, rad/s"),
+                      KeySpec("ekf.tracker_sigma_rad", None, "the paper's EKFs: tracker noise, rad (absent: the paper's 0.0268)")),
         solvers={"online": "iSAM2, causal estimate at every gyro sample", "batch": "smoother over the whole session",
                  "ekf": "the paper's Method II (joint update)", "method1": "the paper's Method I (sequential updates)",
                  "kalman": "the paper's tracker-only Kalman filter", "tracker": "the latest arrived tracker sample", "gyro": "dead reckoning",
                  "method2_paper_values": "Method II with the paper's own noise figures (ekf/method1/method2/kalman are tuned on seeds 100-119)"},
         truth="truth.csv, kind attitude: t, qw, qx, qy, qz (scalar first), world_R_head (a head-frame vector to the world), a lag-free "
-        "reference at the gyro's sample times; scored per axis (azimuth, elevation, roll) after the first second",
+        "reference on any grid (NaN rows: occluded); scored per axis (azimuth, elevation, roll) after the first second, where the "
+        "reference's elevation is inside +-80 deg and the optional movement stream (kind flag) is 1; an Euler-angle filter that "
+        "leaves that domain gets no figure (metrics.excluded says why)",
         axes="gyro: the head's angular rate in the head frame, rad/s (any right-handed head frame: simulations use x forward, y left, "
         "z up); tracker: world_R_head of the SAME head frame in the tracker's world, scalar first, stamped with its sample time "
         "(latency_s: how much later it arrives); accel (optional): specific force in the head frame, +9.81 m/s^2 up at rest",
