@@ -167,7 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "uwb: one UWB run's folder (UWB_<run>.csv + motion_capture_<run>.csv + SOURCE_README.md) -> an ultrasonic session "
                          "(anchors as receivers, tags unlabelled on one rigid planar body, motion capture on the UWB clock as truth). "
                          "oxford: an Oxford step recording folder or the dataset folder -> walking "
-                         "sessions with the phone accelerometer and the hand-counted steps (run --solver steps). plaza: Plaza1|Plaza2 (shipped with gtsam) "
+                         "sessions with the phone accelerometer and the hand-counted steps (run --solver steps). hapt: UCI HAPT's raw folder -> "
+                         "walking sessions, one per experiment (waist accel + gyro, hand labels as the scoring-only activity stream). "
+                         "mobgap: Mobilise-D lab recordings in mobgap's layout -> walking sessions per test and trial (lower-back IMU; "
+                         "the INDIP reference's bouts, steps, stride lengths in [truth_extra]). plaza: Plaza1|Plaza2 (shipped with gtsam) "
                          "-> a walking session driven by wheel odometry with beacon ranges (start found from the ranges). tobii: a Tobii Pro Glasses 3 "
                          "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth). csv: one stream of a "
                          "vendor's CSV export mapped onto a kind (--kind, --columns, --units, --time-units), into a new session "
@@ -186,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "--out sessions/mine   # adds a stream\n"
                          "  fusegraph import xdf run1.xdf --system head --map HMD_gyro=gyro --map Polhemus=tracker:attitude --out sessions/run1",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    imp.add_argument("format", choices=["broad", "oxford", "plaza", "tobii", "uwb", "csv", "xdf"])
+    imp.add_argument("format", choices=["broad", "hapt", "mobgap", "oxford", "plaza", "tobii", "uwb", "csv", "xdf"])
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
     imp.add_argument("--system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"],
@@ -214,9 +217,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "to fusegraph/tuned.toml (with the seeds or trials and the score), which the reports and benches read. "
                          f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag, broad_motion, broad_bias, broad_online "
                          "(BROAD trials; broad_mag, broad_motion, broad_bias per --solver, written as broad_mag / broad_mag_batch ...; "
-                         "broad_online: the online solver's relinearisation checks).",
+                         "broad_online: the online solver's relinearisation checks); activity (the waist activity classifier on "
+                         "../shared/data/hapt or --sessions: boosting stages and context by grouped cross-validation over the subjects; "
+                         "--write makes it the model on main, fusegraph/models/activity_waist.json).",
                          epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune head_ekf --write --workers 2\n"
-                         "  fusegraph tune broad_mag --solver batch --write\n  fusegraph tune broad_motion --workers 2",
+                         "  fusegraph tune broad_mag --solver batch --write\n  fusegraph tune broad_motion --workers 2\n"
+                         "  fusegraph tune activity --write",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     tun.add_argument("study", help="the study's name (see above)")
     tun.add_argument("--seeds", type=_seeds_arg, help="tuning seeds (default 100-119; test seeds 0-9 are refused)")
@@ -273,16 +279,27 @@ def build_parser() -> argparse.ArgumentParser:
                          "gaze-recorded: the head-worn eye tracker's recording in DIR (default ../shared/data/gaze_tobii): the gaze-to-IMU "
                          "time offset found from the data, fixations with head motion, and the dispersion of the world gaze ray in them for "
                          "the head-frame gaze, the raw gyro, the paper's EKF, fusegraph online and batch.\n"
-                         "soak: the online head tracker over an hour of data (--duration, default 3600 s here): speed per 10 minutes and peak memory.",
+                         "soak: the online head tracker over an hour of data (--duration, default 3600 s here): speed per 10 minutes and peak memory.\n"
+                         "activity: every walking cycle the waist front end detects in DIR (UCI HAPT's raw folder, default ../shared/data/hapt, "
+                         "or sessions from `import hapt`) against the hand label of its segment: fusegraph's classifier (leave-one-user-out "
+                         "on the users that fitted the model on main, else that model unchanged) and the walking paper's rules; fraction "
+                         "correct per class, confusion, cycles per labelled second, cycles per minute while static.\n"
+                         "gait: a lower-back IMU against a reference system's walking bouts (DIR: Mobilise-D data in mobgap's layout, default "
+                         "../shared/data/mobgap, or sessions from `import mobgap`): step F1 (matched within 0.25 s), stride-length and "
+                         "walking-speed MAE per bout, for fusegraph's front end (inverted pendulum), the walking paper's speed regression "
+                         "and mobgap's own Mobilise-D pipeline.",
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png\n"
                          "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json\n  fusegraph bench ultrasonic --plot tags.png\n"
                          "  fusegraph bench walking --plot walk.png\n  fusegraph bench walking --oxford ../shared/data/steps_oxford --json\n"
-                         "  fusegraph bench head-recorded --plot head_recorded.png\n  fusegraph bench gaze-recorded --plot gaze_recorded.png",
+                         "  fusegraph bench head-recorded --plot head_recorded.png\n  fusegraph bench gaze-recorded --plot gaze_recorded.png\n"
+                         "  fusegraph import hapt ../shared/data/hapt --out sessions/hapt && fusegraph bench activity sessions/hapt --json\n"
+                         "  fusegraph bench gait ../shared/data/mobgap",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak", "head-recorded", "gaze-recorded"])
-    ben.add_argument("directory", nargs="?", type=Path, help="broad, head-recorded: directory of BROAD trials (*.mat; default ../shared/data/broad); "
-                     "gaze-recorded: the eye-tracker export (default ../shared/data/gaze_tobii)")
+    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak", "head-recorded", "gaze-recorded", "activity", "gait"])
+    ben.add_argument("directory", nargs="?", type=Path, help="broad, head-recorded: directory of BROAD trials (*.mat; default ../shared/data/broad) "
+                     "or, head-recorded, of the head sessions `import broad --system head` wrote; "
+                     "gaze-recorded: the eye-tracker export (default ../shared/data/gaze_tobii); activity: HAPT's raw folder or imported sessions")
     ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600); ultrasonic: seconds per run (default 20)")
     ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
     ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="head: sensor error profile")
@@ -634,6 +651,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         print(_dump(found) if args.json else head_recorded.format_head_recorded(found))
         if args.plot:
             print(f"wrote {head_recorded.plot_head_recorded(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
+        return 0
+    if args.system == "gait":
+        from .evaluation.gait import bench_gait, format_gait
+
+        found = bench_gait(args.directory, progress=lambda line: print(line, file=sys.stderr))
+        print(_dump(found) if args.json else format_gait(found))
+        return 0
+    if args.system == "activity":
+        from .evaluation.activity import bench_activity, format_activity
+
+        found = bench_activity(args.directory, progress=lambda line: print(line, file=sys.stderr))
+        print(_dump(found) if args.json else format_activity(found))
         return 0
     if args.system == "gaze-recorded":
         from .evaluation import gaze_recorded

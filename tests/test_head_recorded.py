@@ -11,10 +11,10 @@ import pytest
 from conftest import requires_shared_data
 
 from fusegraph.estimate import Estimate
-from fusegraph.metrics import EULER_DOMAIN_DEG
-from fusegraph.systems.presets import PRESETS
 from fusegraph.geometry import quat_conjugate, quat_from_euler_zyx, quat_multiply, rotvec_from_quat
+from fusegraph.metrics import EULER_DOMAIN_DEG
 from fusegraph.session import KIND_COLUMNS, Session, Stream
+from fusegraph.systems.presets import PRESETS
 
 
 def _session(elevation_deg: np.ndarray) -> Session:

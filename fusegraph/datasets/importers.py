@@ -18,6 +18,11 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
   the scoring-only ``truth_label`` column; ``labelled`` keeps them as a ``tag`` column), the tags as one
   rigid planar body (``tag_offsets_m``, ``planar``), the tags' motion-capture positions on the UWB clock as
   truth. Times are seconds from the first UWB epoch.
+* ``hapt``: UCI HAPT's raw folder (``acc_expXX_userYY.txt``, ``gyro_...``, ``labels.txt``) -> one walking session per
+  experiment (waist accel and gyro, the hand labels as the scoring-only ``activity`` stream; ``datasets.hapt``).
+* ``mobgap``: Mobilise-D laboratory recordings in mobgap's layout (``lab/<cohort>/<participant>/data.mat``) -> one walking
+  session per test and trial (lower-back accel and gyro; the INDIP reference's bouts, steps, stride lengths and speeds in
+  ``[truth_extra]``; ``datasets.mobgap_lab``).
 * ``tobii``: a Tobii Pro Glasses 3 export folder (``imudata.gz``, ``gazedata.gz``) -> one gaze session
   (gyro in rad/s and head axes, accel, mag on the IMU times, gaze pixels; no wall: ``target_depth_m``);
   no truth (``bench gaze-recorded`` scores fixations). See ``datasets.tobii``.
@@ -58,7 +63,15 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
         return [save_session(found[0][1], out)]
     if fmt == "tobii":
         return [save_session(tobii_session(source), out)]
-    raise SessionError(f"unknown format {fmt!r} (known: broad, oxford, plaza, tobii, uwb)")
+    if fmt == "hapt":
+        from .hapt import hapt_sessions
+
+        return [save_session(session, out / name) for name, session in hapt_sessions(source)]
+    if fmt == "mobgap":
+        from .mobgap_lab import mobgap_sessions
+
+        return [save_session(session, out / name) for name, session in mobgap_sessions(source)]
+    raise SessionError(f"unknown format {fmt!r} (known: broad, hapt, mobgap, oxford, plaza, tobii, uwb)")
 
 
 def broad_sessions(source: Path, trials: Sequence[str] = ()) -> list[tuple[str, Session]]:

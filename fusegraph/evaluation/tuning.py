@@ -464,6 +464,29 @@ def _main_recorded(args: argparse.Namespace, result: dict[str, Any], grid: Mappi
     return 0
 
 
+def _main_activity(args: argparse.Namespace) -> int:
+    """Fit the waist activity classifier on HAPT (or ``--sessions``), its stages and context chosen by grouped
+    cross-validation over the subjects; print the choice and the in-sample figures (``bench activity`` prints the
+    leave-one-user-out ones); ``--write`` makes it the model on main."""
+    from ..datasets.hapt import DEFAULT_DIR, hapt_sessions
+    from ..frontends.activity import MODEL_PATH
+    from .activity import fit_model, recording, score
+    from .runner import load_sessions
+
+    loaded = load_sessions(args.sessions) if args.sessions else hapt_sessions(DEFAULT_DIR)
+    recordings = [recording(name, session) for name, session in loaded]
+    dataset = str(loaded[0][1].meta.get("session", {}).get("dataset", "")) if loaded else ""
+    model = fit_model(recordings, dataset)
+    for setting, value in sorted(model.provenance["grid_scores"].items(), key=lambda row: -row[1]):
+        print(f"{setting:<28} cross-validated mean fraction correct {value:.4f}")
+    in_sample = score(recordings, [model.classify(r.base, r.cycle_t) for r in recordings])["correct"]
+    print(f"chosen: stages={model.provenance['stages']} context={model.context_cycles} on {', '.join(model.provenance['subjects'])}; "
+          "in-sample correct " + ", ".join(f"{k} {v:.3f}" for k, v in in_sample.items()) + " (leave-one-user-out: fusegraph bench activity)")
+    if args.write:
+        print(f"wrote {model.save(MODEL_PATH)}")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.evaluation.tuning", description=__doc__)
     parser.add_argument("study",
@@ -476,6 +499,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--sessions", nargs="+", default=[], help="BROAD studies: session directories (or folders of them) to choose on "
                         "by leave-one-recording-out, instead of ../shared/data/broad's trial files")
     args = parser.parse_args(argv)
+    if args.study == "activity":
+        return _main_activity(args)
     if args.study == "uwb_calibrated":
         return _main_recorded(args, uwb_calibrated_logo(args.sessions), UWB_CALIBRATED_GRID, "m, every estimate's RMSE of the unlabelled "
                               "online tracker (leave-one-run-out)", "runs")

@@ -63,7 +63,7 @@ class Preset:
         """Top-level keys of session.toml against this preset's (a misspelled key names the nearest)."""
         where = session.where
         tables: dict[str, list[str]] = {"session": ["system", "description", "world_frame", "scenario", "seed", "profile", "dataset", "trial",
-                                                  "time_origin_s"]}
+                                                  "time_origin_s", "subject"]}
         for spec in self.session_keys:
             table, _, key = spec.name.rpartition(".")
             tables.setdefault(table or "session", []).append(key)
@@ -444,7 +444,13 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("truth_extra.foot_switch_steps", None, "steps of a reference's foot switches (documentation)"),
                       KeySpec("placement", None, "where the sensor was carried, e.g. pocket, hand (documentation)"),
                       KeySpec("speed_model.intercept_m_s", None, "walking speed = intercept + slope x peak-to-peak acceleration (required: a person's own)"),
-                      KeySpec("speed_model.slope_s", None, "see intercept_m_s (required)")),
+                      KeySpec("speed_model.slope_s", None, "see intercept_m_s (required)"),
+                      KeySpec("person.height_m", None, "the walker's height, m (may calibrate a gait model)"),
+                      KeySpec("person.sensor_height_m", None, "height of the waist sensor above the ground standing, m (the inverted pendulum's leg)"),
+                      KeySpec("truth_extra.bouts_s", None, "a reference system's walking bouts, [[start, end], ...] s (bench gait)"),
+                      KeySpec("truth_extra.bout_stride_length_m", None, "each reference bout's mean stride length, m"),
+                      KeySpec("truth_extra.bout_walking_speed_m_s", None, "each reference bout's mean walking speed, m/s"),
+                      KeySpec("truth_extra.initial_contacts_s", None, "the reference's initial contacts (steps), s")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (wrong fixes rejected at 5 sigma, solved again)", "ekf": "the paper's Kalman framework",
                  "dead_reckoning": "steps and rides only", "steps": "step count of the accelerometer alone (a phone's step recording; no trajectory)"},
         truth="truth.csv, kind position: t, x, y, z of the waist in the building frame (ENU, z up from the ground floor), one row per "

@@ -1,0 +1,259 @@
+"""``fusegraph bench activity``: each walking cycle the waist front end detects, scored against the hand label of the
+segment it falls in (UCI HAPT), for fusegraph's classifier (``frontends.activity``) and the walking paper's rules
+(``frontends.pdr.detect_cycles``' own activity); and ``fusegraph tune activity``, which fits the classifier on main.
+
+The cycles are the walking preset's own (``pdr.gravity_filter`` + ``pdr.detect_cycles`` with ``systems.walking.WAIST``) on
+each imported session (``import hapt``). On the folder whose subjects fitted the model on main the ``fusegraph`` figures are
+leave-one-subject-out (nested: the held-out subject's model and its settings are chosen without it), the model on main's
+in-sample figures beside; on any other folder the model on main scores as it is (``cross_validated: false``).
+
+Settings the fit chooses (the rest are scikit-learn's usual boosting values, stated in ``FIXED``): the number of boosting
+stages and the context (cycles either side) from ``STAGES`` x ``CONTEXTS``, by grouped 3-fold cross-validation over the
+training subjects, scored by the mean of the three classes' fractions correct.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..frontends.activity import ACTIVITIES, FEATURES, MODEL_PATH, ActivityModel, Tree, cycle_features, in_context, load_model, with_reference
+from ..frontends.pdr import detect_cycles, gravity_filter
+from ..session import Session, SessionError
+
+WALKING_IDS = {1: "flat", 2: "stairs_up", 3: "stairs_down"}
+"""Label ids of the scored walking classes (HAPT's)."""
+
+STATIC_IDS = (4, 5, 6)
+"""Label ids of the static segments (sitting, standing, lying)."""
+
+STAGES = (50, 100, 150, 200)
+"""Boosting stages the fit chooses from."""
+
+CONTEXTS = (0, 1, 2, 3, 4)
+"""Cycles either side (within a bout) the fit chooses from."""
+
+FIXED = {"max_depth": 3, "learning_rate": 0.1, "subsample": 0.8, "random_state": 0}
+"""Boosting settings not searched (scikit-learn's default depth and rate; subsampling as its documentation's examples)."""
+
+INNER_FOLDS = 3
+"""Folds over the training subjects that choose the stages and the context."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One session's detected cycles, their features and labels."""
+
+    name: str
+    """Session name."""
+    subject: str
+    """Whose recording (``[session] subject``; the session name without one)."""
+    cycle_t: np.ndarray
+    """Time of each detected cycle, s."""
+    base: np.ndarray
+    """``frontends.activity.BASE_FEATURES`` per cycle."""
+    label: np.ndarray
+    """The label id of the segment each cycle falls in (0: none)."""
+    paper: tuple[str, ...]
+    """The paper's rules' activity per cycle."""
+    labelled_s: dict[int, float]
+    """Seconds labelled with each id."""
+
+
+def recording(name: str, session: Session) -> Recording:
+    """The walking front end's cycles on one session with an ``activity`` stream (labels) and a waist gyro and accelerometer."""
+    from ..metrics import nearest_samples
+    from ..systems.walking import WAIST
+
+    for needed in ("accel", "gyro", "activity"):
+        if needed not in session.streams:
+            raise SessionError(f"{session.where}: no '{needed}' stream (bench activity needs the waist accel and gyro and the "
+                               "activity labels: fusegraph import hapt DIR)")
+    accel, gyro, labels = session.stream("accel"), session.stream("gyro"), session.stream("activity")
+    if len(accel) != len(gyro) or not np.allclose(accel.t, gyro.t):
+        raise SessionError(f"{session.where}: accel and gyro must be sampled together")
+    t = accel.t
+    gravity = gravity_filter(t, accel.values, gyro.values, WAIST)
+    cycles = detect_cycles(t, accel.values, gyro.values, WAIST, gravity=gravity)
+    cycle_t = np.array([c.t for c in cycles])
+    label = labels.values[nearest_samples(labels.t, cycle_t), 0].astype(int) if len(cycles) else np.zeros(0, dtype=int)
+    dt = float(np.median(np.diff(labels.t)))
+    ids = labels.values[:, 0].astype(int)
+    subject = str(session.meta.get("session", {}).get("subject", name))
+    return Recording(name, subject, cycle_t, cycle_features(t, accel.values, gyro.values, gravity, cycles), label,
+                     tuple(c.activity for c in cycles), {int(i): float((ids == i).sum() * dt) for i in np.unique(ids)})
+
+
+# ------------------------------------------------------------------------------------ fitting
+
+
+def _export(model: Any, context: int, provenance: dict[str, Any]) -> ActivityModel:
+    """A fitted ``GradientBoostingClassifier`` as plain trees (its start score read back from its own decision function)."""
+    trees = tuple(tuple(Tree(e.tree_.children_left.copy(), e.tree_.children_right.copy(), e.tree_.feature.copy(), e.tree_.threshold.copy(),
+                             e.tree_.value[:, 0, 0].copy()) for e in stage) for stage in model.estimators_)
+    probe = np.zeros((1, len(FEATURES)))
+    raw = model.decision_function(probe)[0]
+    from_trees = np.array([sum(model.learning_rate * stage[k].predict(probe)[0] for stage in trees) for k in range(len(model.classes_))])
+    classes = tuple(ACTIVITIES[int(c) - 1] for c in model.classes_)
+    return ActivityModel(classes, FEATURES, raw - from_trees, float(model.learning_rate), trees, context, provenance)
+
+
+def _fit(x: np.ndarray, y: np.ndarray, stages: int) -> Any:
+    from sklearn.ensemble import GradientBoostingClassifier
+
+    return GradientBoostingClassifier(n_estimators=stages, **FIXED).fit(x, y)  # type: ignore[arg-type]
+
+
+def _design(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Features (with each recording's own reference), labels, recording index and cycle times of every labelled walking cycle."""
+    rows, labels, which, times = [], [], [], []
+    for n, rec in enumerate(recordings):
+        walking = np.isin(rec.label, list(WALKING_IDS))
+        rows.append(with_reference(rec.base)[walking])
+        labels.append(rec.label[walking])
+        which.append(np.full(int(walking.sum()), n))
+        times.append(rec.cycle_t[walking])
+    return np.vstack(rows), np.concatenate(labels), np.concatenate(which), np.concatenate(times)
+
+
+def _balanced_correct(predicted: np.ndarray, label: np.ndarray) -> float:
+    return float(np.mean([np.mean(predicted[label == i] == i) for i in WALKING_IDS if np.any(label == i)]))
+
+
+def choose_settings(recordings: Sequence[Recording]) -> tuple[int, int, dict[str, float]]:
+    """Stages and context by grouped ``INNER_FOLDS``-fold cross-validation over the recordings' subjects (every
+    recording's cycles, the model's log-probabilities smoothed within each recording)."""
+    from sklearn.model_selection import GroupKFold
+
+    x, y, which, times = _design(recordings)
+    subjects = np.array([recordings[i].subject for i in which])
+    folds = min(INNER_FOLDS, len(set(subjects)))
+    scores: dict[tuple[int, int], list[float]] = {(s, c): [] for s in STAGES for c in CONTEXTS}
+    for train, test in GroupKFold(n_splits=folds).split(x, y, subjects):
+        model = _fit(x[train], y[train], max(STAGES))
+        for stage_n, proba in enumerate(model.staged_predict_proba(x[test]), start=1):
+            if stage_n not in STAGES:
+                continue
+            log_p = np.log(np.maximum(proba, 1e-12))
+            for context in CONTEXTS:
+                predicted = np.empty(len(test), dtype=int)
+                for rec in np.unique(which[test]):
+                    rows = which[test] == rec
+                    predicted[rows] = model.classes_[in_context(log_p[rows], times[test][rows], context).argmax(axis=1)]
+                scores[(stage_n, context)].append(_balanced_correct(predicted, y[test]))
+    means = {f"stages={s} context={c}": float(np.mean(v)) for (s, c), v in scores.items()}
+    best = max(scores, key=lambda key: (float(np.mean(scores[key])), -key[0], -key[1]))  # ties: the smaller model
+    return best[0], best[1], means
+
+
+def fit_model(recordings: Sequence[Recording], dataset: str = "") -> ActivityModel:
+    """The classifier on these recordings, its stages and context chosen by ``choose_settings``."""
+    stages, context, grid = choose_settings(recordings)
+    x, y, _, _ = _design(recordings)
+    provenance = {"dataset": dataset, "subjects": sorted({r.subject for r in recordings}), "recordings": [r.name for r in recordings],
+                  "cycles": int(len(y)), "stages": stages, "context_cycles": context, "fixed": FIXED,
+                  "rule": f"stages x context chosen by grouped {INNER_FOLDS}-fold cross-validation over the subjects (mean of the "
+                          "classes' fractions correct)", "grid_scores": grid}
+    return _export(_fit(x, y, stages), context, provenance)
+
+
+# ------------------------------------------------------------------------------------ scoring
+
+
+def score(recordings: Sequence[Recording], predicted: Sequence[Sequence[str]]) -> dict[str, Any]:
+    """Per class the fraction of its cycles called right, the confusion (label -> fraction called each class, and
+    ``none`` where a labelled walking second has no cycle is not counted), cycles per labelled second, and cycles per
+    minute inside static segments."""
+    counts = {name: {other: 0 for other in ACTIVITIES} for name in WALKING_IDS.values()}
+    static_cycles = 0
+    for rec, calls in zip(recordings, predicted, strict=True):
+        for label, call in zip(rec.label, calls, strict=True):
+            if label in WALKING_IDS:
+                counts[WALKING_IDS[int(label)]][call] += 1
+            elif label in STATIC_IDS:
+                static_cycles += 1
+    seconds = {name: sum(r.labelled_s.get(i, 0.0) for r in recordings) for i, name in WALKING_IDS.items()}
+    static_s = sum(r.labelled_s.get(i, 0.0) for r in recordings for i in STATIC_IDS)
+    total = {name: sum(row.values()) for name, row in counts.items()}
+    return {
+        "correct": {name: counts[name][name] / total[name] if total[name] else None for name in counts},
+        "confusion": {name: {other: n / total[name] if total[name] else None for other, n in row.items()} for name, row in counts.items()},
+        "cycles": total,
+        "cycles_per_s": {name: total[name] / seconds[name] if seconds[name] else None for name in counts},
+        "static_cycles_per_min": 60.0 * static_cycles / static_s if static_s else None,
+    }
+
+
+def _load(directory: str | Path | None, sessions: Sequence[str | Path]) -> list[tuple[str, Session]]:
+    from ..datasets.hapt import DEFAULT_DIR, hapt_sessions
+    from .runner import load_sessions
+
+    if sessions:
+        return load_sessions(sessions)
+    folder = Path(directory or DEFAULT_DIR)
+    if list(folder.glob("acc_exp*_user*.txt")):
+        return hapt_sessions(folder)
+    return load_sessions([folder])
+
+
+def bench_activity(directory: str | Path | None = None, sessions: Sequence[str | Path] = (), model_path: str | Path = MODEL_PATH,
+                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """The JSON of ``fusegraph bench activity`` (see the module docstring): ``directory`` is HAPT's raw folder or a folder
+    of imported sessions (``sessions``: session directories instead)."""
+    model = load_model(model_path)
+    loaded = _load(directory, sessions)
+    recordings = []
+    for n, (name, session) in enumerate(loaded):
+        recordings.append(recording(name, session))
+        if progress is not None:
+            progress(f"cycles of {name} ({n + 1}/{len(loaded)})")
+    subjects = sorted({r.subject for r in recordings})
+    on_main = [model.classify(r.base, r.cycle_t) for r in recordings]
+    cross_validated = set(subjects) <= set(model.provenance.get("subjects", ())) and len(subjects) > 1
+    result: dict[str, Any] = {"users": subjects, "recordings": [r.name for r in recordings], "cross_validated": cross_validated,
+                              "model": {k: model.provenance.get(k) for k in ("dataset", "subjects", "stages", "context_cycles", "rule")}}
+    if cross_validated:
+        held_out: list[list[str]] = [[] for _ in recordings]
+        choices = {}
+        for n, subject in enumerate(subjects):
+            train = [r for r in recordings if r.subject != subject]
+            fitted = fit_model(train)
+            choices[subject] = {"stages": fitted.provenance["stages"], "context_cycles": fitted.context_cycles}
+            for i, rec in enumerate(recordings):
+                if rec.subject == subject:
+                    held_out[i] = fitted.classify(rec.base, rec.cycle_t)
+            if progress is not None:
+                progress(f"held out {subject} ({n + 1}/{len(subjects)})")
+        fusegraph = score(recordings, held_out)
+        fusegraph["correct_in_sample"] = score(recordings, on_main)["correct"]
+        result["chosen_per_user"] = choices
+    else:
+        fusegraph = score(recordings, on_main)
+    result["methods"] = {"fusegraph": fusegraph, "paper_rules": score(recordings, [list(r.paper) for r in recordings])}
+    return result
+
+
+def format_activity(result: dict[str, Any]) -> str:
+    """The bench as a table: per method and class the fraction correct and cycles per labelled second, static cycles/min."""
+    rule = "leave-one-user-out (nested)" if result["cross_validated"] else "the model on main, unchanged"
+    lines = [f"activity per detected cycle against the hand labels: {len(result['recordings'])} recordings, users {', '.join(result['users'])}",
+             f"fusegraph: {rule}; paper_rules: the walking paper's rules as detect_cycles applies them",
+             f"{'method':<22} {'flat':>7} {'up':>7} {'down':>7}   {'cycles/s flat/up/down':>22}   static cycles/min"]
+
+    def pct(v: float | None) -> str:
+        return f"{100 * v:6.1f}%" if v is not None else f"{'-':>7}"
+
+    for name, m in result["methods"].items():
+        rates = "/".join(f"{v:.2f}" if v is not None else "-" for v in m["cycles_per_s"].values())
+        lines.append(f"{name:<22} {' '.join(pct(v) for v in m['correct'].values())}   {rates:>22}   {m['static_cycles_per_min']:.2f}")
+        if "correct_in_sample" in m:
+            lines.append(f"{'  in-sample (on main)':<22} {' '.join(pct(v) for v in m['correct_in_sample'].values())}")
+    for name, m in result["methods"].items():
+        lines.append(f"confusion, {name} (row: label, columns: called flat / up / down):")
+        for label, row in m["confusion"].items():
+            lines.append(f"    {label:<12} " + " ".join(pct(v) for v in row.values()) + f"   ({m['cycles'][label]} cycles)")
+    return "\n".join(lines)

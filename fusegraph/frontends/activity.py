@@ -1,0 +1,239 @@
+"""Activity of each walking cycle from a waist IMU (flat, stairs up, stairs down): features of the pelvis's motion over a few
+steps and a small boosted-tree classifier trained on real waist recordings.
+
+What tells the activities apart on a real waist (UCI HAPT, users 1-10, medians per step flat / up / down): the vertical
+acceleration's strength (RMS 2.0 / 2.4 / 3.4 m/s^2 in 3 s around the step) and its ratio to the horizontal (1.1 / 1.7 /
+2.3), the pelvis's vertical excursion (4.7 / 8.6 / 8.9 cm peak to peak, double-integrated), the impacts of stepping down
+(skewness 0.38 / 0.38 / 0.71), the forward lean of climbing (gravity's tilt along the travel direction against the
+recording's own median), the step time (0.54 / 0.60 / 0.54 s), and the phase of the sagittal rotation against the
+vertical acceleration. Differences between people dominate: each feature also enters as its difference from the
+recording's median over its cycles (a per-person reference), which makes the classifier OFFLINE: it needs the whole
+recording (a live caller would use the median of the cycles so far).
+
+The classifier is a gradient-boosted tree ensemble (scikit-learn's ``GradientBoostingClassifier`` when fitted, in
+``evaluation.activity``), exported to plain arrays (``ActivityModel``) and evaluated here in numpy, so the front end
+needs no scikit-learn at run time and the model file does not depend on its version. Each cycle's class is the mean of
+the log-probabilities over ``context_cycles`` cycles either side within its bout (a bout: cycles less than
+``BOUT_GAP_S`` apart), the context of several steps.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.signal import butter, filtfilt
+from scipy.stats import skew
+
+from ..geometry import FloatArray
+from .gait import pelvis_excursion
+from .pdr import Cycle, vertical_horizontal
+
+ACTIVITIES = ("flat", "stairs_up", "stairs_down")
+"""The classes, in the model's order."""
+
+BOUT_GAP_S = 1.5
+"""Cycles further apart than this are in different bouts (a step takes at most 1.2 s: ``PdrConfig.max_period_s``)."""
+
+WINDOW_S = 3.0
+"""Span of signal around each cycle its features are taken over, seconds (about five steps)."""
+
+BASE_FEATURES = (
+    "period_s", "vertical_rms", "forward_rms", "lateral_rms", "vertical_over_horizontal", "excursion_pp_m", "excursion_std_m",
+    "roll_rate_rms", "pitch_rate_rms", "yaw_rate_rms", "vertical_skew", "vertical_peak_ratio", "vertical_pp", "forward_pp",
+    "corr_vertical_forward", "corr_vertical_pitch_rate", "corr_vertical_roll_rate", "vertical_max", "vertical_min",
+    "vertical_above_3hz_rms", "vertical_kurtosis", "lean_forward", "lean_lateral",
+)
+"""One value per cycle each (see ``cycle_features``); the model reads these and their differences from the recording's median."""
+
+FEATURES = BASE_FEATURES + tuple(f"{name}_vs_median" for name in BASE_FEATURES)
+"""The model's inputs, in order."""
+
+MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "activity_waist.json"
+"""The model on main (``fusegraph tune activity --sessions DIR --write`` fits and writes it)."""
+
+
+def _band(x: FloatArray, fs: float, lo_hz: float, hi_hz: float) -> FloatArray:
+    b, a = butter(2, [lo_hz / (fs / 2), hi_hz / (fs / 2)], btype="band")
+    return np.asarray(filtfilt(b, a, x, axis=0))
+
+
+def _highpass(x: FloatArray, fs: float, hz: float) -> FloatArray:
+    b, a = butter(2, hz / (fs / 2), btype="high")
+    return np.asarray(filtfilt(b, a, x, axis=0))
+
+
+def cycle_features(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, gravity: FloatArray, cycles: Sequence[Cycle]) -> FloatArray:
+    """``BASE_FEATURES`` of each cycle, shape (len(cycles), len(BASE_FEATURES)), from the waist's accelerometer and gyro and
+    ``pdr.gravity_filter``'s gravity (the sensor's axes and its orientation on the belt never enter: every signal is
+    taken in the levelled frame of gravity and the cycle's direction of travel)."""
+    fs = 1.0 / float(np.median(np.diff(t)))
+    vertical, horizontal = vertical_horizontal(accel_m_s2, gravity)
+    up = gravity / np.linalg.norm(gravity, axis=1, keepdims=True)
+    e1 = np.array([1.0, 0.0, 0.0]) - up[:, 0:1] * up  # the levelled frame of ``vertical_horizontal``
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(up, e1)
+    v = _band(vertical, fs, 0.3, 6.0)
+    h = _band(horizontal, fs, 0.3, 6.0)
+    excursion = pelvis_excursion(v, fs)
+    rates = np.stack([_band(np.einsum("ni,ni->n", gyro_rad_s, axis), fs, 0.3, 6.0) for axis in (e1, e2, up)], axis=1)
+    above_3hz = _highpass(vertical, fs, 3.0)
+    half = int(round(WINDOW_S * fs / 2))
+    rows = np.full((len(cycles), len(BASE_FEATURES)), np.nan)
+    means = np.full((len(cycles), 3), np.nan)
+    axes = np.full((len(cycles), 2, 3), np.nan)
+    for n, cycle in enumerate(cycles):
+        p = int(np.clip(np.searchsorted(t, cycle.t), 0, len(t) - 1))
+        lo, hi = max(0, p - half), min(len(t), p + half)
+        if hi - lo < 10:
+            continue
+        c, s = math.cos(cycle.travel_rad), math.sin(cycle.travel_rad)
+        forward, lateral = h[lo:hi, 0] * c + h[lo:hi, 1] * s, -h[lo:hi, 0] * s + h[lo:hi, 1] * c
+        roll_rate = rates[lo:hi, 0] * c + rates[lo:hi, 1] * s  # about the travel direction
+        pitch_rate = -rates[lo:hi, 0] * s + rates[lo:hi, 1] * c  # about the lateral axis: the sagittal rotation
+        vv, raw = v[lo:hi], vertical[lo:hi]
+        rows[n, :21] = [
+            cycle.period_s, vv.std(), forward.std(), lateral.std(), vv.std() / max(math.hypot(forward.std(), lateral.std()), 1e-9),
+            np.ptp(excursion[lo:hi]), excursion[lo:hi].std(), roll_rate.std(), pitch_rate.std(), rates[lo:hi, 2].std(),
+            skew(vv), vv.max() / max(-vv.min(), 1e-9), cycle.vertical_pp_m_s2, cycle.forward_pp_m_s2,
+            _corr(vv, forward), _corr(vv, pitch_rate), _corr(vv, roll_rate), raw.max(), raw.min(), above_3hz[lo:hi].std(),
+            float(np.mean(vv**4)) / max(float(np.mean(vv**2)) ** 2, 1e-12),
+        ]
+        means[n] = up[lo:hi].mean(axis=0)
+        axes[n, 0] = c * e1[p] + s * e2[p]
+        axes[n, 1] = np.cross(up[p], axes[n, 0])
+    if len(cycles):  # the lean: gravity's mean direction near the cycle against the recording's median, along travel and across
+        have = np.all(np.isfinite(means), axis=1)
+        if have.any():
+            median = np.median(means[have], axis=0)
+            median /= np.linalg.norm(median)
+            rows[:, 21] = np.einsum("ni,ni->n", means - median, axes[:, 0])
+            rows[:, 22] = np.einsum("ni,ni->n", means - median, axes[:, 1])
+    return rows
+
+
+def _corr(a: FloatArray, b: FloatArray) -> float:
+    sa, sb = a.std(), b.std()
+    return float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb)) if sa > 0 and sb > 0 else 0.0
+
+
+def with_reference(base: FloatArray) -> FloatArray:
+    """``FEATURES`` from ``BASE_FEATURES`` of ONE recording's cycles: each also as its difference from the recording's
+    median (the person's own reference; offline: it needs the whole recording)."""
+    base = np.nan_to_num(np.asarray(base, dtype=float))
+    median = np.median(base, axis=0) if len(base) else np.zeros(base.shape[1])
+    return np.hstack([base, base - median])
+
+
+def bouts(cycle_t: FloatArray) -> np.ndarray:
+    """Bout index of each cycle (a new bout after a gap longer than ``BOUT_GAP_S``)."""
+    cycle_t = np.asarray(cycle_t, dtype=float)
+    return np.concatenate([[0], np.cumsum(np.diff(cycle_t) > BOUT_GAP_S)]).astype(int) if len(cycle_t) else np.zeros(0, dtype=int)
+
+
+def in_context(log_proba: FloatArray, cycle_t: FloatArray, context_cycles: int) -> FloatArray:
+    """Each cycle's mean log-probability over ``context_cycles`` cycles either side inside its bout."""
+    if context_cycles <= 0 or not len(log_proba):
+        return log_proba
+    out = np.empty_like(log_proba)
+    labels = bouts(cycle_t)
+    for bout in np.unique(labels):
+        idx = np.flatnonzero(labels == bout)
+        cumulative = np.vstack([np.zeros(log_proba.shape[1]), np.cumsum(log_proba[idx], axis=0)])
+        lo = np.clip(np.arange(len(idx)) - context_cycles, 0, len(idx))
+        hi = np.clip(np.arange(len(idx)) + context_cycles + 1, 0, len(idx))
+        out[idx] = (cumulative[hi] - cumulative[lo]) / (hi - lo)[:, None]
+    return out
+
+
+@dataclass(frozen=True)
+class Tree:
+    """One regression tree as arrays (scikit-learn's ``tree_`` layout: a leaf has ``left == -1``)."""
+
+    left: np.ndarray
+    """Index of each node's left child (taken when ``x[feature] <= threshold``), -1 at a leaf."""
+    right: np.ndarray
+    """Index of each node's right child, -1 at a leaf."""
+    feature: np.ndarray
+    """Feature each split reads."""
+    threshold: FloatArray
+    """Split threshold of each node."""
+    value: FloatArray
+    """Output of each node (read at the leaves)."""
+
+    def predict(self, x: FloatArray) -> FloatArray:
+        node = np.zeros(len(x), dtype=int)
+        active = self.left[node] >= 0
+        while active.any():
+            rows = np.flatnonzero(active)
+            at = node[rows]
+            go_left = x[rows, self.feature[at]] <= self.threshold[at]
+            node[rows] = np.where(go_left, self.left[at], self.right[at])
+            active = self.left[node] >= 0
+        return self.value[node]
+
+
+@dataclass(frozen=True)
+class ActivityModel:
+    """The activity classifier: boosted trees over ``FEATURES``, and how much context it takes."""
+
+    classes: tuple[str, ...]
+    """The classes in output order (``ACTIVITIES``)."""
+    features: tuple[str, ...]
+    """The inputs in order (must be ``FEATURES``)."""
+    init_raw: FloatArray
+    """The ensemble's starting score per class."""
+    learning_rate: float
+    """Weight of each tree."""
+    trees: tuple[tuple[Tree, ...], ...]
+    """Per boosting stage, one tree per class."""
+    context_cycles: int
+    """Cycles either side (in the bout) whose log-probabilities are averaged."""
+    provenance: dict[str, Any]
+    """What it was fitted on and how its settings were chosen (dataset, subjects, rule, scores)."""
+
+    def log_proba(self, x: FloatArray) -> FloatArray:
+        """Log-probability of each class per row of ``x`` (rows of ``FEATURES``)."""
+        raw = np.tile(self.init_raw, (len(x), 1))
+        for stage in self.trees:
+            for k, tree in enumerate(stage):
+                raw[:, k] += self.learning_rate * tree.predict(x)
+        raw -= raw.max(axis=1, keepdims=True)
+        return raw - np.log(np.exp(raw).sum(axis=1, keepdims=True))
+
+    def classify(self, base: FloatArray, cycle_t: FloatArray) -> list[str]:
+        """The activity of each cycle of ONE recording from its ``cycle_features`` and times."""
+        if not len(base):
+            return []
+        scores = in_context(self.log_proba(with_reference(base)), cycle_t, self.context_cycles)
+        return [self.classes[k] for k in scores.argmax(axis=1)]
+
+    def as_json(self) -> dict[str, Any]:
+        return {"classes": list(self.classes), "features": list(self.features), "init_raw": self.init_raw.tolist(),
+                "learning_rate": self.learning_rate, "context_cycles": self.context_cycles, "provenance": self.provenance,
+                "trees": [[{"left": t.left.tolist(), "right": t.right.tolist(), "feature": t.feature.tolist(),
+                            "threshold": [round(float(v), 9) for v in t.threshold], "value": [round(float(v), 9) for v in t.value]}
+                           for t in stage] for stage in self.trees]}
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.as_json(), separators=(",", ":")) + "\n")
+        return path
+
+
+def load_model(path: str | Path = MODEL_PATH) -> ActivityModel:
+    """The activity model written by ``ActivityModel.save`` (default: the one on main)."""
+    data = json.loads(Path(path).read_text())
+    if tuple(data["features"]) != FEATURES:
+        raise ValueError(f"{path}: fitted on other features than this version computes: refit it (fusegraph tune activity --write)")
+    trees = tuple(tuple(Tree(np.array(t["left"], dtype=int), np.array(t["right"], dtype=int), np.array(t["feature"], dtype=int),
+                             np.array(t["threshold"], dtype=float), np.array(t["value"], dtype=float)) for t in stage)
+                  for stage in data["trees"])
+    return ActivityModel(tuple(data["classes"]), tuple(data["features"]), np.array(data["init_raw"], dtype=float), float(data["learning_rate"]),
+                         trees, int(data["context_cycles"]), dict(data["provenance"]))

@@ -1,0 +1,102 @@
+"""Walking activity on a real waist: the HAPT importer, the classifier's numpy evaluation, its context, the scoring, and its
+leave-one-user-out figure above a floor."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import requires_shared_data
+
+from fusegraph.evaluation.activity import Recording, _export, score
+from fusegraph.frontends.activity import FEATURES, in_context, load_model
+
+
+def test_exported_trees_give_scikit_learns_probabilities() -> None:
+    """The front end evaluates the boosted trees in numpy: the same probabilities as scikit-learn's own predict_proba
+    (to rounding: 1e-9 is far below any decision)."""
+    from sklearn.ensemble import GradientBoostingClassifier
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(600, len(FEATURES)))
+    y = 1 + (x[:, 0] > 0.3).astype(int) + (x[:, 5] + 0.5 * x[:, 7] > 0.8).astype(int)
+    model = GradientBoostingClassifier(n_estimators=30, max_depth=3, random_state=0).fit(x, y)
+    exported = _export(model, 0, {})
+    probe = rng.normal(size=(200, len(FEATURES)))
+    np.testing.assert_allclose(np.exp(exported.log_proba(probe)), model.predict_proba(probe), atol=1e-9)
+
+
+def test_context_stays_inside_a_bout() -> None:
+    """Two bouts (3 s apart): each cycle's context averages only its own bout's cycles."""
+    t = np.array([0.0, 0.5, 1.0, 4.0, 4.5])
+    log_p = np.log(np.array([[0.9, 0.05, 0.05]] * 3 + [[0.05, 0.9, 0.05]] * 2))
+    smoothed = in_context(log_p, t, 2)
+    assert list(smoothed.argmax(axis=1)) == [0, 0, 0, 1, 1]
+    np.testing.assert_allclose(smoothed[:3], log_p[:3])  # equal rows average to themselves
+    np.testing.assert_allclose(in_context(log_p, t, 0), log_p)
+
+
+def test_scoring_counts_each_cycle_against_its_segment() -> None:
+    """Constructed labels: 4 flat cycles (3 called right), 2 up (1), 1 down (1), 1 cycle while sitting over 30 s."""
+    labels = np.array([1, 1, 1, 1, 2, 2, 3, 4])
+    rec = Recording("r", "u1", np.arange(8.0), np.zeros((8, 1)), labels, ("flat",) * 8, {1: 4.0, 2: 2.0, 3: 1.0, 4: 30.0})
+    calls = ["flat", "flat", "flat", "stairs_up", "stairs_up", "stairs_down", "stairs_down", "flat"]
+    found = score([rec], [calls])
+    assert found["correct"] == {"flat": 0.75, "stairs_up": 0.5, "stairs_down": 1.0}
+    assert found["confusion"]["stairs_up"] == {"flat": 0.0, "stairs_up": 0.5, "stairs_down": 0.5}
+    assert found["cycles_per_s"] == {"flat": 1.0, "stairs_up": 1.0, "stairs_down": 1.0}
+    assert found["static_cycles_per_min"] == pytest.approx(2.0)
+
+
+def test_the_model_on_main_matches_this_versions_features() -> None:
+    model = load_model()
+    assert model.features == FEATURES and model.classes == ("flat", "stairs_up", "stairs_down")
+    assert model.provenance["subjects"] == [f"user{u:02d}" for u in range(1, 11)] and model.context_cycles in range(5)
+
+
+@requires_shared_data("hapt")
+def test_import_hapt_gives_walking_sessions_in_si_units_with_the_labels(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from fusegraph.cli import main
+    from fusegraph.datasets.hapt import DEFAULT_DIR
+    from fusegraph.session import load_session
+
+    folder = tmp_path / "raw"  # user 1's two experiments
+    folder.mkdir()
+    for name in ("acc_exp01_user01.txt", "gyro_exp01_user01.txt", "acc_exp02_user01.txt", "gyro_exp02_user01.txt", "labels.txt"):
+        (folder / name).symlink_to(DEFAULT_DIR / name)
+    assert main(["import", "hapt", str(folder), "--out", str(tmp_path / "s")]) == 0
+    session = load_session(tmp_path / "s" / "exp01_user01")
+    assert session.system == "walking" and session.meta["session"]["subject"] == "user01"
+    accel = session.stream("accel")
+    assert np.median(np.linalg.norm(accel.values, axis=1)) == pytest.approx(9.8, abs=0.3)  # g converted to m/s^2
+    labels = session.stream("activity").values[:, 0]
+    assert set(np.unique(labels)) >= {0, 1, 2, 3, 4, 5} and np.mean(labels == 1) > 0.05
+    capsys.readouterr()
+    # one user: not a leave-one-user-out fold, so the model on main scores it (in-sample here: user 1 fitted it)
+    assert main(["bench", "activity", str(tmp_path / "s"), "--json"]) == 0
+    found = json.loads(capsys.readouterr().out)
+    assert found["cross_validated"] is False and found["users"] == ["user01"]
+    for method in ("fusegraph", "paper_rules"):
+        assert set(found["methods"][method]) >= {"correct", "confusion", "cycles_per_s", "static_cycles_per_min"}
+    assert found["methods"]["fusegraph"]["correct"]["flat"] > found["methods"]["paper_rules"]["correct"]["flat"]
+
+
+@requires_shared_data("hapt")
+def test_leave_one_user_out_stays_above_a_floor() -> None:
+    """Users 1-3, each held out of a model fitted (settings chosen) on the other two: far less training data than the
+    bench's nine users, so the floor sits below its figures (flat 0.98, up 0.96, down 0.97 there); the walking paper's
+    rules score 0.15 / 0.43 / 0.61 on these users: a regression to anything like them fails."""
+    from fusegraph.datasets.hapt import DEFAULT_DIR, hapt_session
+    from fusegraph.evaluation.activity import fit_model, recording
+
+    recordings = [recording(f"exp{e:02d}", hapt_session(DEFAULT_DIR, e, u)) for e, u in ((1, 1), (2, 1), (3, 2), (4, 2), (5, 3), (6, 3))]
+    calls: list[list[str]] = [[] for _ in recordings]
+    for subject in ("user01", "user02", "user03"):
+        model = fit_model([r for r in recordings if r.subject != subject])
+        for n, rec in enumerate(recordings):
+            if rec.subject == subject:
+                calls[n] = model.classify(rec.base, rec.cycle_t)
+    correct = score(recordings, calls)["correct"]
+    assert correct["flat"] > 0.85 and correct["stairs_up"] > 0.7 and correct["stairs_down"] > 0.75, correct

@@ -1,0 +1,60 @@
+"""Gait against a reference system (``bench gait``): the inverted pendulum on a constructed walk, the scoring's
+one-to-one matching on constructed steps, and the Mobilise-D importer and bench on the shared files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import requires_shared_data
+
+from fusegraph.evaluation.gait import GaitEstimate, Reference, score_recording
+from fusegraph.frontends.gait import PendulumConfig, step_lengths
+
+
+def test_the_pendulum_gives_the_step_length_of_a_pure_vertical_excursion() -> None:
+    """A pelvis that rises and falls 3 cm each step (a sine at the step frequency) over a leg of 0.95 m: the pendulum's
+    step length is 2 sqrt(2 l h - h^2) = 0.472 m (within 3 %: the high-passes take a little of the amplitude)."""
+    fs, step_s, h = 100.0, 0.55, 0.03
+    t = np.arange(0.0, 30.0, 1.0 / fs)
+    omega = 2 * np.pi / step_s
+    vertical = (h / 2) * omega**2 * np.cos(omega * t)  # z = -(h/2) cos: its second derivative; lowest at each contact
+    steps = np.arange(1.0, 29.0, step_s)
+    lengths = step_lengths(t, vertical, steps, 0.95, PendulumConfig(0.1, 0.5, 4, 1.0))
+    expected = 2 * np.sqrt(2 * 0.95 * h - h * h)
+    assert np.nanmedian(lengths) == pytest.approx(expected, rel=0.03)
+    assert np.nanmedian(step_lengths(t, vertical, steps, 0.95, PendulumConfig(0.1, 0.5, 4, 1.25))) == pytest.approx(1.25 * expected, rel=0.03)
+
+
+def test_steps_match_one_to_one_within_the_tolerance() -> None:
+    """One bout 10-15 s with 6 contacts; the method finds 5 near them (one 0.3 s off: not a match), one extra, and one
+    step outside every bout (not counted)."""
+    contacts = np.array([10.0, 11.0, 12.0, 13.0, 14.0, 15.0])
+    reference = Reference(np.array([[10.0, 15.0]]), np.array([1.2]), np.array([1.1]), contacts)
+    steps = np.array([10.1, 11.05, 11.5, 12.3, 13.0, 14.2, 30.0])
+    estimate = GaitEstimate(steps, np.array([10.1, 12.3, 30.0]), np.array([1.0, 1.2, 5.0]), np.array([1.0, 1.0, 9.0]))
+    row = score_recording(estimate, reference)
+    assert (row["tp"], row["fp"], row["fn"]) == (4, 2, 2)  # 10.1, 11.05, 13.0, 14.2 match; 11.5 and 12.3 do not
+    assert row["stride_length_errors_m"] == [pytest.approx(0.1)] and row["walking_speed_errors_m_s"] == [pytest.approx(0.1)]
+
+
+@requires_shared_data("mobgap")
+def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from fusegraph.cli import main
+    from fusegraph.datasets.mobgap_lab import DEFAULT_DIR
+    from fusegraph.session import load_session
+
+    assert main(["import", "mobgap", str(DEFAULT_DIR), "--out", str(tmp_path / "s")]) == 0
+    session = load_session(tmp_path / "s" / "HA_001_Test11_Trial1")
+    assert session.meta["person"]["sensor_height_m"] == pytest.approx(0.964)
+    assert len(session.meta["truth_extra"]["bouts_s"]) == 6 and np.median(np.linalg.norm(session.stream("accel").values, axis=1)) == pytest.approx(9.8, abs=0.3)
+    capsys.readouterr()
+    assert main(["bench", "gait", str(tmp_path / "s"), "--json"]) == 0
+    found = json.loads(capsys.readouterr().out)
+    assert set(found["methods"]) == {"fusegraph", "paper_speed"}  # mobgap's row needs the raw files
+    assert found["cross_validated"] is True and not found["recordings"]["HA_002_Test5_Trial1"]["scored"]
+    ours = found["methods"]["fusegraph"]
+    # floors a regression would break (the bench: F1 0.80, stride length 0.18 m leave-one-participant-out)
+    assert ours["step_f1"] > 0.75 and ours["stride_length_mae_m"] < 0.25
