@@ -51,4 +51,19 @@ def bench_broad(
         rows = [trial[method] for trial in out["trials"].values()]
         out["mean"][method] = {key: float(np.mean([r[key] for r in rows])) for key in ("total", "heading", "inclination", "x_realtime")}
     out.update(methods=report["methods"], sessions=report["sessions"])
+    out["published"] = published_baselines(Path(directory or DEFAULT_DIR))
+    return out
+
+
+def published_baselines(directory: Path) -> dict[str, dict[str, float]]:
+    """The BROAD authors' published Madgwick and Mahony RMSE (all 39 trials of the benchmark, their tuned parameter), from
+    ``baseline_<name>_rmse.json`` in the trials' folder when it is there (deg: total, heading, inclination)."""
+    import json
+
+    out = {}
+    for name in ("madgwick", "mahony"):
+        path = directory / f"baseline_{name}_rmse.json"
+        if path.is_file():
+            figures = json.loads(path.read_text())["groups"]["all_trials"]["tagp_parameters"]
+            out[name] = {key.removesuffix("_rmse_deg"): float(value) for key, value in figures.items()}
     return out

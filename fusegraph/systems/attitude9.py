@@ -311,21 +311,34 @@ def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:
     return Estimate("ekf", data.t.copy(), quats, None, time.perf_counter() - start)
 
 
-def run_vqf(session: Session, offline: bool = False) -> Estimate:
-    """The peer VQF (default parameters) on the same calibrated magnetometer as ours."""
-    from ..baselines.peers import run_vqf as peer
-
+def _calibrated_mag(session: Session) -> Session:
+    """The session with its magnetometer calibrated as ours is (what the peers get too)."""
     if "mag" in session.streams:
         cal = model_for(session).mag_calibration
         if cal != MagCalibration():
             mag = session.stream("mag")
             session = replace(session, streams={**session.streams, "mag": replace(mag, values=cal.apply(mag.values))})
-    return peer(session, offline=offline)
+    return session
+
+
+def run_vqf(session: Session, offline: bool = False) -> Estimate:
+    """The peer VQF (default parameters) on the same calibrated magnetometer as ours."""
+    from ..baselines.peers import run_vqf as peer
+
+    return peer(_calibrated_mag(session), offline=offline)
+
+
+def run_imufusion(session: Session) -> Estimate:
+    """The peer imufusion (x-io Fusion, its example's settings) on the same calibrated magnetometer as ours."""
+    from ..baselines.peers import run_imufusion as peer
+
+    return peer(_calibrated_mag(session))
 
 
 METHODS: dict[str, Callable[[Session], Estimate]] = {
     "vqf": run_vqf,
     "vqf_offline": lambda s: run_vqf(s, offline=True),
+    "imufusion": run_imufusion,
     "ekf": run_ekf,
     "online": run_online,
     "batch": run_batch,

@@ -376,7 +376,8 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("truth_extra.mag_gain", None, "simulations: the true magnetometer gain (documentation)"),
                       KeySpec("truth_extra.mag_offset_uT", None, "simulations: the true magnetometer offset (documentation)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (two passes: the field model from the first)", "ekf": "the papers' 9-axis EKF on roll-pitch-yaw",
-                 "vqf": "VQF online (the peer)", "vqf_offline": "VQF offline (the peer)"},
+                 "vqf": "VQF online (the peer)", "vqf_offline": "VQF offline (the peer)",
+                 "imufusion": "x-io Fusion (imufusion, its example's settings; the peer)"},
         truth="truth.csv, kind attitude: t, qw, qx, qy, qz, world_R_sensor with the world ENU (east, north, up), at the IMU's sample "
         "times; NaN rows where the reference lost the sensor (occluded markers); scored where the optional movement flag is 1 (BROAD's "
         "metric: total, heading, inclination RMSE, no alignment of any kind)",
