@@ -1,8 +1,9 @@
 """Gaze on a real eye tracker's recording without ground truth (``fusegraph bench gaze-recorded``), through the
 session path: the export imported as ``import tobii`` writes it (the gaze-to-IMU delay and the magnetometer's fitness
 declared from the data, ``datasets.importers.tobii_session``) and every gaze solver run by ``solve_session`` and scored
-by the gaze preset's scorer: the dispersion of the world gaze ray in the fixations with head motion that the gaze and the
-gyro alone find (``frontends.gaze_timing``: no method's estimate enters).
+by the gaze preset's scorer: the dispersion of the world gaze ray in fixations that read no IMU (the device's own
+detector where the export has one, else eye-in-head velocity: ``frontends.gaze_timing.scoring_fixations``), the median
+over fixations of each one's RMS angle to its mean direction.
 
 Rows: ``head_frame`` (no head attitude: the gaze in the head frame), ``gyro`` (the raw gyro integrated, no bias
 estimate), the paper's ``ekf``, fusegraph ``online`` and ``batch``.
@@ -22,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..estimate import PointEstimate
-from ..frontends.gaze_timing import FIXATION_MAX_DEG_S, Fixation, dispersion_deg, fixation_angles, fixations, world_gaze_speed
+from ..frontends.gaze_timing import Fixation, _ray_and_rate, dispersions_deg, fixation_angles, saccade_threshold_deg_s, scoring_fixations
 from ..records import GazeSession
 from ..session import Session
 from .runner import solve_session
@@ -44,7 +45,9 @@ class RecordedGaze:
     metrics: dict[str, dict[str, Any]]
     """Each row's metrics, as ``run --json`` prints them."""
     fixations: list[Fixation]
-    """Fixations with head motion."""
+    """The fixations scored."""
+    fixation_source: str
+    """``device`` or ``eye_velocity``."""
 
 
 def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = False) -> RecordedGaze:
@@ -62,22 +65,28 @@ def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = 
         assert isinstance(outcome.estimate, PointEstimate) and outcome.metrics is not None
         estimates[row], metrics[row] = outcome.estimate, outcome.metrics
     data = from_session(session)
-    return RecordedGaze(session, data, estimates, metrics, fixations(data, 0.0))
+    found, source = scoring_fixations(data, session.stream("fixation").values[:, 0] if "fixation" in session.streams else None)
+    return RecordedGaze(session, data, estimates, metrics, found, source)
 
 
 def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
     """The JSON of ``fusegraph bench gaze-recorded``."""
     found, data = run.fixations, run.data
     duration = float(data.t[-1] - data.t[0])
-    turns = [f.head_turn_deg for f in found]
+    turns = [f.eye_turn_deg for f in found]
     gaze = run.session.stream("gaze").meta
     header = run.session.meta["session"]
     return {
         "dispersion_deg": {name: m["dispersion_deg"] for name, m in run.metrics.items()},
+        "dispersion_mean_deg": {name: m["dispersion_mean_deg"] for name, m in run.metrics.items()},
+        "fixation_source": run.fixation_source,
+        "fixation_fraction": float(sum(len(f.rows) for f in found) / max(len(data.tracker_t), 1)),
         "time_offset_s": float(gaze["time_offset_s"]),
         "time_offset_sigma_s": float(gaze["time_offset_sigma_s"]),
         "fixations": len(found),
         "fixation_samples": int(sum(len(f.rows) for f in found)),
+        "fixation_eye_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
+        # the key earlier versions printed: the head's turn, now read as the eye's counter-rotation (no gyro)
         "fixation_head_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
         "gaze_samples": len(data.tracker_t),
         "gaze_untracked": int(header.get("gaze_untracked", 0)),
@@ -108,44 +117,45 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         f"{result['gaze_untracked']} untracked; magnetometer {'used' if result['use_mag'] else 'not used (uncalibratable)'})",
         f"gaze-to-IMU time offset: {1000 * result['time_offset_s']:.1f} ms (sigma {1000 * result['time_offset_sigma_s']:.1f} ms, "
         "block bootstrap); gaze stamps corrected by it for every method",
-        f"{result['fixations']} fixations with head motion ({result['fixation_samples']} samples; head turn median "
-        f"{result['fixation_head_turn_deg']['median'] or float('nan'):.1f} deg, max {result['fixation_head_turn_deg']['max'] or float('nan'):.1f} deg)",
-        f"{'method':<36} {'dispersion of the world gaze ray [deg]':>40} {'x real time':>12}",
+        f"{result['fixations']} fixations from {'the device' if result['fixation_source'] == 'device' else 'eye-in-head velocity (no IMU)'} "
+        f"({result['fixation_samples']} samples, {100 * result['fixation_fraction']:.0f} % of the gaze; eye turn in the head median "
+        f"{result['fixation_eye_turn_deg']['median'] or float('nan'):.1f} deg, max {result['fixation_eye_turn_deg']['max'] or float('nan'):.1f} deg)",
+        f"{'method':<36} {'dispersion [deg]: median':>26} {'mean':>8} {'x real time':>12}",
     ]
     for name, value in d.items():
         speed = result["x_realtime"].get(name)
-        lines.append(f"{labels[name]:<36} {value:40.3f} {'' if speed is None else f'{speed:12.0f}'}")
+        lines.append(f"{labels.get(name, name):<36} {value:26.3f} {result['dispersion_mean_deg'][name]:8.3f} {'' if speed is None else f'{speed:12.0f}'}")
     for name in ("online", "batch"):
-        lines.append(f"{name}: x{d[name] / d['ekf']:.2f} the EKF's dispersion, x{d[name] / d['head_frame']:.2f} the head-frame gaze's")
+        lines.append(f"{name}: x{d[name] / d['ekf']:.2f} the EKF's dispersion, x{d[name] / d['gyro']:.2f} the integrated gyro's, "
+                 f"x{d[name] / d['head_frame']:.2f} the head-frame gaze's")
     return "\n".join(lines)
 
 
 def plot_gaze_recorded(run: RecordedGaze, path: str | Path) -> Path:
-    """Head speed and gyro-compensated gaze speed with the fixations shaded; per method, each fixation sample's
+    """Eye-in-head speed with the saccade threshold and the scored fixations shaded; per method, each fixation sample's
     world gaze angle from its fixation's mean direction. PNG."""
     import matplotlib.pyplot as plt
 
     from ..report.plots import save_figure
 
-    speed, head, ok = world_gaze_speed(run.data, 0.0)
     found = run.fixations
-    offset = float(run.session.stream("gaze").meta["time_offset_s"])
+    _, rate, ok = _ray_and_rate(run.data.tracker_t, run.data.config.camera.ray(run.data.gaze_px))
+    speed = np.where(ok, np.rad2deg(np.linalg.norm(rate, axis=1)), np.nan)
     fig, axes = plt.subplots(2, 1, figsize=(12, 7), sharex=True)
     t = run.data.tracker_t
-    axes[0].plot(t[ok], head[ok], lw=0.7, label="head speed (gyro)")
-    axes[0].plot(t[ok], speed[ok], lw=0.7, label="world gaze speed (gyro-compensated)")
-    axes[0].axhline(FIXATION_MAX_DEG_S, color="k", lw=0.5, ls="--", label="fixation threshold")
+    axes[0].plot(t, speed, lw=0.7, label="eye-in-head speed (gaze only)")
+    axes[0].axhline(saccade_threshold_deg_s(speed), color="k", lw=0.5, ls="--", label="saccade threshold (from the data)")
     for f in found:
         for ax in axes:
             ax.axvspan(t[f.rows[0]], t[f.rows[-1]], color="g", alpha=0.15)
-    axes[0].set(ylabel="deg/s", ylim=(0, 150), title=f"fixations with head motion (shaded, {len(found)}); gaze taken {1000 * offset:.0f} ms late")
+    axes[0].set(ylabel="deg/s", ylim=(0, 300), title=f"fixations scored ({run.fixation_source}, shaded: {len(found)})")
     axes[0].legend(fontsize=8, loc="upper right")
     rays = run.data.config.camera.ray(run.data.gaze_px)
     for name, estimate in run.estimates.items():
         quat = estimate.extras["world_R_head"]
         if found:
             angles = np.rad2deg(np.concatenate([fixation_angles(quat, rays, f) for f in found]))
-            label = f"{name} ({dispersion_deg(quat, run.data, found):.2f} deg RMS)"
+            label = f"{name} (median {np.median(dispersions_deg(quat, run.data, found)):.2f} deg)"
             axes[1].plot(np.concatenate([t[f.rows] for f in found]), angles, ".", ms=2, label=label)
     axes[1].set(xlabel="time (s)", ylabel="angle from the fixation's mean (deg)", title="world gaze ray during fixations")
     axes[1].legend(fontsize=8, loc="upper right", markerscale=4)

@@ -8,11 +8,11 @@ gaze ray IN THE WORLD stays still. The world-frame angular velocity of the gaze,
   taken at stamp - d moves least in the world over the samples where the head turns (> ``HEAD_MIN_DEG_S``); each
   sample's squared speed is truncated at the fixation threshold (saccades are not fixations) and the mean minimised over
   a grid of d; its sigma is the spread of the minimiser over a block bootstrap (2 s blocks);
-* **fixations** (``fixations``): a velocity threshold (I-VT) on that speed, ``FIXATION_MAX_DEG_S`` = 30 deg/s, for at
-  least ``FIXATION_MIN_S`` without a tracking gap, and "with head motion": the head turned at least
-  ``FIXATION_HEAD_MIN_DEG`` during it;
-* the **dispersion** of a head attitude (``dispersion_deg``): per fixation, the angles of the world-frame gaze directions
-  to their mean direction; the RMS over every fixation sample, degrees.
+The fixations that SCORE the methods read no IMU (the gyro is a scored method's input): the device's own detector
+where the export has one (``device_fixations``), else the intervals between saccades of the eye-in-head speed
+(``eye_velocity_fixations``, the saccade threshold from the data) in which the eye turned in the head (the reflex
+counter-rotating a head turn). The **dispersion** of a head attitude (``dispersions_deg``): per fixation, the RMS angle
+of the world-frame gaze directions to their mean direction, degrees.
 """
 
 from __future__ import annotations
@@ -29,11 +29,17 @@ BoolArray = npt.NDArray[np.bool_]
 HEAD_MIN_DEG_S = 10.0
 """Head rates below this carry no timing information (the eye barely moves with the head), deg/s."""
 FIXATION_MAX_DEG_S = 30.0
-"""I-VT threshold on the world-frame gaze speed, deg/s (the usual value for head-worn trackers)."""
+"""The time offset's cost truncates the world-frame gaze speed here, deg/s (the usual I-VT threshold of head-worn
+trackers: faster is a saccade, which says nothing about the offset)."""
 FIXATION_MIN_S = 0.1
 """Shortest fixation, seconds."""
 FIXATION_HEAD_MIN_DEG = 5.0
-"""Head rotation during a fixation for it to test the fusion, degrees."""
+"""Eye-in-head rotation during an eye-velocity fixation (the head's turn, counter-rotated) for it to test the fusion, degrees."""
+SETTLE_S = 1.0
+"""Fixations are scored from this long after the IMU's first sample (every method's start-up, as the head system scores)
+to its last."""
+SACCADE_START_DEG_S = 100.0
+"""Where the adaptive saccade threshold starts (Nystrom & Holmqvist's initial value), deg/s."""
 OFFSET_GRID_S = np.arange(-0.3, 0.3001, 0.0025)
 """Candidate gaze-minus-IMU offsets, seconds."""
 SMOOTH_SAMPLES = 9
@@ -119,32 +125,90 @@ def gaze_time_offset(session: GazeSession, bootstrap: int = 100, block_s: float 
 
 @dataclass(frozen=True)
 class Fixation:
-    """One fixation with head motion."""
+    """One fixation scored."""
 
-    rows: FloatArray
+    rows: np.ndarray
     """Indices of its gaze samples."""
-    head_turn_deg: float
-    """How far the head turned during it, degrees."""
+    eye_turn_deg: float
+    """How far the eye turned in the head during it, degrees (in a fixation the eye counter-rotates the head's turn: the
+    reflex makes this the head motion the fixation tests, read from the gaze alone)."""
 
 
-def fixations(session: GazeSession, offset_s: float) -> list[Fixation]:
-    """Fixations with head motion (see the module docstring), the gaze taken ``offset_s`` late."""
-    speed, _, ok = world_gaze_speed(session, offset_s)
-    still = ok & (speed < FIXATION_MAX_DEG_S)
-    t = session.tracker_t - offset_s
-    gap = 2.5 * float(np.median(np.diff(t)))
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of each run of True."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(int), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _eye_turn_deg(rays: FloatArray, rows: np.ndarray) -> float:
+    """Largest angle of a fixation's head-frame rays from its first one, degrees."""
+    d = rays[rows]
+    return float(np.rad2deg(np.max(np.arccos(np.clip(d @ d[0], -1.0, 1.0)))))
+
+
+def saccade_threshold_deg_s(eye_speed_deg_s: FloatArray, start_deg_s: float = SACCADE_START_DEG_S) -> float:
+    """The data's own saccade threshold, after Nystrom & Holmqvist (Behav Res Methods 42:188-204, 2010): starting from
+    ``start_deg_s``, the centre plus 6 spreads of the eye-in-head speeds below the current threshold, until it moves
+    less than 1 deg/s. Deviation, and why: their centre and spread are the mean and standard deviation, for a head held
+    still; with the head free the reflex's speeds give a heavy tail that drove mean + 6 SD to 477 deg/s on the Tobii
+    recording (every saccade below it), so the median and the MAD (x 1.4826, the SD of a normal sample) serve here."""
+    speed = eye_speed_deg_s[np.isfinite(eye_speed_deg_s)]
+    threshold = start_deg_s
+    for _ in range(100):
+        below = speed[speed < threshold]
+        if len(below) < 10:
+            break
+        centre = float(np.median(below))
+        new = centre + 6.0 * 1.4826 * float(np.median(np.abs(below - centre)))
+        if abs(new - threshold) < 1.0:
+            return new
+        threshold = new
+    return threshold
+
+
+def eye_velocity_fixations(session: GazeSession) -> tuple[list[Fixation], float]:
+    """Fixations from the gaze alone (no IMU): the intervals between saccades of the eye-in-head speed (its threshold
+    from the data, ``saccade_threshold_deg_s``) lasting ``FIXATION_MIN_S`` without a tracking gap, in which the eye
+    turned at least ``FIXATION_HEAD_MIN_DEG`` in the head (the reflex's counter-rotation: a fixation with head motion).
+    Returns them and the threshold."""
+    rays, rate, ok = _ray_and_rate(session.tracker_t, session.config.camera.ray(session.gaze_px))
+    speed = np.where(ok, np.rad2deg(np.linalg.norm(rate, axis=1)), np.nan)
+    threshold = saccade_threshold_deg_s(speed)
+    t = session.tracker_t
     out = []
-    for seg in _segments(t, gap):
-        flags = still[seg]
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(int), [0]])))
-        for a, b in zip(edges[::2], edges[1::2], strict=True):
+    settled = _scored_span(session)
+    for seg in _segments(t, 2.5 * float(np.median(np.diff(t)))):
+        for a, b in _runs(ok[seg] & (speed[seg] < threshold) & settled[seg]):
             rows = np.arange(seg.start + a, seg.start + b)
-            if t[rows[-1]] - t[rows[0]] < FIXATION_MIN_S:
-                continue
-            inside = (session.t >= t[rows[0]]) & (session.t <= t[rows[-1]])
-            turn = float(np.linalg.norm(np.sum(session.gyro_rad_s[inside] * np.gradient(session.t)[inside, None], axis=0)))
-            if np.rad2deg(turn) >= FIXATION_HEAD_MIN_DEG:
-                out.append(Fixation(rows, float(np.rad2deg(turn))))
+            if t[rows[-1]] - t[rows[0]] >= FIXATION_MIN_S and (turn := _eye_turn_deg(rays, rows)) >= FIXATION_HEAD_MIN_DEG:
+                out.append(Fixation(rows, turn))
+    return out, threshold
+
+
+def scoring_fixations(session: GazeSession, fixation_id: FloatArray | None) -> tuple[list[Fixation], str]:
+    """The fixations that score a recording and where they come from: ``"device"`` (the export's own detector, ids per
+    gaze sample) or ``"eye_velocity"`` (``eye_velocity_fixations``)."""
+    if fixation_id is not None:
+        return device_fixations(session, fixation_id), "device"
+    return eye_velocity_fixations(session)[0], "eye_velocity"
+
+
+def _scored_span(session: GazeSession) -> np.ndarray:
+    """Gaze samples inside the IMU's span, after its first ``SETTLE_S`` (no head attitude exists outside it)."""
+    return (session.tracker_t >= session.t[0] + SETTLE_S) & (session.tracker_t <= session.t[-1])
+
+
+def device_fixations(session: GazeSession, fixation_id: FloatArray) -> list[Fixation]:
+    """The eye tracker's own fixations (its detector's id per gaze sample, 0 or NaN outside one) lasting
+    ``FIXATION_MIN_S`` after the first ``SETTLE_S``; every one is scored (the device's detector decides what a fixation is)."""
+    rays = session.config.camera.ray(session.gaze_px)
+    ids = np.nan_to_num(np.asarray(fixation_id, dtype=float))
+    out = []
+    for value in np.unique(ids[ids > 0]):
+        rows = np.flatnonzero(ids == value)
+        rows = rows[_scored_span(session)[rows]]
+        if len(rows) and session.tracker_t[rows[-1]] - session.tracker_t[rows[0]] >= FIXATION_MIN_S:
+            out.append(Fixation(rows, _eye_turn_deg(rays, rows)))
     return out
 
 
@@ -161,13 +225,12 @@ def fixation_angles(world_R_head: FloatArray | None, rays: FloatArray, fixation:
     return np.arccos(np.clip(d @ mean, -1.0, 1.0))
 
 
-def dispersion_deg(world_R_head: FloatArray | None, session: GazeSession, found: list[Fixation]) -> float:
-    """RMS angle of the world-frame gaze directions to their fixation's mean direction, over every fixation sample, degrees.
+def dispersions_deg(world_R_head: FloatArray | None, session: GazeSession, found: list[Fixation]) -> FloatArray:
+    """Each fixation's dispersion: the RMS angle of its world-frame gaze directions to their mean direction, degrees.
     ``world_R_head`` (quaternions at the gaze samples) None: the head frame. A method without an attitude on a fixation
-    sample fails (NaN): it does not escape its hard samples."""
+    sample gets NaN there: it does not escape its hard samples."""
     rays = session.config.camera.ray(session.gaze_px)
-    angles = [fixation_angles(world_R_head, rays, fixation) for fixation in found]
-    return float(np.rad2deg(np.sqrt(np.mean(np.concatenate(angles) ** 2)))) if angles else float("nan")
+    return np.array([float(np.rad2deg(np.sqrt(np.mean(fixation_angles(world_R_head, rays, f) ** 2)))) for f in found])
 
 
 def gyro_attitude(session: GazeSession) -> FloatArray:

@@ -191,9 +191,10 @@ def _gaze_run(session: Session, solver: str) -> Result:
 
 
 def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    """With a true gaze point: RMS on the wall (mm). Without (a recording): the dispersion of the world gaze ray in the
-    fixations with head motion that the gaze and the gyro alone find (``frontends.gaze_timing``), degrees."""
-    from ..frontends.gaze_timing import dispersion_deg, fixations
+    """With a true gaze point: RMS on the wall (mm). Without (a recording): the dispersion of the world gaze ray in
+    fixations that no scored method's input picked (``frontends.gaze_timing.scoring_fixations``: the device's own where
+    the session has a ``fixation`` stream, else eye-in-head velocity), degrees: the median over fixations (and the mean)."""
+    from ..frontends.gaze_timing import dispersions_deg, scoring_fixations
     from . import gaze
 
     data = gaze.from_session(session)
@@ -203,9 +204,13 @@ def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
         return {"rms": gaze.rms_mm(estimate.points[:, 0, :], data)}
     if "world_R_head" not in estimate.extras:
         return None
-    found = fixations(data, 0.0)  # the stamps are already moved by the declared time_offset_s
-    return {"dispersion_deg": dispersion_deg(estimate.extras["world_R_head"], data, found), "fixations": len(found),
-            "fixation_samples": int(sum(len(f.rows) for f in found))}
+    ids = session.stream("fixation").values[:, 0] if "fixation" in session.streams else None
+    found, source = scoring_fixations(data, ids)  # the stamps are already moved by the declared time_offset_s
+    per = dispersions_deg(estimate.extras["world_R_head"], data, found)
+    samples = int(sum(len(f.rows) for f in found))
+    return {"dispersion_deg": float(np.median(per)) if len(per) else float("nan"), "dispersion_mean_deg": float(np.mean(per)) if len(per) else float("nan"),
+            "fixations": len(found), "fixation_samples": samples, "fixation_fraction": samples / max(len(data.tracker_t), 1),
+            "fixation_source": source}
 
 
 # ----------------------------------------------------------------------------------- bicycle
