@@ -24,12 +24,14 @@ Updates use the Joseph form, which keeps P symmetric and positive definite in lo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any, Literal
 
 import numpy as np
 
 from ..geometry import FloatArray, euler_rate_matrix, euler_zyx_from_quat, quat_from_euler_zyx, wrap_angle
+from ..session import Session, SessionError
 
 EkfMode = Literal["method1", "method2", "kalman"]
 
@@ -211,3 +213,24 @@ def run_head_ekf(
         angles[i] = ekf.x[:3]
         angle_covs[i] = ekf.P[:3, :3]
     return quat_from_euler_zyx(angles), attitude_cov_body(angles, angle_covs)
+
+
+def ekf_config_from(setting: Mapping[str, Any]) -> HeadEkfConfig:
+    """The paper's EKF figures at a tuning setting: ``process_scale`` x the paper's process noise (w1, w2),
+    ``gyro_sigma_rad_s``, and ``tracker_sigma_rad`` when given (else the paper's)."""
+    base = HeadEkfConfig()
+    return replace(base, process_angle_sigma_rad=float(setting["process_scale"]) * base.process_angle_sigma_rad,
+                   process_rate_sigma_rad_s=float(setting["process_scale"]) * base.process_rate_sigma_rad_s,
+                   gyro_sigma_rad_s=float(setting["gyro_sigma_rad_s"]), tracker_sigma_rad=float(setting.get("tracker_sigma_rad", base.tracker_sigma_rad)))
+
+
+def declared_ekf(session: Session) -> HeadEkfConfig | None:  # the head preset's [ekf] table
+    """The paper's EKF figures a session declares in ``[ekf]`` (``process_scale``, ``gyro_sigma_rad_s``, optional
+    ``tracker_sigma_rad``), or None."""
+    table = session.meta.get("ekf")
+    if not table:
+        return None
+    missing = [key for key in ("process_scale", "gyro_sigma_rad_s") if key not in table]
+    if missing:
+        raise SessionError(f"{session.where}: [ekf] needs {' and '.join(missing)} too (the paper's EKF figures are declared together)")
+    return ekf_config_from(table)

@@ -405,8 +405,9 @@ per epoch here, so the study runs on seeds 100-104 of the tuning seeds)."""
 
 
 def _head_ekf_score(setting: dict[str, Any], seed: int, mode: str = "method2") -> float:
+    from ..baselines.ekf import ekf_config_from
     from ..metrics import score_attitude
-    from ..systems.head import ekf_config_from, run_ekf
+    from ..systems.head import run_ekf
 
     session = _simulated("head", seed)
     assert session.truth is not None

@@ -69,6 +69,14 @@ RECENT_GYRO_S = 10.0
 #: Pushed blocks joined to the kept gyro samples at the latest after this many (a block may be one sample).
 _JOIN_BLOCKS = 64
 
+GAP_PERIODS = 10.0
+"""A step of more than this many sample periods between samples is a dropout (bridged, not integrated)."""
+GAP_MIN_S = 0.05
+"""...and of at least this long, seconds (a jittery clock's late sample is not one)."""
+GAP_RATE_RAD_S = 2.0 * math.pi
+"""How fast the body may have turned in a dropout, rad/s (a head or a hand turns at most a few hundred deg/s; the bridge's
+attitude sigma is this times the gap, at most pi)."""
+
 
 def mag_noise_from(settings: Mapping[str, float]) -> MagNoise:
     """The magnetometer model of a ``broad_mag`` setting (a grid point, or the chosen one): heading sigma, gains, Cauchy width."""
@@ -170,6 +178,10 @@ class Attitude9Builder:
         # without a rate-dependent gyro term one set of preintegration parameters serves every interval
         self._params = preintegration_params(self.model.imu) if self.model.imu.gyro_scale_sigma == 0 else None
         self._still_run = 0  # consecutive still samples
+        self._nominal_dt: float | None = None  # the sample period (median of the first block's steps)
+        self.gaps: list[tuple[float, float]] = []
+        """Dropouts bridged: (time of the last sample before, length), seconds."""
+        self._bridges: set[int] = set()  # keyframes that follow a dropout
         self._solved = False
         self._keyframe_guess: list[gtsam.Rot3] = []  # each keyframe's attitude as first predicted
         # mean specific force over the interval before each keyframe, in the previous keyframe's frame (batch initial values)
@@ -283,6 +295,74 @@ class Attitude9Builder:
             return
         t, gyro, accel, still = t[first:], gyro[first:], accel[first:], still[first:]
         mag = None if mag is None else mag[first:]
+        if self._nominal_dt is None and len(t) > 1:
+            self._nominal_dt = float(np.median(np.diff(t)))
+        gap = self._gap_after(t)
+        if gap is not None:  # the samples before the gap, the bridge, then the rest (a gap in them is found in turn)
+            if gap > 0:
+                self._push(t[:gap], gyro[:gap], accel[:gap], None if mag is None else mag[:gap], still[:gap], on_keyframe)
+            self._bridge(float(t[gap]), accel[gap], None if mag is None else mag[gap], bool(still[gap]))
+            if on_keyframe is not None:
+                on_keyframe(float(t[gap]))
+            rest = slice(gap + 1, None)
+            if gap + 1 < len(t):
+                self.add_samples(t[rest], gyro[rest], accel[rest], None if mag_raw is None else np.atleast_2d(mag_raw)[first:][rest], on_keyframe)
+            return
+        self._push(t, gyro, accel, mag, still, on_keyframe)
+
+    def _gap_after(self, t: FloatArray) -> int | None:
+        """Index of the first sample that follows a dropout (``GAP_PERIODS`` nominal periods without a sample), or None."""
+        if self._nominal_dt is None:
+            return None
+        limit = max(GAP_PERIODS * self._nominal_dt, GAP_MIN_S)
+        if t[0] - self._last_t > limit:
+            return 0
+        jumps = np.flatnonzero(np.diff(t) > limit)
+        return int(jumps[0]) + 1 if len(jumps) else None
+
+    def _bridge(self, t: float, accel: FloatArray, mag: FloatArray | None, still: bool) -> None:
+        """A keyframe at the first sample after a dropout: the motion in the gap is unknown, so the previous keyframe
+        (closed at the last sample before it) is tied to it by a random-walk factor as wide as the gap allows (the
+        attitude within ``GAP_RATE_RAD_S`` x the gap, at most pi; velocity and bias by their own walks over the gap),
+        not by preintegrated motion; gravity and the magnetometer then fix the new keyframe."""
+        if self._interval:  # close a keyframe at the last sample before the gap (its index: one before the count)
+            self._count -= 1
+            self._close_keyframe(self._interval[-1][0][-1], None)
+            self._count += 1
+        k = len(self.keyframe_t)
+        self._bridges.add(k)
+        model = self.model
+        gap_s = t - self._last_t
+        self.gaps.append((self._last_t, gap_s))
+        sigma_rot = min(math.pi, GAP_RATE_RAD_S * gap_s)
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot] * 3, [1e3] * 3])
+        add = self._pending.add
+        add(k - 1, gtsam.BetweenFactorPose3(self.X(k - 1), self.X(k), gtsam.Pose3(), noise))
+        add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), gap_s, model.imu))
+        add(k, velocity_prior_factor(self.V(k), model.motion.velocity_sigma_m_s if math.isfinite(model.motion.velocity_sigma_m_s) else 50.0))
+        if math.isfinite(model.motion.position_sigma_m):
+            add(k, position_prior_factor(self.X(k), model.motion.position_sigma_m))
+        if model.gravity is not None:
+            add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
+        # the first guess after the gap: gravity and the field where there is a magnetometer (what the body is now), else
+        # the attitude before it
+        attitude = initial_attitude(accel, mag) if mag is not None else self._nav.attitude()
+        guess = gtsam.NavState(attitude, self._nav.position(), np.zeros(3))
+        self._pending.insert(self.X(k), guess.pose())
+        self._pending.insert(self.V(k), guess.velocity())
+        self._pending.insert(self.B(k), self._bias)
+        self._still_run = self._still_run + 1 if still else 0
+        self.keyframe_t.append(t)
+        self.keyframe_index.append(self._count)
+        self._last_t, self._count = t, self._count + 1
+        self._keyframe_guess.append(guess.attitude())
+        self._keyframe_accel.append(np.asarray(accel, dtype=float))
+        self._nav = guess
+        self._after_keyframe(k, guess.attitude(), mag)
+
+    def _push(self, t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray | None, still: FloatArray,
+              on_keyframe: Callable[[float], None] | None) -> None:
+        """Samples without a dropout among them or before them."""
         dt = np.empty_like(t)  # np.diff(prepend=) costs ~30 us per call: a keyframe's worth of samples is pushed at a time online
         dt[0] = t[0] - self._last_t
         np.subtract(t[1:], t[:-1], out=dt[1:])
@@ -482,6 +562,11 @@ class Attitude9Builder:
         heading_var = np.deg2rad(model.initial_attitude_sigma_deg) ** 2
         drift_var = model.imu.gyro_bias_prior_rad_s**2
         for k in range(1, len(self.keyframe_t)):
+            if k in self._bridges:  # after a dropout the gyro's frame starts again from gravity and the field, as at the start
+                world_R_gyro = gtsam.Rot3()
+                mean_force = gyro_frame[k].rotate(self._keyframe_accel[k])
+                heading_var = np.deg2rad(model.initial_attitude_sigma_deg) ** 2
+                continue
             dt = self.keyframe_t[k] - self.keyframe_t[k - 1]
             force = gyro_frame[k - 1].rotate(self._keyframe_accel[k])
             mean_force = mean_force + min(1.0, dt / _INERTIAL_TAU_S) * (force - mean_force)

@@ -154,8 +154,16 @@ def run_online(session: Session, model: Attitude9Model | None = None, config: On
         solver.update()
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), np.array(builder.posterior_quat), np.array(builder.posterior_gyro_bias), False)
     runtime = time.perf_counter() - start
+    _report_gaps(session, builder)
     extras = {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors, **_tracker_extras(builder)}
     return Estimate("online", data.t.copy(), quats, None, runtime, extras)
+
+
+def _report_gaps(session: Session, builder: Attitude9Builder) -> None:
+    """One warning per dropout the graph bridged, with its time and length."""
+    for after_s, length_s in builder.gaps:
+        warnings.warn(f"{session.where}: no gyro/accel/mag sample for {length_s:.2f} s after t = {after_s:.2f} s: the gap is bridged "
+                      "(the attitude across it comes from gravity and the field after it, not from the gyro)", SessionWarning, stacklevel=3)
 
 
 def _tracker_extras(builder: Attitude9Builder) -> dict[str, int]:
@@ -232,6 +240,7 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     start = time.perf_counter()
     model = model_for(session, model, "batch")
     builder, increment = _build_batch(session, data, model)
+    _report_gaps(session, builder)
     kq, kb, residual = _solve_batch(builder, increment, max_iterations, None)
     check = "ok"
     if np.isfinite(residual) and residual > DIVERGED_HEADING_DEG:

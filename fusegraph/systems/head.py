@@ -11,14 +11,14 @@ from __future__ import annotations
 import functools
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, Concatenate, ParamSpec
 
 import gtsam
 import numpy as np
 
-from ..baselines.ekf import HeadEkfConfig, run_head_ekf
+from ..baselines.ekf import HeadEkfConfig, declared_ekf, ekf_config_from, run_head_ekf
 from ..estimate import Estimate
 from ..factors.gyro import integrate_gyro
 from ..geometry import (
@@ -34,7 +34,7 @@ from ..geometry import (
 )
 from ..graphs.head import HeadGraphBuilder, HeadModel, X, head_model_for, time_ordering
 from ..progress import progress as progress_bar
-from ..session import Session, SessionError, replay_in_arrival_order
+from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from ..tuned import tuned
@@ -554,15 +554,6 @@ def run_gyro_only(session: Session) -> Estimate:
     return Estimate("gyro", gyro.t.copy(), quats, None, time.perf_counter() - start)
 
 
-def ekf_config_from(setting: Mapping[str, Any]) -> HeadEkfConfig:
-    """The paper's EKF figures at a tuning setting: ``process_scale`` x the paper's process noise (w1, w2),
-    ``gyro_sigma_rad_s``, and ``tracker_sigma_rad`` when given (else the paper's)."""
-    base = HeadEkfConfig()
-    return replace(base, process_angle_sigma_rad=float(setting["process_scale"]) * base.process_angle_sigma_rad,
-                   process_rate_sigma_rad_s=float(setting["process_scale"]) * base.process_rate_sigma_rad_s,
-                   gyro_sigma_rad_s=float(setting["gyro_sigma_rad_s"]), tracker_sigma_rad=float(setting.get("tracker_sigma_rad", base.tracker_sigma_rad)))
-
-
 #: The paper's EKFs, each with its noise figures chosen by its own study on seeds 100-119 (``fusegraph tune head_ekf``,
 #: ``head_ekf_method1``, ``head_ekf_kalman``; the values and scores are in ``fusegraph/tuned.toml``). The paper fitted its
 #: figures to its hardware; they stay as the ``*_paper_values`` rows.
@@ -586,18 +577,6 @@ def run_ekf(session: Session, mode: str, config: HeadEkfConfig | None = None) ->
 
 EULER_FILTERS = ("kalman", "method1", "method2", "method1_paper_values", "method2_paper_values")
 """The paper's filters, whose state is ZYX Euler angles (singular at +-90 deg elevation)."""
-
-
-def declared_ekf(session: Session) -> HeadEkfConfig | None:
-    """The paper's EKF figures a session declares in ``[ekf]`` (``process_scale``, ``gyro_sigma_rad_s``, optional
-    ``tracker_sigma_rad``), or None."""
-    table = session.meta.get("ekf")
-    if not table:
-        return None
-    missing = [key for key in ("process_scale", "gyro_sigma_rad_s") if key not in table]
-    if missing:
-        raise SessionError(f"{session.where}: [ekf] needs {' and '.join(missing)} too (the paper's EKF figures are declared together)")
-    return ekf_config_from(table)
 
 
 def run_method(session: Session, method: str, model: HeadModel | None = None) -> Estimate:
