@@ -259,3 +259,88 @@ def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: Fl
         rmse_all = float(np.sqrt(np.mean(err[finite] ** 2))) if finite.any() else float("nan")
         lost = float(np.mean(~tracked))
     return AssociationScore(correct / max(total, 1), correct_u / max(total_u, 1), rmse, rmse_all, lost, swaps)
+
+
+# ------------------------------------------------------------------------------ walking on real recordings
+
+WALKING_LABELS = {1: "flat", 2: "stairs_up", 3: "stairs_down"}
+"""Activity label ids that score walking cycles (UCI HAPT's: walking, upstairs, downstairs)."""
+
+STATIC_LABELS = (4, 5, 6)
+"""Label ids of static segments (sitting, standing, lying)."""
+
+
+def activity_counts(cycle_labels: Sequence[int] | np.ndarray, calls: Sequence[str], labels: np.ndarray, label_dt_s: float) -> dict[str, Any]:
+    """One recording's raw activity counts: per labelled walking class how many of its cycles were called each class,
+    the cycles inside static segments, and the seconds labelled with each class (what ``activity_scores`` pools)."""
+    called = {name: {other: 0 for other in WALKING_LABELS.values()} for name in WALKING_LABELS.values()}
+    static = 0
+    for label, call in zip(cycle_labels, calls, strict=True):
+        if int(label) in WALKING_LABELS:
+            called[WALKING_LABELS[int(label)]][call] += 1
+        elif int(label) in STATIC_LABELS:
+            static += 1
+    ids = np.asarray(labels, dtype=int)
+    seconds = {name: float((ids == i).sum() * label_dt_s) for i, name in WALKING_LABELS.items()}
+    seconds["static"] = float(np.isin(ids, STATIC_LABELS).sum() * label_dt_s)
+    return {"called": called, "static_cycles": static, "labelled_s": seconds}
+
+
+def activity_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Pooled over recordings (``activity_counts`` each): per class the fraction of its cycles called right, the
+    confusion (label -> fraction called each class), the cycles, cycles per labelled second, cycles per minute static."""
+    names = list(WALKING_LABELS.values())
+    called = {name: {other: sum(c["called"][name][other] for c in counts) for other in names} for name in names}
+    seconds = {name: sum(c["labelled_s"][name] for c in counts) for name in [*names, "static"]}
+    total = {name: sum(row.values()) for name, row in called.items()}
+    static = sum(c["static_cycles"] for c in counts)
+    return {
+        "correct": {name: called[name][name] / total[name] if total[name] else None for name in names},
+        "confusion": {name: {other: n / total[name] if total[name] else None for other, n in row.items()} for name, row in called.items()},
+        "cycles": total,
+        "cycles_per_s": {name: total[name] / seconds[name] if seconds[name] else None for name in names},
+        "static_cycles_per_min": 60.0 * static / seconds["static"] if seconds["static"] else None,
+    }
+
+
+GAIT_MATCH_S = 0.25
+"""A detected step matches a reference initial contact within this, seconds."""
+
+
+def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np.ndarray, walking_speed_m_s: np.ndarray,
+                bouts_s: np.ndarray, contacts_s: np.ndarray, bout_length_m: np.ndarray, bout_speed_m_s: np.ndarray) -> dict[str, Any]:
+    """One recording's step matches and per-bout errors against a reference system's bouts: the steps inside each bout's
+    span (widened by ``GAIT_MATCH_S``) matched one-to-one to its contacts within ``GAIT_MATCH_S`` (least total time
+    difference); stride length and speed: the mean of the strides inside the bout against the bout's mean."""
+    from scipy.optimize import linear_sum_assignment
+
+    tp = fp = fn = 0
+    length_errors, speed_errors = [], []
+    for n, (start, end) in enumerate(np.asarray(bouts_s, dtype=float).reshape(-1, 2)):
+        truth = contacts_s[(contacts_s >= start - 1e-6) & (contacts_s <= end + 1e-6)]
+        found = steps_s[(steps_s >= start - GAIT_MATCH_S) & (steps_s <= end + GAIT_MATCH_S)]
+        matched = 0
+        if len(truth) and len(found):
+            cost = np.abs(found[:, None] - truth[None, :])
+            rows, cols = linear_sum_assignment(np.where(cost <= GAIT_MATCH_S, cost, 1e6))
+            matched = int(np.sum(cost[rows, cols] <= GAIT_MATCH_S))
+        tp, fp, fn = tp + matched, fp + len(found) - matched, fn + len(truth) - matched
+        inside = (stride_t_s >= start) & (stride_t_s <= end)
+        if inside.any() and n < len(bout_length_m) and np.isfinite(bout_length_m[n]):
+            length_errors.append(abs(float(np.mean(stride_length_m[inside])) - float(bout_length_m[n])))
+        if inside.any() and n < len(bout_speed_m_s) and np.isfinite(bout_speed_m_s[n]):
+            speed_errors.append(abs(float(np.mean(walking_speed_m_s[inside])) - float(bout_speed_m_s[n])))
+    return {"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": length_errors, "walking_speed_errors_m_s": speed_errors,
+            "bouts": int(len(np.asarray(bouts_s).reshape(-1, 2)))}
+
+
+def gait_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Pooled over recordings (``gait_counts`` each): step F1, precision, recall, stride-length and walking-speed MAE over
+    the bouts that got a value, and how many bouts those were."""
+    tp, fp, fn = (sum(r[k] for r in counts) for k in ("tp", "fp", "fn"))
+    lengths = [e for r in counts for e in r["stride_length_errors_m"]]
+    speeds = [e for r in counts for e in r["walking_speed_errors_m_s"]]
+    return {"step_f1": 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else None,
+            "step_precision": tp / (tp + fp) if tp + fp else None, "step_recall": tp / (tp + fn) if tp + fn else None,
+            "stride_length_mae_m": float(np.mean(lengths)) if lengths else None, "walking_speed_mae_m_s": float(np.mean(speeds)) if speeds else None,
+            "bouts_scored": len(lengths), "bouts": sum(r["bouts"] for r in counts)}

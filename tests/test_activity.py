@@ -41,7 +41,8 @@ def test_context_stays_inside_a_bout() -> None:
 def test_scoring_counts_each_cycle_against_its_segment() -> None:
     """Constructed labels: 4 flat cycles (3 called right), 2 up (1), 1 down (1), 1 cycle while sitting over 30 s."""
     labels = np.array([1, 1, 1, 1, 2, 2, 3, 4])
-    rec = Recording("r", "u1", np.arange(8.0), np.zeros((8, 1)), labels, ("flat",) * 8, {1: 4.0, 2: 2.0, 3: 1.0, 4: 30.0})
+    per_second = np.repeat([1, 2, 3, 4], [4, 2, 1, 30])  # the label stream at 1 Hz: 4 s flat, 2 up, 1 down, 30 sitting
+    rec = Recording("r", "u1", np.arange(8.0), np.zeros((8, 1)), labels, ("flat",) * 8, per_second, 1.0)
     calls = ["flat", "flat", "flat", "stairs_up", "stairs_up", "stairs_down", "stairs_down", "flat"]
     found = score([rec], [calls])
     assert found["correct"] == {"flat": 0.75, "stairs_up": 0.5, "stairs_down": 1.0}
@@ -81,6 +82,13 @@ def test_import_hapt_gives_walking_sessions_in_si_units_with_the_labels(tmp_path
     for method in ("fusegraph", "paper_rules"):
         assert set(found["methods"][method]) >= {"correct", "confusion", "cycles_per_s", "static_cycles_per_min"}
     assert found["methods"]["fusegraph"]["correct"]["flat"] > found["methods"]["paper_rules"]["correct"]["flat"]
+    # the bench is the report: run --solver activity on each session, the counts pooled
+    assert main(["report", "walking", str(tmp_path / "s"), "--solvers", "activity", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["sessions"]
+    pooled = {name: sum(row["activity"]["metrics"]["cycles"][name] for row in rows.values()) for name in ("flat", "stairs_up", "stairs_down")}
+    right = {name: sum(row["activity"]["metrics"]["counts"]["called"][name][name] for row in rows.values()) for name in pooled}
+    assert pooled == found["methods"]["fusegraph"]["cycles"]
+    assert {name: right[name] / pooled[name] for name in pooled} == found["methods"]["fusegraph"]["correct"]
 
 
 @requires_shared_data("hapt")

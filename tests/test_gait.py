@@ -58,3 +58,15 @@ def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: py
     ours = found["methods"]["fusegraph"]
     # floors a regression would break (the bench: F1 0.80, stride length 0.18 m leave-one-participant-out)
     assert ours["step_f1"] > 0.75 and ours["stride_length_mae_m"] < 0.25
+    # a held-out participant's row is run --solver gait on its session declaring the setting chosen without it
+    from fusegraph.evaluation.gait import declare
+    from fusegraph.frontends.gait import PendulumConfig
+    from fusegraph.session import save_session
+
+    chosen = dict(part.split("=") for part in found["pendulum"]["chosen_per_participant"]["HA/002"].split())
+    config = PendulumConfig(float(chosen["accel_highpass_hz"]), float(chosen["highpass_hz"]), int(chosen["order"]), float(chosen["correction"]))
+    save_session(declare(load_session(tmp_path / "s" / "HA_002_Test11_Trial1"), config), tmp_path / "declared")
+    assert main(["report", "walking", str(tmp_path / "declared"), "--solvers", "gait", "--json"]) == 0
+    metrics = json.loads(capsys.readouterr().out)["sessions"]["declared"]["gait"]["metrics"]
+    bench = found["recordings"]["HA_002_Test11_Trial1"]["methods"]["fusegraph"]
+    assert (metrics["step_f1"], metrics["stride_length_mae_m"]) == (bench["step_f1"], bench["stride_length_mae_m"])

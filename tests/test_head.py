@@ -416,7 +416,7 @@ def _gyro_late(session, delay_s: float):  # type: ignore[no-untyped-def]
 
 
 def test_gyro_delay_from_tracker_finds_a_known_delay_without_the_truth() -> None:
-    from fusegraph.systems.head import gyro_delay_from_tracker
+    from fusegraph.frontends.head_timing import gyro_delay_from_tracker
 
     session = simulate_head(5, profile="realistic", duration_s=60.0)
     for delay_s in (0.0, 0.004, -0.004):

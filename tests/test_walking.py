@@ -12,6 +12,7 @@ from conftest import SHARED_DATA, assert_jacobians_match, requires_shared_data
 
 from fusegraph.datasets import steps_oxford
 from fusegraph.datasets.plaza import load_plaza
+from fusegraph.evaluation.walking import confusion
 from fusegraph.factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose
 from fusegraph.factors.ranging import RangeNoise, range_factor
 from fusegraph.frontends import pdr
@@ -99,7 +100,7 @@ def test_gravity_filter_follows_a_tilt_with_the_gyro() -> None:
 def test_front_end_on_the_walk(walk: walking.WalkingSession) -> None:
     cycles = pdr.detect_cycles(walk.t, walk.accel_m_s2, walk.gyro_rad_s)
     rides = pdr.detect_rides(walk.t, walk.accel_m_s2, walk.gyro_rad_s, cycles)
-    table = walking.confusion(walk, cycles, rides)
+    table = confusion(walk, cycles, rides)
     # the figures the bench prints; floors here are what the issue asks of the detector
     assert table["elevator"].get("elevator", 0) == len(walk.rides)
     assert table["stairs_down"].get("stairs_down", 0) >= 0.9 * sum(table["stairs_down"].values())
@@ -237,9 +238,9 @@ def test_pendulum_gait_moves_like_a_pelvis() -> None:
 def test_bench_confusion_is_scored_on_the_independent_gait() -> None:
     """The detector meets the pendulum gait's walk (its own walker's calibration) and every true activity
     gets a row; how well it does is the bench's figure, not asserted here."""
-    from fusegraph.evaluation.walking import calibrated_speed_model
+    from fusegraph.evaluation.walking import calibrated_speed_model, confusion
     from fusegraph.scenarios.walking import WalkingScenarioConfig
-    from fusegraph.systems.walking import analyse, confusion
+    from fusegraph.systems.walking import analyse
 
     config = WalkingScenarioConfig(gait="pendulum")
     walk = simulate_walking(1, config)

@@ -10,7 +10,7 @@ Each BROAD trial gives what a head-tracking rig records, minus the tracker's own
 * movement: the trial's own flag (the head preset scores where it is set);
 * truth: the optical attitude at the gyro rate (lag-free).
 
-The gyro's delay against the tracker is found from those two streams (``head.gyro_delay_from_tracker``; never
+The gyro's delay against the tracker is found from those two streams (``head_timing.gyro_delay_from_tracker``; never
 from the reference) and declared on the gyro stream, where every solver reads it.
 """
 
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..frontends import head_timing
 from ..geometry import quat_from_rotvec, quat_multiply, quat_normalize
 from ..scenarios.head import HeadScenarioConfig, tracker_errors
 from ..session import KIND_COLUMNS, Session, Stream
-from ..systems import head
 from .broad import load_broad
 
 TRACKER_SEED = 0
@@ -48,7 +48,7 @@ class RecordedHeadConfig:
     data sheet is not given; the graph estimates scale and misalignment because ``calibrated`` is false)."""
     estimate_gyro_delay: bool = True
     """Declare the gyro's delay on the session's gyro stream as found from the gyro and the tracker alone
-    (``head.gyro_delay_from_tracker``), so every method, Method II as well, runs on one clock. BROAD's gyro lags its
+    (``head_timing.gyro_delay_from_tracker``), so every method, Method II as well, runs on one clock. BROAD's gyro lags its
     optical attitude by ~4 ms (1.0-1.2 samples on all eleven trials): at 100-300 deg/s that is 0.4-1.2 deg."""
 
 
@@ -93,7 +93,7 @@ def head_session_from_broad(path: str | Path, config: RecordedHeadConfig | None 
         },
     )
     if cfg.estimate_gyro_delay:  # from the two streams the estimators get; the reference is not read
-        delay = head.gyro_delay_from_tracker(Session("head", {"gyro": gyro, "tracker": tracker}, None, {}, trial.path))
+        delay = head_timing.gyro_delay_from_tracker(Session("head", {"gyro": gyro, "tracker": tracker}, None, {}, trial.path))
         gyro = replace(gyro, meta={**gyro.meta, "delay_s": delay.delay_s, "delay_sigma_s": delay.sigma_s})
     truth = replace(trial.truth, meta={**trial.truth.meta, "frame": "world_R_head"})
     meta = {

@@ -21,15 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from ..frontends.activity import ACTIVITIES, FEATURES, MODEL_PATH, ActivityModel, Tree, cycle_features, in_context, load_model, with_reference
+from ..frontends.activity import ACTIVITIES, FEATURES, ActivityModel, Tree, cycle_features, in_context, load_model, with_reference
 from ..frontends.pdr import detect_cycles, gravity_filter
+from ..metrics import WALKING_LABELS, activity_counts, activity_scores
 from ..session import Session, SessionError
-
-WALKING_IDS = {1: "flat", 2: "stairs_up", 3: "stairs_down"}
-"""Label ids of the scored walking classes (HAPT's)."""
-
-STATIC_IDS = (4, 5, 6)
-"""Label ids of the static segments (sitting, standing, lying)."""
 
 STAGES = (50, 100, 150, 200)
 """Boosting stages the fit chooses from."""
@@ -60,8 +55,10 @@ class Recording:
     """The label id of the segment each cycle falls in (0: none)."""
     paper: tuple[str, ...]
     """The paper's rules' activity per cycle."""
-    labelled_s: dict[int, float]
-    """Seconds labelled with each id."""
+    labels: np.ndarray
+    """The label id of every sample of the ``activity`` stream (what the labelled seconds are counted from)."""
+    label_dt_s: float
+    """The ``activity`` stream's sample period, s."""
 
 
 def recording(name: str, session: Session) -> Recording:
@@ -81,11 +78,9 @@ def recording(name: str, session: Session) -> Recording:
     cycles = detect_cycles(t, accel.values, gyro.values, WAIST, gravity=gravity)
     cycle_t = np.array([c.t for c in cycles])
     label = labels.values[nearest_samples(labels.t, cycle_t), 0].astype(int) if len(cycles) else np.zeros(0, dtype=int)
-    dt = float(np.median(np.diff(labels.t)))
-    ids = labels.values[:, 0].astype(int)
     subject = str(session.meta.get("session", {}).get("subject", name))
     return Recording(name, subject, cycle_t, cycle_features(t, accel.values, gyro.values, gravity, cycles), label,
-                     tuple(c.activity for c in cycles), {int(i): float((ids == i).sum() * dt) for i in np.unique(ids)})
+                     tuple(c.activity for c in cycles), labels.values[:, 0].astype(int), float(np.median(np.diff(labels.t))))
 
 
 # ------------------------------------------------------------------------------------ fitting
@@ -112,7 +107,7 @@ def _design(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray, np
     """Features (with each recording's own reference), labels, recording index and cycle times of every labelled walking cycle."""
     rows, labels, which, times = [], [], [], []
     for n, rec in enumerate(recordings):
-        walking = np.isin(rec.label, list(WALKING_IDS))
+        walking = np.isin(rec.label, list(WALKING_LABELS))
         rows.append(with_reference(rec.base)[walking])
         labels.append(rec.label[walking])
         which.append(np.full(int(walking.sum()), n))
@@ -121,7 +116,7 @@ def _design(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray, np
 
 
 def _balanced_correct(predicted: np.ndarray, label: np.ndarray) -> float:
-    return float(np.mean([np.mean(predicted[label == i] == i) for i in WALKING_IDS if np.any(label == i)]))
+    return float(np.mean([np.mean(predicted[label == i] == i) for i in WALKING_LABELS if np.any(label == i)]))
 
 
 def choose_settings(recordings: Sequence[Recording]) -> tuple[int, int, dict[str, float]]:
@@ -165,27 +160,8 @@ def fit_model(recordings: Sequence[Recording], dataset: str = "") -> ActivityMod
 
 
 def score(recordings: Sequence[Recording], predicted: Sequence[Sequence[str]]) -> dict[str, Any]:
-    """Per class the fraction of its cycles called right, the confusion (label -> fraction called each class, and
-    ``none`` where a labelled walking second has no cycle is not counted), cycles per labelled second, and cycles per
-    minute inside static segments."""
-    counts = {name: {other: 0 for other in ACTIVITIES} for name in WALKING_IDS.values()}
-    static_cycles = 0
-    for rec, calls in zip(recordings, predicted, strict=True):
-        for label, call in zip(rec.label, calls, strict=True):
-            if label in WALKING_IDS:
-                counts[WALKING_IDS[int(label)]][call] += 1
-            elif label in STATIC_IDS:
-                static_cycles += 1
-    seconds = {name: sum(r.labelled_s.get(i, 0.0) for r in recordings) for i, name in WALKING_IDS.items()}
-    static_s = sum(r.labelled_s.get(i, 0.0) for r in recordings for i in STATIC_IDS)
-    total = {name: sum(row.values()) for name, row in counts.items()}
-    return {
-        "correct": {name: counts[name][name] / total[name] if total[name] else None for name in counts},
-        "confusion": {name: {other: n / total[name] if total[name] else None for other, n in row.items()} for name, row in counts.items()},
-        "cycles": total,
-        "cycles_per_s": {name: total[name] / seconds[name] if seconds[name] else None for name in counts},
-        "static_cycles_per_min": 60.0 * static_cycles / static_s if static_s else None,
-    }
+    """``metrics.activity_scores`` pooled over the recordings, each with its calls."""
+    return activity_scores([activity_counts(r.label, calls, r.labels, r.label_dt_s) for r, calls in zip(recordings, predicted, strict=True)])
 
 
 def _load(directory: str | Path | None, sessions: Sequence[str | Path]) -> list[tuple[str, Session]]:
@@ -200,19 +176,22 @@ def _load(directory: str | Path | None, sessions: Sequence[str | Path]) -> list[
     return load_sessions([folder])
 
 
-def bench_activity(directory: str | Path | None = None, sessions: Sequence[str | Path] = (), model_path: str | Path = MODEL_PATH,
+def bench_activity(directory: str | Path | None = None, sessions: Sequence[str | Path] = (),
                    progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The JSON of ``fusegraph bench activity`` (see the module docstring): ``directory`` is HAPT's raw folder or a folder
-    of imported sessions (``sessions``: session directories instead)."""
-    model = load_model(model_path)
+    of imported sessions (``sessions``: session directories instead). The model on main scores through ``run --solver
+    activity`` (``runner.solve_session``): its figures are ``report walking DIR --solvers activity``'s counts pooled."""
+    from .runner import solve_session
+
+    model = load_model()
     loaded = _load(directory, sessions)
-    recordings = []
+    recordings, on_main = [], []
     for n, (name, session) in enumerate(loaded):
         recordings.append(recording(name, session))
+        on_main.append(list(solve_session(session, "activity").estimate.extras["activity"]))  # type: ignore[union-attr]
         if progress is not None:
             progress(f"cycles of {name} ({n + 1}/{len(loaded)})")
     subjects = sorted({r.subject for r in recordings})
-    on_main = [model.classify(r.base, r.cycle_t) for r in recordings]
     cross_validated = set(subjects) <= set(model.provenance.get("subjects", ())) and len(subjects) > 1
     result: dict[str, Any] = {"users": subjects, "recordings": [r.name for r in recordings], "cross_validated": cross_validated,
                               "model": {k: model.provenance.get(k) for k in ("dataset", "subjects", "stages", "context_cycles", "rule")}}

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
+import numpy as np
+
 from ..datasets import steps_oxford
-from ..frontends.pdr import SpeedModel, detect_cycles, fit_speed_model
+from ..frontends.pdr import Cycle, Ride, SpeedModel, detect_cycles, fit_speed_model
+from ..records import ACTIVITIES, WalkingSession
 from ..report.walking import plot_walk
 from ..scenarios.walking import WalkingScenarioConfig, simulate_calibration_walk, simulate_walking
-from ..systems.walking import WAIST, analyse, confusion, run_all, score
+from ..systems.walking import WAIST, analyse, run_all, score
 from .runner import report_sessions
 
 
@@ -65,3 +69,16 @@ def bench_oxford(directory: Path) -> dict[str, dict[str, int | str | None]]:
         out[name] = {"true": int(extra["steps"]), "counted": int(row["metrics"]["steps"]), "phone": None,
                      "foot_switches": extra.get("foot_switch_steps"), "position": str(phone.meta["session"]["placement"])}
     return out
+
+
+def confusion(session: WalkingSession, cycles: list[Cycle], rides: list[Ride]) -> dict[str, dict[str, int]]:
+    """Per true step: the activity of the detected cycle within a quarter second (else none); per true ride: elevator or none."""
+    table: dict[str, Counter[str]] = {a: Counter() for a in ACTIVITIES}
+    ct = np.array([c.t for c in cycles])
+    for ts, activity in zip(session.step_t, session.step_activity, strict=True):
+        j = int(np.argmin(np.abs(ct - ts))) if len(ct) else -1
+        table[activity][cycles[j].activity if j >= 0 and abs(ct[j] - ts) < 0.25 else "none"] += 1
+    for start, end, _ in session.rides:
+        hit = any(r.start_s < end and r.end_s > start for r in rides)
+        table["elevator"]["elevator" if hit else "none"] += 1
+    return {a: dict(c) for a, c in table.items()}

@@ -307,7 +307,7 @@ CATALOGUE = (
             KeySpec("bias_rw_sigma", 0.001, "bias random walk, rad/s/sqrt(s) (head, > 0; attitude9: default chosen on BROAD, 1e-6)"),
             KeySpec("calibrated", False, "true when scale factors and axes are already calibrated (head: else estimated)"),
             KeySpec("delay_s", 0.0, "the output lags the motion by this much (the sensor's filter delay), s; head: every method re-times "
-                    "the samples and reports at their stamps (estimate it with the tracker: systems.head.gyro_delay_from_tracker)"),
+                    "the samples and reports at their stamps (estimate it with the tracker: frontends.head_timing.gyro_delay_from_tracker)"),
             KeySpec("delay_sigma_s", None, "how well delay_s is known, s (documentation: what the estimate of the delay said)"),
         ),
         magnitude=(Magnitude("max", 0.0, 35.0, "above a 2000 deg/s full scale: degrees per second? set units = 'deg/s' or convert"),),

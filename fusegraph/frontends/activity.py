@@ -32,7 +32,7 @@ from scipy.stats import skew
 
 from ..geometry import FloatArray
 from .gait import pelvis_excursion
-from .pdr import Cycle, vertical_horizontal
+from .pdr import Cycle, PdrConfig, detect_cycles, gravity_filter, vertical_horizontal
 
 ACTIVITIES = ("flat", "stairs_up", "stairs_down")
 """The classes, in the model's order."""
@@ -237,3 +237,13 @@ def load_model(path: str | Path = MODEL_PATH) -> ActivityModel:
                   for stage in data["trees"])
     return ActivityModel(tuple(data["classes"]), tuple(data["features"]), np.array(data["init_raw"], dtype=float), float(data["learning_rate"]),
                          trees, int(data["context_cycles"]), dict(data["provenance"]))
+
+
+def classify_waist(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, config: PdrConfig,
+                   model: ActivityModel | None = None) -> tuple[list[Cycle], list[str]]:
+    """The walking cycles of one waist recording (``pdr.detect_cycles`` with ``config``) and each one's activity by
+    ``model`` (default: the model on main)."""
+    gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, config)
+    cycles = detect_cycles(t, accel_m_s2, gyro_rad_s, config, gravity=gravity)
+    base = cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles)
+    return cycles, (model or load_model()).classify(base, np.array([c.t for c in cycles]))

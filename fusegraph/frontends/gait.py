@@ -17,6 +17,7 @@ import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from ..geometry import FloatArray
+from .pdr import PdrConfig, detect_cycles, gravity_filter, vertical_horizontal
 
 CORRECTION = 1.25
 """Zijlstra & Hof (2003)'s correction of the pendulum's step length (their Results: the model underestimated by ~20 %)."""
@@ -72,3 +73,25 @@ def step_lengths(t: FloatArray, vertical_m_s2: FloatArray, steps_s: FloatArray, 
             out[n] = config.correction * 2.0 * np.sqrt(2.0 * leg_m * h - h * h)
     out[-1] = out[-2]
     return out
+
+
+def strides(steps_s: FloatArray, step_m: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Strides as two consecutive steps (at most 2.4 s: two of the longest steps): (time of each stride's first contact,
+    length m, speed m/s)."""
+    steps_s, step_m = np.asarray(steps_s, dtype=float), np.asarray(step_m, dtype=float)
+    if len(steps_s) < 3:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    duration = steps_s[2:] - steps_s[:-2]
+    length = step_m[:-2] + step_m[1:-1]
+    keep = (duration <= 2.4) & np.isfinite(length)
+    return steps_s[:-2][keep], length[keep], length[keep] / duration[keep]
+
+
+def waist_gait(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, leg_m: float, front_end: PdrConfig,
+               config: PendulumConfig = PendulumConfig()) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Steps and strides of one lower-back recording: the walking cycles (``pdr.detect_cycles`` with ``front_end``) as
+    steps, the pendulum's step lengths, two steps a stride. Returns (step times, stride times, stride lengths, speeds)."""
+    gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, front_end)
+    steps = np.array([c.t for c in detect_cycles(t, accel_m_s2, gyro_rad_s, front_end, gravity=gravity)])
+    vertical, _ = vertical_horizontal(accel_m_s2, gravity)
+    return (steps, *strides(steps, step_lengths(t, vertical, steps, leg_m, config)))

@@ -318,3 +318,17 @@ def detect_rides(t: FloatArray, accel: FloatArray, gyro: FloatArray | None, cycl
             used = int(b)
             break
     return rides
+
+
+PHONE = PdrConfig(require_forward_pair=False, peak_threshold_m_s2=0.5)
+"""Accelerometer-only phone (Oxford): vertical peak pairs only (a pocket has no steady forward axis)."""
+
+
+def step_times(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> FloatArray:
+    """Times of the walking cycles (steps) in an accelerometer-only recording, seconds."""
+    return np.array([c.t for c in detect_cycles(t, accel, None, config)], dtype=float)
+
+
+def count_steps(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> int:
+    """Walking cycles (steps) in an accelerometer-only recording."""
+    return len(step_times(t, accel, config))

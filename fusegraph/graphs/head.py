@@ -123,7 +123,7 @@ class HeadGraphBuilder:
 
     def __init__(self, model: HeadModel | None = None, initial_bias: FloatArray | None = None):
         """``initial_bias``: the gyro bias (rad/s) to integrate with until a solver feeds back its estimate (``set_latest``):
-        the batch, which has no running estimate, passes the tracker's (``systems.head.gyro_bias_from_tracker``), so that a
+        the batch, which has no running estimate, passes the tracker's (``frontends.head_timing.gyro_bias_from_tracker``), so that a
         reading between keyframes is carried to its keyframe without the bias's drift and the intervals are linearised there."""
         self.model = model or HeadModel()
         self._params = preintegration_params(self.model.gyro)

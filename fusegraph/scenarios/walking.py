@@ -248,6 +248,10 @@ def _gait(seed: int, config: WalkingScenarioConfig, stream: int) -> PendulumGait
     return PendulumGait(walker, np.random.default_rng([seed, 8, stream]))
 
 
+SIMULATED_WAIST_HEIGHT_M = 0.9
+"""The simulated walker's waist height declared to ``--solver gait``, m (the pendulum gait draws legs of 0.82-0.98 m)."""
+
+
 def simulate_walking(seed: int = 0, config: WalkingScenarioConfig | None = None) -> WalkingSession:
     """The seeded tour: floor 0 -> elevator and stairs between floors -> back to the start."""
     config = config or WalkingScenarioConfig()
@@ -403,6 +407,8 @@ def walking_session(seed: int = 0, profile: str | None = None, duration_s: float
         "building": {"floor_height_m": b.floor_height_m, "floors": b.floors, "elevator_xy_m": list(b.elevator_xy_m),
                      "stairs_foot_xy_m": list(b.stairs_foot_xy_m), "riser_m": b.riser_m, "tread_m": b.tread_m},
         "speed_model": {"intercept_m_s": speed.intercept_m_s, "slope_s": speed.slope_s},
+        # the waist's height --solver gait needs: the middle of the pendulum gait's leg lengths (0.82-0.98 m)
+        "person": {"sensor_height_m": SIMULATED_WAIST_HEIGHT_M},
     }
     truth = Stream("truth", "position", w.t, w.truth_xyz_m, KIND_COLUMNS["position"])
     return Session("walking", streams, truth, meta)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -244,6 +244,8 @@ def _walking_run(session: Session, solver: str) -> Result:
 
     if solver == "steps":
         return _count_steps(session)
+    if solver in ("activity", "gait"):
+        return _waist_analysis(session, solver)
     if session.streams_of_kind("wheel_odometry") and "gyro" not in session.streams:
         walk, events = walking.vehicle_from_session(session)  # a vehicle: wheel odometry instead of steps
         cycles: list[Any] = []
@@ -270,7 +272,7 @@ def _walking_run(session: Session, solver: str) -> Result:
 
 def _count_steps(session: Session) -> PointEstimate:
     """Steps of the accelerometer (waist or phone) as their times; ``points`` hold the running count."""
-    from .walking import step_times
+    from ..frontends.pdr import step_times
 
     accel = session.stream("accel")
     start = time.perf_counter()
@@ -279,9 +281,55 @@ def _count_steps(session: Session) -> PointEstimate:
     return PointEstimate("steps", step_t, count[:, None, None], ("steps",), time.perf_counter() - start, {"steps": len(step_t)})
 
 
+def _waist_analysis(session: Session, solver: str) -> PointEstimate:
+    """``activity``: each walking cycle's class by the waist classifier (``frontends.activity``; points: its index in
+    flat, stairs_up, stairs_down); ``gait``: strides from the inverted pendulum (``frontends.gait``; points: length m,
+    speed m/s; the steps in ``extras``). Both on the waist gyro and accelerometer with the walking front end's cycles."""
+    from ..frontends.activity import ACTIVITIES, classify_waist
+    from ..frontends.gait import PendulumConfig, waist_gait
+    from .walking import WAIST
+
+    accel, gyro = session.synchronous("accel", "gyro")
+    start = time.perf_counter()
+    if solver == "activity":
+        cycles, calls = classify_waist(accel.t, accel.values, gyro.values, WAIST)
+        index = np.array([ACTIVITIES.index(c) for c in calls], dtype=float)
+        return PointEstimate("activity", np.array([c.t for c in cycles]), index.reshape(-1, 1, 1), ("activity",), time.perf_counter() - start,
+                             {"activity": calls})
+    leg = session.meta.get("person", {}).get("sensor_height_m")
+    if leg is None:
+        raise SessionError(f"{session.where}: --solver gait needs [person] sensor_height_m (the waist sensor's height: the pendulum's leg)")
+    declared: dict[str, Any] = {k: float(v) for k, v in session.meta.get("gait", {}).items()}
+    steps, stride_t, length, speed = waist_gait(accel.t, accel.values, gyro.values, float(leg), WAIST, replace(PendulumConfig(), **declared))
+    return PointEstimate("gait", stride_t, np.stack([length, speed], axis=1)[:, None, :], ("stride_length_m", "walking_speed_m_s"),
+                         time.perf_counter() - start, {"steps_s": steps})
+
+
+def _waist_score(session: Session, estimate: PointEstimate) -> dict[str, Any] | None:
+    """Activity against the session's ``activity`` labels; gait against ``[truth_extra]``'s reference bouts."""
+    from ..metrics import activity_counts, activity_scores, gait_counts, gait_scores, nearest_samples
+
+    if estimate.method == "activity":
+        if "activity" not in session.streams:
+            return None
+        labels = session.stream("activity")
+        at = labels.values[nearest_samples(labels.t, estimate.t), 0] if len(estimate.t) else np.zeros(0)
+        counts = activity_counts(at, estimate.extras["activity"], labels.values[:, 0], float(np.median(np.diff(labels.t))))
+        return {**activity_scores([counts]), "counts": counts}
+    extra = session.meta.get("truth_extra", {})
+    if "bouts_s" not in extra:
+        return None
+    counts = gait_counts(estimate.extras["steps_s"], estimate.t, estimate.points[:, 0, 0], estimate.points[:, 0, 1], np.array(extra["bouts_s"]),
+                         np.array(extra.get("initial_contacts_s", [])), np.array(extra.get("bout_stride_length_m", [])),
+                         np.array(extra.get("bout_walking_speed_m_s", [])))
+    return {**gait_scores([counts]), "counts": counts}
+
+
 def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     from . import walking
 
+    if isinstance(estimate, PointEstimate) and estimate.method in ("activity", "gait"):
+        return _waist_score(session, estimate)
     if session.streams_of_kind("wheel_odometry") and "gyro" not in session.streams and isinstance(estimate, PointEstimate):
         if session.truth is None:
             return None
@@ -456,9 +504,13 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("truth_extra.bouts_s", None, "a reference system's walking bouts, [[start, end], ...] s (bench gait)"),
                       KeySpec("truth_extra.bout_stride_length_m", None, "each reference bout's mean stride length, m"),
                       KeySpec("truth_extra.bout_walking_speed_m_s", None, "each reference bout's mean walking speed, m/s"),
-                      KeySpec("truth_extra.initial_contacts_s", None, "the reference's initial contacts (steps), s")),
+                      KeySpec("truth_extra.initial_contacts_s", None, "the reference's initial contacts (steps), s"),
+                      KeySpec("gait.highpass_hz", None, "--solver gait: the pendulum's drift removal, Hz (frontends.gait.PendulumConfig)"),
+                      KeySpec("gait.correction", None, "--solver gait: the pendulum's step-length scale")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (wrong fixes rejected at 5 sigma, solved again)", "ekf": "the paper's Kalman framework",
-                 "dead_reckoning": "steps and rides only", "steps": "step count of the accelerometer alone (a phone's step recording; no trajectory)"},
+                 "dead_reckoning": "steps and rides only", "steps": "step count of the accelerometer alone (a phone's step recording; no trajectory)",
+                 "activity": "each walking cycle's activity by the waist classifier (scored against an activity label stream)",
+                 "gait": "strides from the inverted pendulum, needs [person] sensor_height_m (scored against [truth_extra] reference bouts)"},
         truth="truth.csv, kind position: t, x, y, z of the waist in the building frame (ENU, z up from the ground floor), one row per "
         "IMU sample (a vehicle: per odometry row); scored as RMSE and final error, m. An accelerometer-only recording: the hand "
         "count as [truth_extra] steps",

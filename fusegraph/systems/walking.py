@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -26,7 +25,7 @@ from ..factors.ranging import BeaconRanges, beacon_ranges_from
 from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, gravity_filter
 from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule, start_from_ranges
-from ..records import ACTIVITIES, Building, Fixes, WalkingSession
+from ..records import Building, Fixes, WalkingSession
 from ..session import Session, SessionError
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig
@@ -55,8 +54,6 @@ window is what keeps it fast (the 30 s step window: Plaza2 42x real time against
 """iSAM2 keeps the last 30 s as variables (a wrong fix can still be outvoted), re-anchors every 100 steps."""
 WAIST = PdrConfig()
 """Front-end settings for the waist IMU."""
-PHONE = PdrConfig(require_forward_pair=False, peak_threshold_m_s2=0.5)
-"""Accelerometer-only phone (Oxford): vertical peak pairs only (a pocket has no steady forward axis)."""
 METHODS = ("dead_reckoning", "ekf", "online", "batch")
 
 
@@ -256,19 +253,6 @@ def score_xyz(run: WalkRun, truth_t: FloatArray, truth_xyz_m: FloatArray) -> dic
     return {"rmse_m": float(np.sqrt(np.mean(err**2))), "final_error_m": end_error}
 
 
-def confusion(session: WalkingSession, cycles: list[Cycle], rides: list[Ride]) -> dict[str, dict[str, int]]:
-    """Per true step: the activity of the detected cycle within a quarter second (else none); per true ride: elevator or none."""
-    table: dict[str, Counter[str]] = {a: Counter() for a in ACTIVITIES}
-    ct = np.array([c.t for c in cycles])
-    for ts, activity in zip(session.step_t, session.step_activity, strict=True):
-        j = int(np.argmin(np.abs(ct - ts))) if len(ct) else -1
-        table[activity][cycles[j].activity if j >= 0 and abs(ct[j] - ts) < 0.25 else "none"] += 1
-    for start, end, _ in session.rides:
-        hit = any(r.start_s < end and r.end_s > start for r in rides)
-        table["elevator"]["elevator" if hit else "none"] += 1
-    return {a: dict(c) for a, c in table.items()}
-
-
 def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIST) -> tuple[list[Cycle], list[Ride], list[Event]]:
     # the gravity filter is a per-sample loop: run once for both detectors
     gravity = gravity_filter(session.t, session.accel_m_s2, session.gyro_rad_s, config)
@@ -367,15 +351,3 @@ def run_all(session: WalkingSession, events: list[Event], fixes: FloatArray) -> 
         "online": run_online(session, events, fixes),
         "batch": run_batch(session, events, fixes),
     }
-
-
-def step_times(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> FloatArray:
-    """Times of the walking cycles (steps) in an accelerometer-only recording, seconds."""
-    return np.array([c.t for c in detect_cycles(t, accel, None, config)], dtype=float)
-
-
-def count_steps(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> int:
-    """Walking cycles (steps) in an accelerometer-only recording."""
-    return len(step_times(t, accel, config))
-
-
