@@ -159,6 +159,12 @@ class Session:
                 raise SessionError(f"{label}: sample {i}: a value is NaN or infinite (leave the sample out for a dropout)")
             check_plausible(entry, t, values, {k: v for k, v in stream.meta.items() if k != "units"}, label)
         check_overlap(self.streams, where)
+        from .consistency import ConsistencyError, check_streams
+
+        try:
+            check_streams(self.streams)
+        except ConsistencyError as err:
+            raise SessionError(f"{where}: {err}") from None
 
     def stream(self, name: str) -> Stream:
         """The stream called ``name``; a SessionError lists the ones that exist."""

@@ -1,0 +1,138 @@
+"""Units and conventions found by consistency between streams, not by magnitude alone (``Session.validate`` runs them).
+
+A gyro in deg/s whose motion stays under 35 deg/s passes every magnitude check; so does a tracker quaternion written
+x, y, z, w under a ``qw, qx, qy, qz`` header. Two sensors that see the same motion tell: the gyro must turn gravity as
+the accelerometer sees it turn, and a tracker must rotate between its samples as far as the gyro integrates. Each check
+compares the streams as written with the likely mistake (the factor 57.3, the columns reordered) and raises a
+``SessionError`` naming the stream and the likely cause when the mistake fits far better; a stream that declares its
+``units`` is taken at its word. Ranges far beyond the receivers' geometry (millimetres) and pixels inside [0, 1] with a
+declared image size (normalised) are named too.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from .geometry import FloatArray, matrix_from_quat, quat_conjugate, quat_multiply, quat_normalize, rotvec_from_quat
+
+DEG = np.pi / 180.0
+CHECK_SPAN_S = 120.0
+"""Seconds of a recording the checks read (its start): enough motion, bounded time."""
+MISTAKE_FITS = 0.5
+"""A mistaken reading is named when it fits with at most this fraction of the error of the reading as written..."""
+MIN_MISFIT_DEG = 3.0
+"""...and the reading as written is off by at least this much (median, degrees): noise alone is never named."""
+
+
+class ConsistencyError(ValueError):
+    """Two streams disagree in a way one unit or convention mistake explains (``session`` turns it into a SessionError)."""
+
+
+def _declared_units(meta: Mapping[str, Any]) -> bool:
+    return "units" in meta or "unit" in meta
+
+
+def _integrated(t: FloatArray, omega: FloatArray) -> FloatArray:
+    from .factors.gyro import integrate_gyro
+
+    return integrate_gyro(t, omega, np.array([1.0, 0.0, 0.0, 0.0]))
+
+
+def _angle_deg(a: FloatArray, b: FloatArray) -> FloatArray:
+    return np.rad2deg(np.arccos(np.clip(np.einsum("ni,ni->n", a, b), -1.0, 1.0)))
+
+
+def gyro_against_gravity(t: FloatArray, gyro: FloatArray, accel: FloatArray) -> tuple[float, float] | None:
+    """Median misfit (deg) of the gravity direction the accelerometer shows 1 s later against the one the gyro predicts,
+    for the gyro as written and x pi/180 (deg/s); None when the sensor hardly tilted (nothing to compare)."""
+    keep = t <= t[0] + CHECK_SPAN_S
+    t, gyro, accel = t[keep], gyro[keep], accel[keep]
+    if len(t) < 20:
+        return None
+    dt = float(np.median(np.diff(t)))
+    width = max(1, int(round(0.2 / dt)))  # a 0.2 s mean takes the steps' jolts out of the gravity direction
+    kernel = np.ones(width) / width
+    smooth = np.stack([np.convolve(accel[:, c], kernel, mode="same") for c in range(3)], axis=1)
+    norm = np.linalg.norm(smooth, axis=1)
+    up = smooth / np.maximum(norm, 1e-9)[:, None]
+    lag = max(1, int(round(1.0 / dt)))
+    i = np.arange(width, len(t) - lag - width, max(1, lag // 4))
+    j = i + lag
+    quiet = (np.abs(norm[i] - 9.81) < 1.5) & (np.abs(norm[j] - 9.81) < 1.5)
+    tilted = quiet & (_angle_deg(up[i], up[j]) > 5.0)
+    if tilted.sum() < 10:
+        return None
+    out = []
+    for scale in (1.0, DEG):
+        quat = _integrated(t, gyro * scale)
+        relative = quat_multiply(quat_conjugate(quat[i[tilted]]), quat[j[tilted]])  # body at i -> body at j
+        predicted = np.einsum("nji,nj->ni", matrix_from_quat(relative), up[i[tilted]])  # gravity seen from the body at j
+        out.append(float(np.median(_angle_deg(predicted, up[j[tilted]]))))
+    return out[0], out[1]
+
+
+def tracker_against_gyro(gyro_t: FloatArray, gyro: FloatArray, tracker_t: FloatArray, quat: FloatArray) -> tuple[float, float] | None:
+    """Median misfit (deg) between the rotation the tracker shows over 0.2 s and the one the gyro integrates (both in the
+    body frame, which the head preset requires to be the same), for the quaternion columns as written (w, x, y, z) and
+    read as (x, y, z, w); None without motion to compare. (The angle alone cannot tell: it is the same for any order.)"""
+    keep = gyro_t <= gyro_t[0] + CHECK_SPAN_S
+    gyro_t, gyro = gyro_t[keep], gyro[keep]
+    inside = (tracker_t > gyro_t[0]) & (tracker_t < gyro_t[-1])
+    tracker_t, quat = tracker_t[inside], quat[inside]
+    if len(tracker_t) < 20 or len(gyro_t) < 20:
+        return None
+    j = np.searchsorted(tracker_t, tracker_t + 0.2)
+    ok = j < len(tracker_t)
+    i, j = np.flatnonzero(ok), j[ok]
+    ok = tracker_t[j] - tracker_t[i] < 0.4
+    i, j = i[ok], j[ok]
+    integrated = _integrated(gyro_t, gyro)
+    at = np.clip(np.searchsorted(gyro_t, tracker_t), 0, len(gyro_t) - 1)
+    by_gyro = np.rad2deg(rotvec_from_quat(quat_multiply(quat_conjugate(integrated[at[i]]), integrated[at[j]])))
+    moving = np.linalg.norm(by_gyro, axis=1) > 3.0
+    if moving.sum() < 10:
+        return None
+    out = []
+    for order in ((0, 1, 2, 3), (3, 0, 1, 2)):
+        q = quat_normalize(quat[:, order])
+        turned = np.rad2deg(rotvec_from_quat(quat_multiply(quat_conjugate(q[i[moving]]), q[j[moving]])))
+        out.append(float(np.median(np.linalg.norm(turned - by_gyro[moving], axis=1))))
+    return out[0], out[1]
+
+
+def check_streams(streams: Mapping[str, Any]) -> None:
+    """Every consistency check the streams allow; a ``ConsistencyError`` names the stream and the likely cause."""
+    gyros = [s for s in streams.values() if s.kind == "gyro" and len(s) > 20]
+    accels = [s for s in streams.values() if s.kind == "accel" and len(s) > 20]
+    for gyro in gyros:
+        if _declared_units(gyro.meta):
+            continue
+        for accel in accels:
+            if len(accel) == len(gyro) and np.allclose(accel.t, gyro.t):
+                fit = gyro_against_gravity(gyro.t, gyro.values, accel.values)
+                if fit is not None and fit[0] >= MIN_MISFIT_DEG and fit[1] <= MISTAKE_FITS * fit[0]:
+                    raise ConsistencyError(
+                        f"stream '{gyro.name}': the gyro turns gravity {fit[0]:.1f} deg away from where '{accel.name}' sees it a "
+                        f"second later, {fit[1]:.1f} deg once x pi/180: degrees per second? set units = 'deg/s' or convert")
+        for tracker in (s for s in streams.values() if s.kind == "attitude" and len(s) > 20 and s.meta.get("role") != "truth"):
+            fit = tracker_against_gyro(gyro.t, gyro.values, tracker.t, tracker.values)
+            if fit is not None and fit[0] >= MIN_MISFIT_DEG and fit[1] <= MISTAKE_FITS * fit[0]:
+                raise ConsistencyError(
+                    f"stream '{tracker.name}': its rotation over 0.2 s is {fit[0]:.1f} deg (median) from '{gyro.name}''s, "
+                    f"{fit[1]:.1f} deg with its columns read x, y, z, w: quaternions written scalar LAST? write qw, qx, qy, qz")
+    for stream in streams.values():
+        if stream.kind == "ranges" and "receivers_m" in stream.meta and not _declared_units(stream.meta) and len(stream):
+            receivers = np.atleast_2d(np.asarray(stream.meta["receivers_m"], dtype=float))
+            extent = max(float(np.ptp(receivers, axis=0).max()), 1.0)
+            typical = float(np.median(stream.values[:, 1]))
+            if typical > 100.0 * extent:
+                raise ConsistencyError(f"stream '{stream.name}': median range {typical:.4g} against receivers {extent:.3g} m apart: "
+                                       "millimetres? convert the ranges to metres")
+        if stream.kind == "pixel" and "width_px" in stream.meta and len(stream) > 10:
+            values = np.asarray(stream.values, dtype=float)
+            if float(stream.meta["width_px"]) > 10 and np.all(np.abs(values) <= 1.0):
+                raise ConsistencyError(f"stream '{stream.name}': every pixel within [-1, 1] for a {stream.meta['width_px']:g} px wide image: "
+                                       "normalised coordinates? write pixels from the image centre, u right, v up")

@@ -1,0 +1,50 @@
+"""Units and conventions found by consistency between streams (``fusegraph.consistency``, run by ``Session.validate``):
+each likely mistake made on a simulated session is named; the session as simulated passes."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from fusegraph.evaluation.runner import simulated_sessions
+from fusegraph.session import Session, SessionError
+
+
+def _with(session: Session, name: str, values: np.ndarray, **meta: object) -> Session:
+    stream = session.stream(name)
+    return replace(session, streams={**session.streams, name: replace(stream, values=values, meta={**stream.meta, **meta})})
+
+
+def test_a_gyro_in_degrees_per_second_is_named_even_when_its_motion_is_slow() -> None:
+    _, session = simulated_sessions("attitude9", [0], duration_s=30.0)[0]
+    session.validate()
+    gyro = session.stream("gyro").values
+    assert np.rad2deg(np.abs(gyro)).max() < 2000  # in deg/s it would pass the magnitude check: only consistency tells
+    with pytest.raises(SessionError, match="degrees per second"):
+        _with(session, "gyro", np.rad2deg(gyro)).validate()
+    _with(session, "gyro", gyro, units="rad/s").validate()  # declared units are taken at their word
+
+
+def test_tracker_quaternions_written_scalar_last_are_named() -> None:
+    _, session = simulated_sessions("head", [0], duration_s=20.0)[0]
+    session.validate()
+    quat = session.stream("tracker").values
+    with pytest.raises(SessionError, match="scalar LAST"):
+        _with(session, "tracker", quat[:, [1, 2, 3, 0]]).validate()
+
+
+def test_ranges_in_millimetres_and_normalised_pixels_are_named() -> None:
+    _, ranges = simulated_sessions("ultrasonic", [0], duration_s=5.0)[0]
+    ranges.validate()
+    name = ranges.streams_of_kind("ranges")[0].name
+    millimetres = ranges.stream(name).values.copy()
+    millimetres[:, 1] *= 1000.0
+    with pytest.raises(SessionError, match="millimetres"):
+        _with(ranges, name, millimetres).validate()
+    _, gaze = simulated_sessions("gaze", [0], duration_s=10.0)[0]
+    gaze.validate()
+    width = float(gaze.stream("gaze").meta["width_px"])
+    with pytest.raises(SessionError, match="normalised"):
+        _with(gaze, "gaze", gaze.stream("gaze").values / width).validate()
