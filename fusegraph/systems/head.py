@@ -8,6 +8,8 @@ paper's EKFs), ``isam2`` (fusegraph online: causal estimate after every gyro sam
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import functools
 import math
 import time
@@ -116,6 +118,16 @@ QUAT_NORM_TOLERANCE = 0.01
 #: How far (s) a tracker sample's time may lie after the newest gyro sample. Streams interleave unevenly (a
 #: tracker sample may overtake a few gyro samples in transit) but a second ahead is another clock.
 FUTURE_TOLERANCE_S = 1.0
+#: Chi-square (3 dof) above which a tracker sample's difference from the estimate carried back to its time is an outlier:
+#: the 99.99 % point, so a sample of the declared noise is refused once in 10,000.
+GATE_CHI2 = 21.1
+#: After this many refused tracker samples in a row the next one is taken whatever it says (the estimate, not the
+#: tracker, may be what went wrong: the gate must not lock the tracker out for good).
+GATE_MAX_RUN = 25
+#: ...and only a sample at least this far from the estimate is refused, degrees: the estimate's own covariance is
+#: optimistic while the graph settles (a live start refused a sample 2.2 deg off at chi-square 26); 10 deg is over 5x a
+#: realistic tracker's error (white 0.4 plus a 0.7 deg Gauss-Markov term per axis) and far below a glitch's.
+GATE_MIN_DEG = 10.0
 
 
 def gyro_delay_s(session: Session) -> float:
@@ -174,7 +186,9 @@ class OnlineHeadTracker:
     quaternion whose norm is not 1 (within 1 %), a gyro time that does not increase or a tracker
     sample from after the newest gyro sample raises ``RejectedSampleError`` naming the problem, and the
     tracker carries on as if the sample had not come (``rejected`` counts them). One bad sample can
-    no longer break every later update.
+    no longer break every later update. With ``gate`` (default) a tracker sample from before the data or older than
+    the online window, or one more than ``GATE_MIN_DEG`` and chi-square ``GATE_CHI2`` from the estimate carried back to
+    its time by the gyro, is refused too (``gated``); after ``GATE_MAX_RUN`` refusals in a row the next is taken.
 
     ``estimate_first``: ``add_gyro`` returns the gyro's prediction from the last solved keyframe and the iSAM2
     update that sample makes due runs in ``maintain()`` (after the caller published it), so no sample waits for an
@@ -182,8 +196,17 @@ class OnlineHeadTracker:
     RMS +0.3 % per axis (realistic profile), +0.7-0.8 % (ideal).
     """
 
-    def __init__(self, model: HeadModel | None = None, config: OnlineConfig | None = None, estimate_first: bool = False):
+    def __init__(self, model: HeadModel | None = None, config: OnlineConfig | None = None, estimate_first: bool = False,
+                 gate: bool = True):
         self.estimate_first = estimate_first
+        self.gate = gate
+        """Refuse a tracker sample whose difference from the estimate carried back to its time exceeds ``GATE_CHI2``
+        (the estimate's covariance plus the tracker's declared noise), or that is older than the online window."""
+        self.gated = 0
+        """Tracker samples refused by the gate so far (also counted in ``rejected``)."""
+        self._gated_run = 0
+        self._recent_gyro: collections.deque[tuple[float, FloatArray]] = collections.deque()
+        self._first_gyro_t = math.nan
         """Run a due iSAM2 update in ``maintain()``, after the estimate is out (see above)."""
         self._update_due = False
         self.model = model or HeadModel()
@@ -217,7 +240,38 @@ class OnlineHeadTracker:
         if t_sample > self._last_gyro_t + FUTURE_TOLERANCE_S and np.isfinite(self._last_gyro_t):
             raise self._reject(f"tracker sample at t = {t_sample:.6f} s is after the newest gyro sample ({self._last_gyro_t:.6f} s): "
                                "its clock is not the gyro's (offset or units?)")
+        if self.gate:
+            self._gate(float(t_sample), q / norm)
         self.builder.add_tracker(float(t_sample), q / norm)
+
+    def _gate(self, t_sample: float, quat_wxyz: FloatArray) -> None:
+        """Raise (counted in ``gated``) for a sample from before the data or the online window, or one whose difference
+        from the estimate carried back to its time by the recent gyro exceeds ``GATE_CHI2``."""
+        window = self.solver.config.window_s
+        if math.isfinite(self._first_gyro_t) and (t_sample < self._first_gyro_t - FUTURE_TOLERANCE_S or t_sample < self._last_gyro_t - window):
+            self.gated += 1
+            raise self._reject(f"tracker sample at t = {t_sample:.6f} s: older than the online window (newest gyro "
+                               f"{self._last_gyro_t:.6f} s, window {window:g} s): its clock is not the gyro's?")
+        now = self.latest()
+        if now is None or not self._recent_gyro or self._recent_gyro[0][0] > t_sample:
+            return
+        back = gtsam.Rot3()  # the body's rotation from t_sample to now, by the gyro samples in between
+        previous_t = t_sample
+        for t, omega in self._recent_gyro:
+            if t <= t_sample:
+                continue
+            back = back.compose(gtsam.Rot3.Expmap(omega * (t - previous_t)))
+            previous_t = t
+        predicted = now.world_R_head.compose(back.inverse())
+        error = gtsam.Rot3.Logmap(predicted.between(rot3_from_quat_wxyz(quat_wxyz)))
+        covariance = np.asarray(now.cov) + np.eye(3) * self.model.tracker.total_sigma_rad**2
+        chi2 = float(error @ np.linalg.solve(covariance, error))
+        if chi2 > GATE_CHI2 and np.linalg.norm(error) > np.deg2rad(GATE_MIN_DEG) and self._gated_run < GATE_MAX_RUN:
+            self._gated_run += 1
+            self.gated += 1
+            raise self._reject(f"tracker sample at t = {t_sample:.6f} s: {np.rad2deg(np.linalg.norm(error)):.1f} deg from the estimate "
+                               f"(chi-square {chi2:.0f} > {GATE_CHI2:g}): an outlier, not used")
+        self._gated_run = 0
 
     def add_accel(self, t_sample: float, accel_m_s2: FloatArray) -> None:
         """An accelerometer sample (m/s^2, head frame): gravity holds elevation and roll, e.g. while the tracker is out."""
@@ -233,6 +287,12 @@ class OnlineHeadTracker:
             raise self._reject(f"gyro sample at t = {t:.6f} s does not follow the previous one ({self._last_gyro_t:.6f} s)")
         self.builder.add_gyro(float(t), w)
         self._last_gyro_t = float(t)
+        if self.gate:  # the last second of gyro, to carry the estimate back to a late tracker sample's time
+            if not math.isfinite(self._first_gyro_t):
+                self._first_gyro_t = float(t)
+            self._recent_gyro.append((float(t), w))
+            while self._recent_gyro[0][0] < t - 1.0:
+                self._recent_gyro.popleft()
         if self.estimate_first:
             if self._update_due:  # maintain() was not called after the previous sample: run its update now, not never
                 self.solver.update()
@@ -287,7 +347,8 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     start = time.perf_counter()
     for event in replay_in_arrival_order(_with_latency(session, model), last_streams=("gyro",)):
         if event.stream.kind == "attitude":
-            live.add_tracker(event.t, event.values)
+            with contextlib.suppress(RejectedSampleError):  # the gate's outliers (counted in extras); the session was checked already
+                live.add_tracker(event.t, event.values)
         elif event.stream.kind == "accel":
             live.add_accel(event.t, event.values)
         elif event.stream.kind == "gyro":
@@ -307,6 +368,7 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
         "in_place": live.solver.in_place_marginalisations,
         "too_late": len(live.builder.too_late),
         "tracker_used": live.builder.tracker_used,
+        "tracker_gated": live.gated,
         "bias_final": live.solver.latest_bias.tolist(),
         "wall_s": wall - start,
     }
