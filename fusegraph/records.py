@@ -285,6 +285,10 @@ def session_from_epochs(epochs: RangeEpochs, meta: dict[str, object] | None = No
     stream_meta: dict[str, object] = {
         "receivers_m": epochs.receivers.tolist(), "transmitters": int(epochs.transmitters), "sigma_m": float(epochs.range_sigma_m)
     }
+    if epochs.tag_offsets_m is not None:
+        stream_meta.update(tag_offsets_m=np.asarray(epochs.tag_offsets_m).tolist(), planar=bool(epochs.planar))
+    if epochs.calibration is not None:
+        stream_meta.update(zip(("range_bias_m", "range_scale", "range_sigma_m"), (np.asarray(v).tolist() for v in epochs.calibration), strict=True))
     # the truth labels ride along as an extra column that estimators never read (see the module docstring)
     columns = (*KIND_COLUMNS["ranges"], "truth_label") if epochs.labels is not None else KIND_COLUMNS["ranges"]
     ranges = Stream("ranges", "ranges", table[:, 0], table[:, 1 : 1 + len(columns)], columns, 0.0, stream_meta)

@@ -295,3 +295,24 @@ def test_an_epoch_whose_complete_receivers_are_collinear_gives_no_estimate_not_a
     assert np.isnan(positions).all() and all((lab == -1).all() for lab in labels)
     # a NaN prediction is outside every gate
     assert assign_ranges(np.array([1.0, 2.0]), np.array([np.nan, 2.001]), np.full(2, 0.01)).tolist() == [-1, 1]
+
+
+def test_the_range_calibration_model_recovers_a_simulated_trolley_with_biased_receivers() -> None:
+    """Three tags on one planar body among six anchors at its height (the UWB layout), every anchor-tag range biased by
+    its own constant (sigma 0.1 m, the size the recordings carry): declared as the session's calibration, the tracker
+    stays within 3 cm and never loses the body (measured 0.010 m); not declared, the biases break it (0.166 m, 56 % of
+    the estimates lost), as they broke the real slow run before the calibration."""
+    from fusegraph.evaluation.runner import simulated_sessions, solve_session
+
+    offsets = ((0.2, 0.0, 0.0), (-0.1, 0.17, 0.0), (-0.1, -0.17, 0.0))
+    anchors = np.array([[-1.0, -1.0, 0.9], [3.0, -1.0, 0.9], [3.0, 2.5, 0.9], [-1.0, 2.5, 0.9], [1.0, -1.2, 0.9], [1.0, 2.7, 0.9]])
+    found = {}
+    for declare in (True, False):
+        _, session = simulated_sessions("ultrasonic", [0], duration_s=20.0, rigid_tag_offsets_m=offsets, range_bias_sigma_m=0.1,
+                                        declare_calibration=declare, receivers=anchors, range_sigma_m=0.03)[0]
+        assert ("range_bias_m" in session.stream("ranges").meta) is declare
+        metrics = solve_session(session, "online").metrics
+        assert metrics is not None
+        found[declare] = metrics
+    assert found[True]["rmse_all_m"] < 0.03 and found[True]["lost_frac"] == 0.0
+    assert found[False]["rmse_all_m"] > 3 * found[True]["rmse_all_m"]

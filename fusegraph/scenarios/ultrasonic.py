@@ -55,6 +55,15 @@ class UltrasonicScenarioConfig:
     """Transmitters start at least this far apart (the paper's setting: about 50 cm)."""
     receivers: FloatArray = field(default_factory=ceiling_board)
     """Receiver positions (R, 3), metres."""
+    rigid_tag_offsets_m: tuple[tuple[float, float, float], ...] | None = None
+    """The transmitters ride ONE body with these offsets (its frame, metres; one per transmitter), its centre moving in
+    the plane at the area's mid height and turning about z (a trolley, as the UWB recordings): the session declares
+    ``tag_offsets_m`` and ``planar``. None: independent transmitters."""
+    range_bias_sigma_m: float = 0.0
+    """A constant bias per receiver and transmitter, drawn once per seed with this sigma, metres (the UWB recordings
+    carry 0-0.23 m); 0: none. Drawn from its own generator: the other draws of a seed do not change."""
+    declare_calibration: bool = True
+    """Declare the true biases as the session's range calibration (``range_bias_m``; scale 1, sigma ``range_sigma_m``)."""
 
 
 def _trajectory(rng: np.random.Generator, t: FloatArray, start: FloatArray, cfg: UltrasonicScenarioConfig) -> FloatArray:
@@ -81,15 +90,15 @@ def _trajectory(rng: np.random.Generator, t: FloatArray, start: FloatArray, cfg:
 
 
 def hear(
-    positions: FloatArray, receivers: FloatArray, rng: np.random.Generator, cfg: UltrasonicScenarioConfig
+    positions: FloatArray, receivers: FloatArray, rng: np.random.Generator, cfg: UltrasonicScenarioConfig, bias_m: FloatArray | None = None
 ) -> tuple[list[list[FloatArray]], list[list[np.ndarray]]]:
-    """Sorted distances per epoch and receiver (with misses and echoes), and their truth labels."""
+    """Sorted distances per epoch and receiver (with misses and echoes, ``bias_m`` (R, N) added), and their truth labels."""
     ranges: list[list[FloatArray]] = []
     labels: list[list[np.ndarray]] = []
     n = positions.shape[1]
     for k in range(positions.shape[0]):
         direct = np.linalg.norm(positions[k][None, :, :] - receivers[:, None, :], axis=2)  # (R, N)
-        noisy = direct + rng.normal(0.0, cfg.range_sigma_m, direct.shape)
+        noisy = direct + rng.normal(0.0, cfg.range_sigma_m, direct.shape) + (0.0 if bias_m is None else bias_m)
         heard = rng.random(direct.shape) >= cfg.miss_prob
         echo = rng.random(direct.shape) < cfg.echo_prob
         extra = rng.uniform(*cfg.echo_extra_m, direct.shape)
@@ -121,6 +130,26 @@ def simulate_ultrasonic(seed: int = 0, config: UltrasonicScenarioConfig | None =
         separation = cfg.min_start_separation_m if len(starts) < 6 else cfg.min_start_separation_m / 2  # 16 fit in 2 x 1.5 m
         if all(np.linalg.norm(candidate - s) >= separation for s in starts):
             starts.append(candidate)
-    positions = np.stack([_trajectory(rng, t, s, cfg) for s in starts], axis=1)
-    ranges, labels = hear(positions, cfg.receivers, rng, cfg)
-    return RangeEpochs(t, cfg.receivers.copy(), ranges, labels, positions, cfg.range_sigma_m)
+    if cfg.rigid_tag_offsets_m is None:
+        positions = np.stack([_trajectory(rng, t, s, cfg) for s in starts], axis=1)
+    else:
+        offsets = np.asarray(cfg.rigid_tag_offsets_m, dtype=float)
+        if offsets.shape != (cfg.transmitters, 3):
+            raise ValueError(f"rigid_tag_offsets_m: one [x, y, z] per transmitter ({cfg.transmitters}), got shape {offsets.shape}")
+        centre = _trajectory(rng, t, starts[0], cfg)
+        centre[:, 2] = 0.5 * (lo[2] + hi[2])
+        yaw = 0.6 * np.sin(2 * np.pi * 0.07 * t + rng.uniform(0, 2 * np.pi))  # a slow turn back and forth
+        c, s_ = np.cos(yaw), np.sin(yaw)
+        positions = centre[:, None, :] + np.stack([c[:, None] * offsets[:, 0] - s_[:, None] * offsets[:, 1],
+                                                   s_[:, None] * offsets[:, 0] + c[:, None] * offsets[:, 1],
+                                                   np.broadcast_to(offsets[:, 2], (len(t), len(offsets)))], axis=2)
+    bias = None
+    if cfg.range_bias_sigma_m > 0:
+        bias = np.random.default_rng([seed, 7]).normal(0.0, cfg.range_bias_sigma_m, (len(cfg.receivers), cfg.transmitters))
+    ranges, labels = hear(positions, cfg.receivers, rng, cfg, bias)
+    calibration = None
+    if bias is not None and cfg.declare_calibration:
+        calibration = (bias, np.ones_like(bias), np.full_like(bias, cfg.range_sigma_m))
+    rigid = None if cfg.rigid_tag_offsets_m is None else np.asarray(cfg.rigid_tag_offsets_m, dtype=float)
+    return RangeEpochs(t, cfg.receivers.copy(), ranges, labels, positions, cfg.range_sigma_m, rigid, rigid is not None, cfg.transmitters,
+                       False, calibration)
