@@ -62,3 +62,21 @@ def test_view_of_an_estimate_csv_with_tum_truth(head_session: Path, tmp_path: Pa
 def test_view_of_something_else_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["view", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
     assert "neither a session directory" in capsys.readouterr().err
+
+
+def test_an_estimate_far_off_is_drawn_and_no_band_is_drawn_without_a_covariance(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An estimate 90 deg off in azimuth widens the error axis to show it (the +-4 deg axis was an empty panel); NaN
+    covariances draw no band and the axis does not promise one."""
+    from fusegraph.estimate import Estimate
+    from fusegraph.geometry import quat_from_rotvec, quat_multiply
+    from fusegraph.report import plots
+
+    t = np.linspace(0.0, 10.0, 200)
+    truth = quat_from_rotvec(np.stack([0.1 * t, 0 * t, 0 * t], axis=1))
+    off = quat_multiply(quat_from_rotvec(np.array([0.0, 0.0, np.pi / 2])), truth)
+    figures = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path, dpi=110: figures.append(fig) or Path(path))
+    plots.plot_attitude_axes(t, truth, [Estimate("online", t, off, np.full((len(t), 3, 3), np.nan), 0.0)], tmp_path / "a.png")
+    bottom = figures[0].axes[3]  # azimuth's error axis
+    assert bottom.get_ylim()[1] >= 90.0
+    assert not bottom.collections and "sigma" not in bottom.get_ylabel()

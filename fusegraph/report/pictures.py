@@ -70,8 +70,13 @@ def _walking_picture(session: Session, estimates: list[Result], out: Path) -> li
     height = float(session.meta.get("building", {}).get("floor_height_m", 3.5))
     truth = session.truth
     tracks = [(e.method, e.points[:, 0, :]) for e in estimates if isinstance(e, PointEstimate)]
-    all_z = np.concatenate([xyz[:, 2] for _, xyz in tracks] + ([truth.values[:, 2]] if truth is not None else []))
-    floors = sorted(set(np.round(all_z[np.isfinite(all_z)] / height).astype(int).tolist())) or [0]
+    # the floors are the building's (where the truth walks, else the declared count): an estimate's drift in height
+    # does not invent a floor, its points on none of them are drawn on the nearest
+    if truth is not None:
+        floors = sorted(set(np.round(truth.values[np.isfinite(truth.values[:, 2]), 2] / height).astype(int).tolist())) or [0]
+    else:
+        floors = list(range(int(session.meta.get("building", {}).get("floors", 1))))
+    tracks = [(name, np.column_stack([xyz[:, :2], height * np.clip(np.round(xyz[:, 2] / height), floors[0], floors[-1])])) for name, xyz in tracks]
     fig, axes = plt.subplots(1, len(floors), figsize=(5 * len(floors), 5), squeeze=False)
     for ax, floor in zip(axes[0], floors, strict=True):
         if truth is not None:

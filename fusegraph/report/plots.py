@@ -33,8 +33,10 @@ def plot_attitude_axes(
     labels = labels or {}
     truth = np.rad2deg(euler_zyx_from_quat(quat_truth))
     fig, axes = plt.subplots(2, 3, figsize=(15, 7), sharex=True)
+    banded = False
     for a, axis_name in enumerate(AXES):
         top, bottom = axes[0, a], axes[1, a]
+        largest = 0.0
         top.plot(t_truth, truth[:, a], color="black", lw=2.0, label="reference (lag-free)")
         for estimate in estimates:
             name = labels.get(estimate.method, estimate.method)
@@ -42,19 +44,26 @@ def plot_attitude_axes(
             (line,) = top.plot(estimate.t, angles, lw=1.0, label=name)
             error = np.rad2deg(wrap_angle(estimate.euler_zyx[:, a] - euler_zyx_from_quat(quat_truth)[:, a]))
             bottom.plot(estimate.t, error, lw=0.8, color=line.get_color(), label=name)
+            if np.isfinite(error).any():
+                largest = max(largest, float(np.nanpercentile(np.abs(error), 99)))
             if estimate.cov is not None:
                 # body z, y, x are close to azimuth, elevation, roll at the moderate tilts of these scenes
                 body = (2, 1, 0)[a]
                 sigma = 3.0 * np.rad2deg(np.sqrt(np.clip(estimate.cov[:, body, body], 0.0, None)))
-                bottom.fill_between(estimate.t, -sigma, sigma, color=line.get_color(), alpha=0.12, lw=0)
+                if np.isfinite(sigma).any():  # no band where the method gives no covariance
+                    bottom.fill_between(estimate.t, -sigma, sigma, where=np.isfinite(sigma), color=line.get_color(), alpha=0.12, lw=0)
+                    banded = True
         top.set_title(axis_name)
         top.set_ylabel("angle [deg]")
-        bottom.set_ylabel("error [deg] (band: 3 sigma)")
         bottom.set_xlabel("time [s]")
         bottom.axhline(0.0, color="black", lw=0.5)
-        bottom.set_ylim(-4, 4)
+        # +-4 deg shows a good estimate's detail; a larger error widens the axis so it is seen, not cut off
+        limit = min(180.0, max(4.0, 1.1 * largest))
+        bottom.set_ylim(-limit, limit)
         for ax in (top, bottom):
             ax.grid(alpha=0.3)
+    for a in range(3):
+        axes[1, a].set_ylabel("error [deg]" + (" (band: 3 sigma)" if banded else ""))
     axes[0, 0].legend(loc="best", fontsize=8)
     if title:
         fig.suptitle(title)
