@@ -70,11 +70,13 @@ def _ultrasonic_simulate(seed: int, duration_s: float | None = None, **options: 
 
 
 def _clip(session: Session, duration_s: float) -> Session:
-    """The session's first ``duration_s`` seconds (every stream and the truth)."""
+    """The session's first ``duration_s`` seconds (every stream and the truth); a stream with no sample in them (image
+    fixes that come later in the walk) is left out: an empty stream is no measurement, and a session refuses it."""
     from dataclasses import replace
 
     t0 = min(float(s.t[0]) for s in session.streams.values())
     keep = {name: s.select(s.t <= t0 + duration_s) for name, s in session.streams.items()}
+    keep = {name: s for name, s in keep.items() if len(s)}
     truth = session.truth.select(session.truth.t <= t0 + duration_s) if session.truth is not None else None
     return replace(session, streams=keep, truth=truth)
 
