@@ -26,10 +26,10 @@ from ..frontends.pdr import detect_cycles, gravity_filter
 from ..metrics import WALKING_LABELS, activity_counts, activity_scores
 from ..session import Session, SessionError
 
-STAGES = (50, 100, 150, 200)
+STAGES = (100, 200, 300)
 """Boosting stages the fit chooses from."""
 
-CONTEXTS = (0, 1, 2, 3, 4)
+CONTEXTS = (0, 2, 4, 6, 8)
 """Cycles either side (within a bout) the fit chooses from."""
 
 FIXED = {"max_depth": 3, "learning_rate": 0.1, "subsample": 0.8, "random_state": 0}
