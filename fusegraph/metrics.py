@@ -307,16 +307,41 @@ GAIT_MATCH_S = 0.25
 """A detected step matches a reference initial contact within this, seconds."""
 
 
+@dataclass(frozen=True)
+class GaitReference:
+    """A reference system's walking bouts, as a session's ``[truth_extra]`` carries them (``import mobgap``)."""
+
+    bouts_s: np.ndarray
+    """(start, end) per bout, s."""
+    stride_length_m: np.ndarray
+    """Each bout's mean stride length, m."""
+    walking_speed_m_s: np.ndarray
+    """Each bout's mean walking speed, m/s."""
+    contacts_s: np.ndarray
+    """Every reference initial contact, s."""
+
+    @classmethod
+    def from_truth_extra(cls, extra: dict[str, Any]) -> GaitReference | None:
+        """The reference in ``[truth_extra]`` (``bouts_s``, ``bout_stride_length_m``, ``bout_walking_speed_m_s``,
+        ``initial_contacts_s``), None without bouts."""
+        if "bouts_s" not in extra:
+            return None
+        return cls(np.array(extra["bouts_s"], dtype=float).reshape(-1, 2), np.array(extra.get("bout_stride_length_m", []), dtype=float),
+                   np.array(extra.get("bout_walking_speed_m_s", []), dtype=float), np.array(extra.get("initial_contacts_s", []), dtype=float))
+
+
 def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np.ndarray, walking_speed_m_s: np.ndarray,
-                bouts_s: np.ndarray, contacts_s: np.ndarray, bout_length_m: np.ndarray, bout_speed_m_s: np.ndarray) -> dict[str, Any]:
+                reference: GaitReference) -> dict[str, Any]:
     """One recording's step matches and per-bout errors against a reference system's bouts: the steps inside each bout's
     span (widened by ``GAIT_MATCH_S``) matched one-to-one to its contacts within ``GAIT_MATCH_S`` (least total time
     difference); stride length and speed: the mean of the strides inside the bout against the bout's mean."""
     from scipy.optimize import linear_sum_assignment
 
+    bouts_s, contacts_s = reference.bouts_s, reference.contacts_s
+    bout_length_m, bout_speed_m_s = reference.stride_length_m, reference.walking_speed_m_s
     tp = fp = fn = 0
     length_errors, speed_errors = [], []
-    for n, (start, end) in enumerate(np.asarray(bouts_s, dtype=float).reshape(-1, 2)):
+    for n, (start, end) in enumerate(bouts_s):
         truth = contacts_s[(contacts_s >= start - 1e-6) & (contacts_s <= end + 1e-6)]
         found = steps_s[(steps_s >= start - GAIT_MATCH_S) & (steps_s <= end + GAIT_MATCH_S)]
         matched = 0
@@ -331,7 +356,7 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
         if inside.any() and n < len(bout_speed_m_s) and np.isfinite(bout_speed_m_s[n]):
             speed_errors.append(abs(float(np.mean(walking_speed_m_s[inside])) - float(bout_speed_m_s[n])))
     return {"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": length_errors, "walking_speed_errors_m_s": speed_errors,
-            "bouts": int(len(np.asarray(bouts_s).reshape(-1, 2)))}
+            "bouts": len(bouts_s)}
 
 
 def gait_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:

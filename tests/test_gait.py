@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from conftest import requires_shared_data
 
-from fusegraph.evaluation.gait import GaitEstimate, Reference, score_recording
+from fusegraph.evaluation.gait import GaitEstimate, score_recording
 from fusegraph.frontends.gait import PendulumConfig, step_lengths
+from fusegraph.metrics import GaitReference as Reference
 
 
 def test_the_pendulum_gives_the_step_length_of_a_pure_vertical_excursion() -> None:

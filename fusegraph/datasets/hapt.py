@@ -27,13 +27,6 @@ RATE_HZ = 50.0
 STANDARD_GRAVITY_M_S2 = 9.80665
 """1 g, m/s^2 (the accelerometer files are in g)."""
 
-ACTIVITY_IDS = {1: "flat", 2: "stairs_up", 3: "stairs_down", 4: "sitting", 5: "standing", 6: "lying", 7: "stand_to_sit",
-                8: "sit_to_stand", 9: "sit_to_lie", 10: "lie_to_sit", 11: "stand_to_lie", 12: "lie_to_stand"}
-"""HAPT's activity ids (``activity_labels.txt``) under the names fusegraph uses (walking = flat)."""
-
-STATIC_IDS = (4, 5, 6)
-"""Sitting, standing, lying."""
-
 _NAME = re.compile(r"acc_exp(\d+)_user(\d+)\.txt$")
 
 

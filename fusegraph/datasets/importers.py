@@ -50,7 +50,7 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
     if not source.exists():
         raise SessionError(f"{source}: not found")
     if fmt == "broad":
-        found = broad_head_sessions(source) if system == "head" else broad_sessions(source)
+        found = broad_sessions(source, system=system or "attitude9")
         if source.is_file():
             return [save_session(found[0][1], out)]
         return [save_session(session, out / name) for name, session in found]
@@ -74,26 +74,18 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
     raise SessionError(f"unknown format {fmt!r} (known: broad, hapt, mobgap, oxford, plaza, tobii, uwb)")
 
 
-def broad_sessions(source: Path, trials: Sequence[str] = ()) -> list[tuple[str, Session]]:
+def broad_sessions(source: Path, trials: Sequence[str] = (), system: str = "attitude9") -> list[tuple[str, Session]]:
     """BROAD trials as ``import broad`` writes them (a trial file, or every ``*.mat`` of a folder whose name starts with one
-    of ``trials``), in memory, named by trial."""
+    of ``trials``), in memory, named by trial: attitude9 sessions, or with ``system="head"`` head sessions
+    (``datasets.broad_head``)."""
     from .broad import load_broad, trial_paths
-
-    paths = [source] if source.is_file() else [p for p in trial_paths(source) if not trials or any(p.stem.startswith(x) for x in trials)]
-    if not paths:
-        raise SessionError(f"{source}: no BROAD trial (*.mat)" + (f" starting with {', '.join(trials)}" if trials else ""))
-    return [(p.stem, _portable(load_broad(p))) for p in paths]
-
-
-def broad_head_sessions(source: Path, trials: Sequence[str] = ()) -> list[tuple[str, Session]]:
-    """BROAD trials as ``import broad --system head`` writes them (see ``datasets.broad_head``), in memory, named by trial."""
-    from .broad import trial_paths
     from .broad_head import head_session_from_broad
 
     paths = [source] if source.is_file() else [p for p in trial_paths(source) if not trials or any(p.stem.startswith(x) for x in trials)]
     if not paths:
         raise SessionError(f"{source}: no BROAD trial (*.mat)" + (f" starting with {', '.join(trials)}" if trials else ""))
-    return [(p.stem, _portable(head_session_from_broad(p))) for p in paths]
+    load = head_session_from_broad if system == "head" else load_broad
+    return [(p.stem, _portable(load(p))) for p in paths]
 
 
 def plaza_session(name: str) -> Session:

@@ -21,8 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..frontends.activity import ACTIVITIES, FEATURES, ActivityModel, Tree, cycle_features, in_context, load_model, with_reference
-from ..frontends.pdr import detect_cycles, gravity_filter
+from ..frontends.activity import ACTIVITIES, FEATURES, ActivityModel, Tree, in_context, load_model, with_reference
 from ..metrics import WALKING_LABELS, activity_counts, activity_scores
 from ..session import Session, SessionError
 
@@ -59,28 +58,27 @@ class Recording:
     """The label id of every sample of the ``activity`` stream (what the labelled seconds are counted from)."""
     label_dt_s: float
     """The ``activity`` stream's sample period, s."""
+    on_main: tuple[str, ...] = ()
+    """The model on main's call per cycle (``run --solver activity``)."""
 
 
 def recording(name: str, session: Session) -> Recording:
-    """The walking front end's cycles on one session with an ``activity`` stream (labels) and a waist gyro and accelerometer."""
+    """One session with an ``activity`` label stream through ``run --solver activity`` (``runner.solve_session``): its
+    cycles, their features, the model on main's and the rules' calls, and the labels."""
+    from ..estimate import PointEstimate
     from ..metrics import nearest_samples
-    from ..systems.walking import WAIST
+    from .runner import solve_session
 
-    for needed in ("accel", "gyro", "activity"):
-        if needed not in session.streams:
-            raise SessionError(f"{session.where}: no '{needed}' stream (bench activity needs the waist accel and gyro and the "
-                               "activity labels: fusegraph import hapt DIR)")
-    accel, gyro, labels = session.stream("accel"), session.stream("gyro"), session.stream("activity")
-    if len(accel) != len(gyro) or not np.allclose(accel.t, gyro.t):
-        raise SessionError(f"{session.where}: accel and gyro must be sampled together")
-    t = accel.t
-    gravity = gravity_filter(t, accel.values, gyro.values, WAIST)
-    cycles = detect_cycles(t, accel.values, gyro.values, WAIST, gravity=gravity)
-    cycle_t = np.array([c.t for c in cycles])
-    label = labels.values[nearest_samples(labels.t, cycle_t), 0].astype(int) if len(cycles) else np.zeros(0, dtype=int)
+    if "activity" not in session.streams:
+        raise SessionError(f"{session.where}: no 'activity' stream (bench activity needs the activity labels: fusegraph import hapt DIR)")
+    estimate = solve_session(session, "activity").estimate
+    assert isinstance(estimate, PointEstimate)
+    labels = session.stream("activity")
+    cycle_t = estimate.t
+    label = labels.values[nearest_samples(labels.t, cycle_t), 0].astype(int) if len(cycle_t) else np.zeros(0, dtype=int)
     subject = str(session.meta.get("session", {}).get("subject", name))
-    return Recording(name, subject, cycle_t, cycle_features(t, accel.values, gyro.values, gravity, cycles), label,
-                     tuple(c.activity for c in cycles), labels.values[:, 0].astype(int), float(np.median(np.diff(labels.t))))
+    return Recording(name, subject, cycle_t, estimate.extras["features"], label, tuple(estimate.extras["rules_activity"]),
+                     labels.values[:, 0].astype(int), float(np.median(np.diff(labels.t))), tuple(estimate.extras["activity"]))
 
 
 # ------------------------------------------------------------------------------------ fitting
@@ -181,17 +179,15 @@ def bench_activity(directory: str | Path | None = None, sessions: Sequence[str |
     """The JSON of ``fusegraph bench activity`` (see the module docstring): ``directory`` is HAPT's raw folder or a folder
     of imported sessions (``sessions``: session directories instead). The model on main scores through ``run --solver
     activity`` (``runner.solve_session``): its figures are ``report walking DIR --solvers activity``'s counts pooled."""
-    from .runner import solve_session
-
     model = load_model()
     loaded = _load(directory, sessions)
-    recordings, on_main = [], []
+    recordings = []
     for n, (name, session) in enumerate(loaded):
         recordings.append(recording(name, session))
-        on_main.append(list(solve_session(session, "activity").estimate.extras["activity"]))  # type: ignore[union-attr]
         if progress is not None:
             progress(f"cycles of {name} ({n + 1}/{len(loaded)})")
     subjects = sorted({r.subject for r in recordings})
+    on_main = [list(r.on_main) for r in recordings]
     cross_validated = set(subjects) <= set(model.provenance.get("subjects", ())) and len(subjects) > 1
     result: dict[str, Any] = {"users": subjects, "recordings": [r.name for r in recordings], "cross_validated": cross_validated,
                               "model": {k: model.provenance.get(k) for k in ("dataset", "subjects", "stages", "context_cycles", "rule")}}

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from ..frontends.gait import PENDULUM_GRID, PendulumConfig
-from ..metrics import GAIT_MATCH_S, gait_counts, gait_scores
+from ..metrics import GAIT_MATCH_S, GaitReference, gait_counts, gait_scores
 from ..session import Session, SessionError
 from .runner import solve_session
 
@@ -58,27 +58,12 @@ class GaitEstimate:
     """Walking speed per stride, m/s."""
 
 
-@dataclass(frozen=True)
-class Reference:
-    """A recording's reference bouts."""
-
-    bouts_s: np.ndarray
-    """(start, end) per bout, s."""
-    stride_length_m: np.ndarray
-    """Each bout's mean stride length, m."""
-    walking_speed_m_s: np.ndarray
-    """Each bout's mean walking speed, m/s."""
-    contacts_s: np.ndarray
-    """Every reference initial contact, s."""
-
-
-def reference_of(session: Session) -> Reference:
+def reference_of(session: Session) -> GaitReference:
     """The reference a ``import mobgap`` session carries in ``[truth_extra]``."""
-    extra = session.meta.get("truth_extra", {})
-    if "bouts_s" not in extra:
+    reference = GaitReference.from_truth_extra(session.meta.get("truth_extra", {}))
+    if reference is None:
         raise SessionError(f"{session.where}: no [truth_extra] bouts_s (bench gait needs a reference system's bouts: fusegraph import mobgap DIR)")
-    return Reference(np.array(extra["bouts_s"], dtype=float).reshape(-1, 2), np.array(extra.get("bout_stride_length_m", []), dtype=float),
-                     np.array(extra.get("bout_walking_speed_m_s", []), dtype=float), np.array(extra.get("initial_contacts_s", []), dtype=float))
+    return reference
 
 
 def paper_speed(session: Session) -> GaitEstimate:
@@ -130,10 +115,9 @@ def mobgap_estimates(directory: str | Path) -> dict[str, GaitEstimate]:
     return out
 
 
-def score_recording(estimate: GaitEstimate, reference: Reference) -> dict[str, Any]:
+def score_recording(estimate: GaitEstimate, reference: GaitReference) -> dict[str, Any]:
     """A method's raw counts on one recording (``metrics.gait_counts``)."""
-    return gait_counts(estimate.steps_s, estimate.stride_t_s, estimate.stride_length_m, estimate.walking_speed_m_s, reference.bouts_s,
-                       reference.contacts_s, reference.stride_length_m, reference.walking_speed_m_s)
+    return gait_counts(estimate.steps_s, estimate.stride_t_s, estimate.stride_length_m, estimate.walking_speed_m_s, reference)
 
 
 def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
@@ -148,7 +132,7 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
     peer = mobgap_estimates(folder) if raw and with_mobgap else {}
     per: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in METHODS}
     recordings: dict[str, Any] = {}
-    scored: dict[str, tuple[str, Session, Reference]] = {}
+    scored: dict[str, tuple[str, Session, GaitReference]] = {}
     for name, session in sessions:
         reference = reference_of(session)
         if not len(reference.bouts_s):

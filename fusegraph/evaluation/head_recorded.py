@@ -144,11 +144,11 @@ class TrialJob:
 
 def trial_session(source: Path) -> tuple[str, Session]:
     """A trial's head session: imported from a BROAD file as ``import broad --system head`` does, or loaded."""
-    from ..datasets.importers import broad_head_sessions
+    from ..datasets.importers import broad_sessions
     from ..session import load_session
 
     if source.suffix == ".mat":
-        return broad_head_sessions(source)[0]
+        return broad_sessions(source, system="head")[0]
     session = load_session(source)
     if session.system != "head":
         raise SessionError(f"{source}: a {session.system} session, not head (import BROAD trials with `import broad DIR --system head`)")

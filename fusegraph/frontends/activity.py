@@ -19,6 +19,7 @@ the log-probabilities over ``context_cycles`` cycles either side within its bout
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from collections.abc import Sequence
@@ -228,8 +229,15 @@ class ActivityModel:
 
 
 def load_model(path: str | Path = MODEL_PATH) -> ActivityModel:
-    """The activity model written by ``ActivityModel.save`` (default: the one on main)."""
-    data = json.loads(Path(path).read_text())
+    """The activity model written by ``ActivityModel.save`` (default: the one on main); read once per file version
+    (every ``run --solver activity`` asks for it)."""
+    path = Path(path)
+    return _read_model(path, path.stat().st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=4)
+def _read_model(path: Path, mtime_ns: int) -> ActivityModel:
+    data = json.loads(path.read_text())
     if tuple(data["features"]) != FEATURES:
         raise ValueError(f"{path}: fitted on other features than this version computes: refit it (fusegraph tune activity --write)")
     trees = tuple(tuple(Tree(np.array(t["left"], dtype=int), np.array(t["right"], dtype=int), np.array(t["feature"], dtype=int),
@@ -240,10 +248,10 @@ def load_model(path: str | Path = MODEL_PATH) -> ActivityModel:
 
 
 def classify_waist(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, config: PdrConfig,
-                   model: ActivityModel | None = None) -> tuple[list[Cycle], list[str]]:
-    """The walking cycles of one waist recording (``pdr.detect_cycles`` with ``config``) and each one's activity by
-    ``model`` (default: the model on main)."""
+                   model: ActivityModel | None = None) -> tuple[list[Cycle], list[str], FloatArray]:
+    """The walking cycles of one waist recording (``pdr.detect_cycles`` with ``config``), each one's activity by
+    ``model`` (default: the model on main), and their ``BASE_FEATURES`` (what a model is fitted on)."""
     gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, config)
     cycles = detect_cycles(t, accel_m_s2, gyro_rad_s, config, gravity=gravity)
     base = cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles)
-    return cycles, (model or load_model()).classify(base, np.array([c.t for c in cycles]))
+    return cycles, (model or load_model()).classify(base, np.array([c.t for c in cycles])), base

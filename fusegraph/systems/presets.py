@@ -301,10 +301,10 @@ def _waist_analysis(session: Session, solver: str) -> PointEstimate:
     accel, gyro = session.synchronous("accel", "gyro")
     start = time.perf_counter()
     if solver == "activity":
-        cycles, calls = classify_waist(accel.t, accel.values, gyro.values, WAIST)
+        cycles, calls, base = classify_waist(accel.t, accel.values, gyro.values, WAIST)
         index = np.array([ACTIVITIES.index(c) for c in calls], dtype=float)
         return PointEstimate("activity", np.array([c.t for c in cycles]), index.reshape(-1, 1, 1), ("activity",), time.perf_counter() - start,
-                             {"activity": calls})
+                             {"activity": calls, "features": base, "rules_activity": [c.activity for c in cycles]})
     leg = session.meta.get("person", {}).get("sensor_height_m")
     if leg is None:
         raise SessionError(f"{session.where}: --solver gait needs [person] sensor_height_m (the waist sensor's height: the pendulum's leg)")
@@ -316,7 +316,7 @@ def _waist_analysis(session: Session, solver: str) -> PointEstimate:
 
 def _waist_score(session: Session, estimate: PointEstimate) -> dict[str, Any] | None:
     """Activity against the session's ``activity`` labels; gait against ``[truth_extra]``'s reference bouts."""
-    from ..metrics import activity_counts, activity_scores, gait_counts, gait_scores, nearest_samples
+    from ..metrics import GaitReference, activity_counts, activity_scores, gait_counts, gait_scores, nearest_samples
 
     if estimate.method == "activity":
         if "activity" not in session.streams:
@@ -325,12 +325,10 @@ def _waist_score(session: Session, estimate: PointEstimate) -> dict[str, Any] | 
         at = labels.values[nearest_samples(labels.t, estimate.t), 0] if len(estimate.t) else np.zeros(0)
         counts = activity_counts(at, estimate.extras["activity"], labels.values[:, 0], float(np.median(np.diff(labels.t))))
         return {**activity_scores([counts]), "counts": counts}
-    extra = session.meta.get("truth_extra", {})
-    if "bouts_s" not in extra:
+    reference = GaitReference.from_truth_extra(session.meta.get("truth_extra", {}))
+    if reference is None:
         return None
-    counts = gait_counts(estimate.extras["steps_s"], estimate.t, estimate.points[:, 0, 0], estimate.points[:, 0, 1], np.array(extra["bouts_s"]),
-                         np.array(extra.get("initial_contacts_s", [])), np.array(extra.get("bout_stride_length_m", [])),
-                         np.array(extra.get("bout_walking_speed_m_s", [])))
+    counts = gait_counts(estimate.extras["steps_s"], estimate.t, estimate.points[:, 0, 0], estimate.points[:, 0, 1], reference)
     return {**gait_scores([counts]), "counts": counts}
 
 
