@@ -362,10 +362,12 @@ def test_broad_trial_08_batch_does_not_slide_to_the_flipped_heading() -> None:
 
 
 def test_a_dropout_of_every_imu_stream_is_bridged_reported_and_recovered() -> None:
-    """1 s without gyro, accel and mag in the middle of a simulated motion: each solver says so once (time and length); the
-    batch is within 2 deg of its undamaged estimate from the gap on (0.2 deg measured), the online estimate 7 s after it
-    (measured: 20.9 deg right after, 2.6 deg at 5 s, 1.5 at 7 s: it starts again from gravity and the field at its usual
-    time constant; on BROAD trials 01 and 06 it is 0.6 deg off at 5 s)."""
+    """1 s without gyro, accel and mag during a simulated motion (seed 4, 12-13 s: a hand at 100-180 deg/s, the field
+    clean for 8 s after): each solver says so once (time and length); the batch is within 2 deg of its undamaged
+    estimate from the gap on, the online estimate from 3 s after it (issue target: 5 s). Measured on seeds 0-9 at 5 s
+    after: at most 1.2 deg; 3 s after: seed 4 0.25 deg (7.4 deg before the online restart re-levelled from 1 s of
+    specific force and field in the gyro's frame, ``_Restart``). A gap followed by the scenario's disturbance (20-21 s)
+    leaves only 1 s of clean field: 0.4-4 deg at 5 s over seeds 0-5 (10-24 deg without the restart)."""
     import warnings
     from dataclasses import replace
 
@@ -373,18 +375,20 @@ def test_a_dropout_of_every_imu_stream_is_bridged_reported_and_recovered() -> No
     from fusegraph.geometry import quat_conjugate, quat_multiply, rotvec_from_quat
     from fusegraph.metrics import on_truth_times
 
-    _, session = simulated_sessions("attitude9", [0], duration_s=40.0)[0]
-    cut = {name: replace(s, t=s.t[(s.t < 20.0) | (s.t >= 21.0)], values=s.values[(s.t < 20.0) | (s.t >= 21.0)])
+    _, session = simulated_sessions("attitude9", [4], duration_s=40.0)[0]
+    cut = {name: replace(s, t=s.t[(s.t < 12.0) | (s.t >= 13.0)], values=s.values[(s.t < 12.0) | (s.t >= 13.0)])
            if name in ("gyro", "accel", "mag") else s for name, s in session.streams.items()}
     damaged = replace(session, streams=cut)
+    gyro_deg_s = np.rad2deg(np.linalg.norm(session.stream("gyro").values[(session.stream("gyro").t > 11) & (session.stream("gyro").t < 14)], axis=1))
+    assert np.median(gyro_deg_s) > 50.0  # the gap is in motion
     for solver in ("online", "batch"):
         whole = solve_session(session, solver).estimate
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             broken = solve_session(damaged, solver).estimate
         said = [str(w.message) for w in caught if "bridged" in str(w.message)]
-        assert len(said) == 1 and "1.01 s after t = 19.99 s" in said[0]  # last sample before, first after: 19.99 -> 21.00, said
-        at = np.array([22.0, 26.0, 30.0, 35.0]) if solver == "batch" else np.array([28.0, 30.0, 35.0])
+        assert len(said) == 1 and "1.01 s after t = 11.99 s" in said[0]  # last sample before, first after: 11.99 -> 13.00, said
+        at = np.array([14.0, 16.0, 18.0, 20.0]) if solver == "batch" else np.array([16.0, 18.0, 20.0])
         a, b = on_truth_times(whole, at).quat_wxyz, on_truth_times(broken, at).quat_wxyz
         apart_deg = np.rad2deg(np.linalg.norm(rotvec_from_quat(quat_multiply(quat_conjugate(a), b)), axis=1))
         assert np.all(apart_deg < 2.0), (solver, apart_deg)

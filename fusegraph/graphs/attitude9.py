@@ -76,6 +76,47 @@ GAP_MIN_S = 0.05
 GAP_RATE_RAD_S = 2.0 * math.pi
 """How fast the body may have turned in a dropout, rad/s (a head or a hand turns at most a few hundred deg/s; the bridge's
 attitude sigma is this times the gap, at most pi)."""
+RESTART_S = 1.0
+"""Online, after a dropout: seconds of specific force and field averaged in the gyro's frame before the attitude is
+re-levelled from them (one reading in motion can be tens of degrees off gravity; see ``_Restart``)."""
+
+
+@dataclass
+class _Restart:
+    """The online estimate's way back after a dropout, as the batch's ``inertial_initial`` does from the start.
+
+    The bridge's first guess is one sample's gravity and field: in motion 25 deg off in tilt and, levelled with that
+    tilt, 80 deg in heading (a simulated hand at 100-180 deg/s); the Cauchy heading factors then ignore the field, and
+    the estimate was 10-24 deg off 5 s later. Over ``RESTART_S`` the specific force turned into the bridge keyframe's
+    frame by the gyro averages to gravity (the velocity stays bounded) and the field to the field; their TRIAD, turned
+    back to the newest keyframe, is its guess and a prior as wide as the start's."""
+
+    keyframe: int
+    """The bridge keyframe."""
+    bridge_R_body: gtsam.Rot3 = field(default_factory=gtsam.Rot3)
+    """The newest keyframe's attitude in the bridge keyframe's frame (the gyro alone)."""
+    force_sum: FloatArray = field(default_factory=lambda: np.zeros(3))
+    """Integrated specific force in the bridge frame, m/s."""
+    seconds: float = 0.0
+    """Time integrated."""
+    field_sum: FloatArray = field(default_factory=lambda: np.zeros(3))
+    """Sum of the keyframes' calibrated fields in the bridge frame."""
+    fields: int = 0
+    """Keyframes in ``field_sum``."""
+
+    def add(self, pim: gtsam.PreintegratedImuMeasurements, mag: FloatArray | None) -> None:
+        """One keyframe interval (its ``deltaVij`` is in the interval's first frame) and the field at its end."""
+        self.force_sum = self.force_sum + self.bridge_R_body.rotate(pim.deltaVij())
+        self.seconds += pim.deltaTij()
+        self.bridge_R_body = self.bridge_R_body.compose(pim.deltaRij())
+        if mag is not None:
+            self.field_sum = self.field_sum + self.bridge_R_body.rotate(np.asarray(mag, dtype=float))
+            self.fields += 1
+
+    def world_R_body(self) -> gtsam.Rot3:
+        """The newest keyframe's re-levelled attitude."""
+        world_R_bridge = initial_attitude(self.force_sum / self.seconds, self.field_sum / self.fields if self.fields else None)
+        return world_R_bridge.compose(self.bridge_R_body)
 
 
 def mag_noise_from(settings: Mapping[str, float]) -> MagNoise:
@@ -182,6 +223,7 @@ class Attitude9Builder:
         self.gaps: list[tuple[float, float]] = []
         """Dropouts bridged: (time of the last sample before, length), seconds."""
         self._bridges: set[int] = set()  # keyframes that follow a dropout
+        self._restart: _Restart | None = None  # online, after a dropout (see ``_Restart``)
         self._solved = False
         self._keyframe_guess: list[gtsam.Rot3] = []  # each keyframe's attitude as first predicted
         # mean specific force over the interval before each keyframe, in the previous keyframe's frame (batch initial values)
@@ -330,11 +372,14 @@ class Attitude9Builder:
             self._close_keyframe(self._interval[-1][0][-1], None)
             self._count += 1
         k = len(self.keyframe_t)
-        self._bridges.add(k)
         model = self.model
         gap_s = t - self._last_t
         self.gaps.append((self._last_t, gap_s))
         sigma_rot = min(math.pi, GAP_RATE_RAD_S * gap_s)
+        # the first guess after the gap: gravity and the field where there is a magnetometer (what the body is now), else
+        # the attitude before it
+        attitude = initial_attitude(accel, mag) if mag is not None else self._nav.attitude()
+        self._bridges.add(k)
         noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot] * 3, [1e3] * 3])
         add = self._pending.add
         add(k - 1, gtsam.BetweenFactorPose3(self.X(k - 1), self.X(k), gtsam.Pose3(), noise))
@@ -344,9 +389,6 @@ class Attitude9Builder:
             add(k, position_prior_factor(self.X(k), model.motion.position_sigma_m))
         if model.gravity is not None:
             add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
-        # the first guess after the gap: gravity and the field where there is a magnetometer (what the body is now), else
-        # the attitude before it
-        attitude = initial_attitude(accel, mag) if mag is not None else self._nav.attitude()
         guess = gtsam.NavState(attitude, self._nav.position(), np.zeros(3))
         self._pending.insert(self.X(k), guess.pose())
         self._pending.insert(self.V(k), guess.velocity())
@@ -358,6 +400,7 @@ class Attitude9Builder:
         self._keyframe_guess.append(guess.attitude())
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
         self._nav = guess
+        self._restart = _Restart(k) if self._solved else None  # the batch starts again in ``inertial_initial``
         self._after_keyframe(k, guess.attitude(), mag)
 
     def _push(self, t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray | None, still: FloatArray,
@@ -445,6 +488,14 @@ class Attitude9Builder:
             # no posterior yet (batch): keep the attitude, not the accelerometer's drifting double integral
             predicted = gtsam.NavState(predicted.attitude(), np.zeros(3), np.zeros(3))
         add = self._pending.add
+        if self._restart is not None:
+            self._restart.add(pim, mag)
+            if self._restart.seconds >= RESTART_S - 1e-9:
+                predicted = gtsam.NavState(self._restart.world_R_body(), predicted.position(), predicted.velocity())
+                sigma = np.deg2rad(model.initial_attitude_sigma_deg)
+                noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma] * 3, [_FREE_TRANSLATION_SIGMA_M] * 3])
+                add(k, gtsam.PriorFactorPose3(self.X(k), predicted.pose(), noise))
+                self._restart = None
         add(k - 1, gtsam.ImuFactor(self.X(k - 1), self.V(k - 1), self.X(k), self.V(k), self.B(k - 1), pim))
         add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), pim.deltaTij(), model.imu))
         # an infinite sigma drops the pseudo-measurement (a vehicle travels; the start pose fixes the gauge)
