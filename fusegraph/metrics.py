@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -43,6 +43,8 @@ class AttitudeScore:
     """Number of scored samples."""
     missing: int
     """Scored instants where the method had no estimate (counted, not hidden)."""
+    missing_t: FloatArray = field(default_factory=lambda: np.empty(0))
+    """Their truth times, s (``why_missing`` says why)."""
 
     def as_dict(self) -> dict[str, object]:
         return {"rms_rad": dict(zip(AXES, (float(v) for v in self.rms_rad), strict=True)), "nees": self.nees, "samples": self.samples, "missing": self.missing}
@@ -54,6 +56,42 @@ def nearest_samples(t: FloatArray, times: FloatArray) -> np.ndarray:
         return np.zeros(len(times), dtype=int)
     right = np.clip(np.searchsorted(t, times), 1, len(t) - 1)
     return np.where(np.abs(t[right] - times) < np.abs(times - t[right - 1]), right, right - 1)
+
+
+def estimate_gaps(t: FloatArray) -> list[tuple[float, float]]:
+    """(start, end) of the steps of an estimate's times that are dropouts (``factors.gyro.gap_limit_s`` at its median
+    rate): the sensor was silent there and an online estimate has nothing to say."""
+    from .factors.gyro import gap_limit_s
+
+    if len(t) < 3:
+        return []
+    steps = np.diff(t)
+    limit = gap_limit_s(1.0 / max(float(np.median(steps)), 1e-12))
+    return [(float(t[i]), float(t[i + 1])) for i in np.flatnonzero(steps > limit)]
+
+
+def inside_gaps(gaps: Sequence[tuple[float, float]], t: FloatArray) -> np.ndarray:
+    """Times strictly inside any of the (start, end) spans."""
+    inside = np.zeros(len(t), dtype=bool)
+    for start, end in gaps:
+        inside |= (t > start + 1e-6) & (t < end - 1e-6)
+    return inside
+
+
+def why_missing(estimate_t: FloatArray, truth_t: FloatArray) -> str | None:
+    """Why the truth samples at ``truth_t`` (scored, but without a finite estimate) were not scored; None when none."""
+    if not len(truth_t):
+        return None
+    gaps = estimate_gaps(estimate_t)
+    counts = {
+        "before the estimate starts": int((truth_t < estimate_t[0] - 1e-6).sum()) if len(estimate_t) else len(truth_t),
+        "after it ends": int((truth_t > estimate_t[-1] + 1e-6).sum()) if len(estimate_t) else 0,
+        "inside its dropouts (" + ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in gaps[:3]) + (", ..." if len(gaps) > 3 else "")
+        + ": no sensor sample there)": int(inside_gaps(gaps, truth_t).sum()),
+    }
+    said = sum(counts.values())
+    counts["where the method gave no finite attitude"] = len(truth_t) - said
+    return "; ".join(f"{n} {what}" for what, n in counts.items() if n > 0)
 
 
 def on_truth_times(estimate: Estimate, truth_t: FloatArray) -> Estimate:
@@ -77,6 +115,8 @@ def on_truth_times(estimate: Estimate, truth_t: FloatArray) -> Estimate:
     nearest = nearest_samples(t, truth_t)
     quat[exact] = q[nearest[exact]]
     quat[(truth_t < t[0] - 1e-6) | (truth_t > t[-1] + 1e-6)] = np.nan
+    # nor inside a dropout of the estimate (an online solver has nothing to say while its gyro is silent)
+    quat[inside_gaps(estimate_gaps(t), truth_t) & ~exact] = np.nan
     cov = None if estimate.cov is None else estimate.cov[nearest]
     return Estimate(estimate.method, np.asarray(truth_t, dtype=float).copy(), quat, cov, estimate.runtime_s, estimate.extras)
 
@@ -111,7 +151,7 @@ def score_attitude(estimate: Estimate, truth_t: FloatArray, truth_quat: FloatArr
         usable = have & np.all(np.isfinite(estimate.cov.reshape(len(truth_t), -1)), axis=1)
         if usable.any():
             mean_nees = float(np.mean(nees(estimate.quat_wxyz[usable], estimate.cov[usable], truth_quat[usable])))
-    return AttitudeScore(rms, mean_nees, int(have.sum()), int((scored & ~have).sum()))
+    return AttitudeScore(rms, mean_nees, int(have.sum()), int((scored & ~have).sum()), truth_t[scored & ~have])
 
 
 def mean_scores(scores: Sequence[AttitudeScore]) -> AttitudeScore:
@@ -159,13 +199,13 @@ def broad_errors(estimate_quat_wxyz: FloatArray, truth_quat_wxyz: FloatArray, mo
     return BroadErrors(rmse(total), rmse(heading), rmse(inclination), int(scored.sum()), int(failed.sum()))
 
 
-def gap_scores(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, gaps: list[tuple[float, float]]) -> dict[str, Any]:
+def gap_scores(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, gaps: list[tuple[float, float]],
+               estimate_t: FloatArray | None = None) -> dict[str, Any]:
     """Scores over the truth samples strictly inside the tracker's gaps: ``gap_rms_deg`` per axis, ``gap_max_deg``
     (largest attitude error angle) and ``gap_nees`` (mean NEES there; None without covariances), so a long dropout
-    shows whether the error stays bounded and the covariance grows with it."""
-    inside = np.zeros(len(truth_t), dtype=bool)
-    for a, b in gaps:
-        inside |= (truth_t > a) & (truth_t < b)
+    shows whether the error stays bounded and the covariance grows with it. With the estimate's own times
+    (``estimate_t``), ``gap_why`` says why samples there had no estimate."""
+    inside = inside_gaps(gaps, truth_t)
     if not inside.any():
         return {"gap_rms_deg": dict.fromkeys(AXES, float("nan")), "gap_max_deg": float("nan"), "gap_nees": None}
     errors = np.rad2deg(euler_errors(estimate.quat_wxyz[inside], truth_quat[inside]))
@@ -175,7 +215,11 @@ def gap_scores(estimate: Estimate, truth_t: np.ndarray, truth_quat: np.ndarray, 
     gap_nees = None
     if estimate.cov is not None:
         gap_nees = float(np.nanmean(nees(estimate.quat_wxyz[inside], estimate.cov[inside], truth_quat[inside])))
-    return {"gap_rms_deg": dict(zip(AXES, (float(v) for v in rms), strict=True)), "gap_max_deg": float(np.max(angle)), "gap_nees": gap_nees}
+    out: dict[str, Any] = {"gap_rms_deg": dict(zip(AXES, (float(v) for v in rms), strict=True)), "gap_max_deg": float(np.max(angle)), "gap_nees": gap_nees}
+    unscored = inside & ~np.isfinite(estimate.quat_wxyz).all(axis=1)
+    if estimate_t is not None and unscored.any():
+        out["gap_why"] = why_missing(estimate_t, truth_t[unscored])
+    return out
 
 
 def identity_map(estimate: FloatArray, truth: FloatArray) -> np.ndarray:

@@ -144,6 +144,48 @@ class GyroInterval:
         return gtsam.AHRSFactor(key_i, key_j, bias_key, self.pim)
 
 
+GAP_PERIODS = 10.0
+"""A step of more than this many sample periods between gyro samples is a dropout (bridged, not integrated)."""
+GAP_MIN_S = 0.05
+"""...and of at least this long, seconds (a jittery clock's late sample is not one)."""
+GAP_RATE_RAD_S = 2.0 * math.pi
+"""How fast the body may have turned in a dropout, rad/s (a head or a hand turns at most a few hundred deg/s; a bridge's
+attitude sigma is this times its length, at most pi)."""
+
+
+def gap_limit_s(sample_rate_hz: float) -> float:
+    """The longest step between gyro samples that is not a dropout, seconds."""
+    return max(GAP_PERIODS / sample_rate_hz, GAP_MIN_S)
+
+
+@dataclass(frozen=True)
+class GapInterval:
+    """A keyframe interval inside a gyro dropout: nothing measured the rotation, so the keyframes are tied by a random
+    walk as wide as the interval allows (``GAP_RATE_RAD_S`` x its length, at most pi); same interface as ``GyroInterval``."""
+
+    t_start: float
+    """Time of the keyframe that opens the interval, s."""
+    t_last: float
+    """Time of the next keyframe, s."""
+
+    omega_last = np.zeros(3)
+    """No rate is known inside a gap (a tracker sample there is placed on its keyframe as it is)."""
+    mean_rate = np.zeros(3)
+
+    @property
+    def elapsed_s(self) -> float:
+        return self.t_last - self.t_start
+
+    def delta(self, bias: FloatArray | None = None) -> gtsam.Rot3:
+        """No rotation known: the identity."""
+        return gtsam.Rot3()
+
+    def factor(self, key_i: int, key_j: int, bias_key: int) -> gtsam.BetweenFactorRot3:
+        """The random walk between the interval's keyframes (the bias is left to its own walk)."""
+        sigma = min(math.pi, GAP_RATE_RAD_S * self.elapsed_s)
+        return gtsam.BetweenFactorRot3(key_i, key_j, gtsam.Rot3(), gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+
+
 def _bias_corrected(delta: gtsam.Rot3, bias: FloatArray | None, bias_hat: FloatArray, elapsed_s: float, copy: bool) -> gtsam.Rot3:
     """``delta`` integrated with ``bias_hat``, corrected to ``bias`` to first order (d(deltaR)/d(bias) ~ -dt for the short
     intervals used here, a few samples); ``copy`` returns a new rotation where no correction is made."""

@@ -33,6 +33,10 @@ def gyro_bias_from_tracker(session: Session, span_s: float = 1.0) -> FloatArray:
     if not len(i):
         return np.zeros(3)
     gi, gj = (np.clip(np.searchsorted(gyro.t, tracker.t[k] - 1e-9), 0, len(gyro) - 1) for k in (i, j))
+    spanned = gyro.t[gj] - gyro.t[gi] > 0.5 * span_s  # not across a gyro dropout
+    if not spanned.any():
+        return np.zeros(3)
+    i, j, gi, gj = i[spanned], j[spanned], gi[spanned], gj[spanned]
     by_gyro = quat_multiply(quat_conjugate(raw[gi]), raw[gj])
     by_tracker = quat_multiply(quat_conjugate(tracker.values[i]), tracker.values[j])
     excess = rotvec_from_quat(quat_multiply(quat_conjugate(by_tracker), by_gyro))

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..factors.accel import GravityNoise, gravity_factor
 from ..factors.attitude import AttitudeTrack
+from ..factors.gyro import GAP_MIN_S, GAP_PERIODS, GAP_RATE_RAD_S
 from ..factors.imu import (
     ImuNoise,
     MotionPriors,
@@ -69,13 +70,6 @@ RECENT_GYRO_S = 10.0
 #: Pushed blocks joined to the kept gyro samples at the latest after this many (a block may be one sample).
 _JOIN_BLOCKS = 64
 
-GAP_PERIODS = 10.0
-"""A step of more than this many sample periods between samples is a dropout (bridged, not integrated)."""
-GAP_MIN_S = 0.05
-"""...and of at least this long, seconds (a jittery clock's late sample is not one)."""
-GAP_RATE_RAD_S = 2.0 * math.pi
-"""How fast the body may have turned in a dropout, rad/s (a head or a hand turns at most a few hundred deg/s; the bridge's
-attitude sigma is this times the gap, at most pi)."""
 RESTART_S = 1.0
 """Online, after a dropout: seconds of specific force and field averaged in the gyro's frame before the attitude is
 re-levelled from them (one reading in motion can be tens of degrees off gravity; see ``_Restart``)."""

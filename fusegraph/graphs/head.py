@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
@@ -31,6 +32,7 @@ from ..factors.attitude import (
     markov_prior_factor,
 )
 from ..factors.gyro import (
+    GapInterval,
     GyroCalibrationPrior,
     GyroInterval,
     GyroNoise,
@@ -40,6 +42,7 @@ from ..factors.gyro import (
     calibrated_bias_prior_factor,
     calibrated_bias_walk_factor,
     calibration_prior_factor,
+    gap_limit_s,
     integrate_intervals,
     preintegration_params,
 )
@@ -53,7 +56,7 @@ from ..factors.latency import (
 )
 from ..factors.linear import zeros
 from ..geometry import FloatArray, rot3_from_quat_wxyz
-from ..session import Session
+from ..session import Session, SessionWarning
 from .increment import GraphIncrement
 from .ordering import nested_dissection
 
@@ -166,6 +169,9 @@ class HeadGraphBuilder:
         """Sample times of tracker samples that arrived after their keyframe was marginalised."""
         self.tracker_used = 0
         """Number of tracker samples turned into factors."""
+        self.gaps: list[tuple[float, float]] = []
+        """Gyro dropouts bridged: (time of the last sample before, length), seconds."""
+        self._gap_limit_s = gap_limit_s(self.model.gyro.sample_rate_hz)
 
     @property
     def linear_keys(self) -> tuple[int, ...]:
@@ -192,7 +198,10 @@ class HeadGraphBuilder:
             self._try_start()
             return
         assert self._interval is not None
-        self._interval.add(t, omega)
+        if t - self._interval.t_last > self._gap_limit_s:
+            self._bridge(t, omega)
+        else:
+            self._interval.add(t, omega)
         if self._interval.elapsed_s >= self._close_after_s:
             self._close_keyframe(self._interval)
             self._interval = GyroInterval(self._params, self._latest_bias, self._interval.t_last, self._interval.omega_last)
@@ -329,6 +338,16 @@ class HeadGraphBuilder:
         session's tracker samples first, then its gyro as one block)."""
         t = np.asarray(t, dtype=float)
         omega = np.asarray(omega, dtype=float)
+        jumps = np.flatnonzero(np.diff(t) > self._gap_limit_s)
+        if len(jumps):  # a dropout inside: the samples before it, the one after it (``add_gyro`` bridges), the rest
+            j = int(jumps[0]) + 1
+            self.add_gyro_block(t[:j], omega[:j])
+            self.add_gyro(float(t[j]), omega[j])
+            self.add_gyro_block(t[j + 1 :], omega[j + 1 :])
+            return
+        if len(t) and self._interval is not None and t[0] - self._interval.t_last > self._gap_limit_s:
+            self.add_gyro(float(t[0]), omega[0])  # a dropout before the block
+            t, omega = t[1:], omega[1:]
         i = 0
         while i < len(t) and (self._interval is None or self._interval.t_last > self._interval.t_start):
             self.add_gyro(float(t[i]), omega[i])  # until the graph has started and the open interval has closed
@@ -346,6 +365,22 @@ class HeadGraphBuilder:
         self._flush_waiting_tracker()
         if self._accel_waiting and self.started:
             self._flush_waiting_accel()
+
+    def _bridge(self, t: float, omega: FloatArray) -> None:
+        """A gyro dropout before sample ``t``: the open interval closes at the last sample before it, keyframes every
+        period across it are tied by random walks (``GapInterval``: the tracker alone places them), and a new interval
+        opens at ``t``."""
+        assert self._interval is not None
+        if self._interval.elapsed_s > 0:
+            self._close_keyframe(self._interval)
+        t_before = self._interval.t_last
+        self.gaps.append((t_before, t - t_before))
+        count = max(1, round((t - t_before) / self.model.keyframe_period_s))
+        times = t_before + (t - t_before) * np.arange(count + 1) / count
+        times[-1] = t
+        for t_start, t_end in zip(times[:-1].tolist(), times[1:].tolist(), strict=True):
+            self._close_keyframe(GapInterval(t_start, t_end))
+        self._interval = GyroInterval(self._params, self._latest_bias, t, omega)
 
     def _interval_ends(self, times: list[float], t_keyframe: float) -> list[int]:
         """Indices of the samples that close keyframes, from a keyframe at ``t_keyframe`` on (``add_gyro``'s rule)."""
@@ -378,7 +413,7 @@ class HeadGraphBuilder:
             start = end + 1
         self._interval = GyroInterval(self._params, self._latest_bias, float(t[ends[-1]]), omega[ends[-1]])
 
-    def _close_keyframe(self, interval: GyroInterval | IntegratedInterval) -> None:
+    def _close_keyframe(self, interval: GyroInterval | IntegratedInterval | GapInterval) -> None:
         """End interval k: new keyframe k+1, the interval's effective bias b(k) and its links (the caller opens the next)."""
         assert self._latest_rot is not None
         k = self.latest_keyframe
@@ -547,6 +582,33 @@ for _tag, _rank in _RANK.items():
     _RANK_OF_CHR[ord(_tag)] = _rank
 _INDEX_BITS = 56  # a gtsam Symbol key: its character in the top 8 bits, its index below
 _INDEX_MASK = (1 << _INDEX_BITS) - 1
+
+
+def rates_at(gyro_t: FloatArray, rate_rad_s: FloatArray, t: FloatArray) -> FloatArray:
+    """The gyro's rate at times ``t`` that are its sample times; zero at the others (keyframes inside a dropout)."""
+    if len(t) == len(gyro_t):
+        return rate_rad_s
+    index = np.clip(np.searchsorted(gyro_t, t), 0, len(gyro_t) - 1)
+    return np.where(np.isclose(gyro_t[index], t, rtol=0.0, atol=1e-9)[:, None], rate_rad_s[index], 0.0)
+
+
+def with_gap_keyframes(gyro_t: FloatArray, keyframe_t: FloatArray, gaps: list[tuple[float, float]]) -> FloatArray:
+    """The gyro's times and the keyframes inside its dropouts (the batch has an estimate there: the tracker's)."""
+    inside = np.zeros(len(keyframe_t), dtype=bool)
+    for before_s, length_s in gaps:
+        inside |= (keyframe_t > before_s + 1e-9) & (keyframe_t < before_s + length_s - 1e-9)
+    return np.union1d(gyro_t, keyframe_t[inside]) if inside.any() else gyro_t
+
+
+def warn_gyro_gaps(session: Session, solver: str) -> None:
+    """One warning per gyro dropout, with what the solver does across it (said, not hidden)."""
+    limit = gap_limit_s(head_model_for(session).gyro.sample_rate_hz)
+    for before, after in session.stream("gyro").gaps():
+        if after - before > limit:
+            inside = ("the tracker alone places the keyframes inside it" if solver == "batch" else
+                      "no estimate inside it" if solver == "online" else "the paper's filter carries its rate state across it, as written")
+            warnings.warn(f"{session.where}: no gyro sample for {after - before:.2f} s after t = {before:.2f} s: the gap is bridged "
+                          f"(a random walk as wide as it allows; {inside})", SessionWarning, stacklevel=3)
 
 
 def time_ordering(keys: Iterable[int]) -> list[int]:

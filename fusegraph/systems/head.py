@@ -33,7 +33,7 @@ from ..geometry import (
     quat_wxyz_from_rot3,
     rot3_from_quat_wxyz,
 )
-from ..graphs.head import HeadGraphBuilder, HeadModel, X, head_model_for, time_ordering
+from ..graphs.head import HeadGraphBuilder, HeadModel, X, head_model_for, rates_at, time_ordering, with_gap_keyframes
 from ..progress import progress as progress_bar
 from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
@@ -152,8 +152,9 @@ def honours_gyro_delay(run: Callable[Concatenate[Session, P], Estimate]) -> Call
         gyro = session.stream("gyro")
         retimed = replace(gyro, t=gyro.t - delay, latency_s=gyro.latency_s + delay, meta={**gyro.meta, "delay_s": 0.0})
         estimate = run(replace(session, streams={**session.streams, "gyro": retimed}), *args, **kwargs)
-        quats = carried_over_delay(estimate.quat_wxyz, gyro.values, delay)
-        return replace(estimate, t=gyro.t.copy(), quat_wxyz=quats, extras={**estimate.extras, "gyro_delay_s": delay})
+        quats = carried_over_delay(estimate.quat_wxyz, rates_at(retimed.t, gyro.values, estimate.t), delay)
+        out_t = gyro.t.copy() if len(estimate.t) == len(gyro.t) else estimate.t + delay  # keyframes inside a dropout too
+        return replace(estimate, t=out_t, quat_wxyz=quats, extras={**estimate.extras, "gyro_delay_s": delay})
 
     return on_true_time
 
@@ -404,7 +405,8 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
     biases = gtsam.utilities.extractVectors(result.values, "b")  # b(0) .. b(n_kf - 2) in key order, in one call
     kf_bias = np.vstack([biases, biases[-1:]])  # the last keyframe keeps the last interval's
     kf_cov = _hold_covariances(result.covariances, n_kf) if result.covariances else None
-    quats, covs = interpolate_keyframes(gyro.t, gyro.values, kf_t, kf_quat, kf_bias, kf_cov)
+    out_t = with_gap_keyframes(gyro.t, kf_t, builder.gaps)
+    quats, covs = interpolate_keyframes(out_t, rates_at(gyro.t, gyro.values, out_t), kf_t, kf_quat, kf_bias, kf_cov)
     runtime = time.perf_counter() - start
     extras: dict[str, Any] = {
         "iterations": result.iterations,
@@ -416,7 +418,7 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
         extras["latency_s"] = model.latency.assumed_s + float(result.values.atVector(latency_key)[0])
         cov = result.covariances.get(latency_key)
         extras["latency_sigma_s"] = float(np.sqrt(cov[0, 0])) if cov is not None else None
-    return Estimate("batch", gyro.t.copy(), quats, covs, runtime, extras)
+    return Estimate("batch", out_t.copy(), quats, covs, runtime, extras)
 
 
 def _hold_covariances(covariances: dict[int, FloatArray], n_kf: int) -> FloatArray:

@@ -102,27 +102,21 @@ def flatten(metrics: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
 
 
 def _head_run(session: Session, solver: str) -> Result:
-    import warnings
-
-    from ..session import SessionWarning
+    from ..graphs.head import warn_gyro_gaps
     from . import head
 
-    for before, after in session.stream("gyro").gaps():  # said, not hidden: the head graph does not bridge them yet
-        if after - before >= 0.05:
-            warnings.warn(f"{session.where}: no gyro sample for {after - before:.2f} s after t = {before:.2f} s: the head graph does not "
-                          "bridge a gyro dropout (the interval is integrated from the sample after it; the tracker corrects it "
-                          "afterwards), and no estimate exists inside it", SessionWarning, stacklevel=2)
-
+    warn_gyro_gaps(session, solver)
     return head.run_method(session, {"online": "isam2", "ekf": "method2"}.get(solver, solver))
 
 
 def _head_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    from ..metrics import AXES, EULER_DOMAIN_DEG, gap_scores, in_euler_domain, nearest_samples, on_truth_times, score_attitude
+    from ..metrics import AXES, EULER_DOMAIN_DEG, gap_scores, in_euler_domain, nearest_samples, on_truth_times, score_attitude, why_missing
     from .head import EULER_FILTERS
 
     truth = session.truth
     if truth is None or not isinstance(estimate, Estimate):
         return None
+    estimate_t = estimate.t
     # an Euler-angle filter whose own elevation left the domain gives the singularity's figures, not its own: none
     left = estimate.method in EULER_FILTERS and not in_euler_domain(estimate.quat_wxyz[np.isfinite(estimate.quat_wxyz).all(axis=1)]).all()
     estimate = on_truth_times(estimate, truth.t)  # the truth on any grid
@@ -138,12 +132,14 @@ def _head_score(session: Session, estimate: Result) -> dict[str, Any] | None:
         "truth_samples_scored": score.samples,
         "truth_samples_missing": score.missing,
     }
+    if score.missing:
+        out["truth_samples_missing_why"] = why_missing(estimate_t, score.missing_t)
     if left:
         out["excluded"] = f"{estimate.method}: its elevation estimate left the Euler-angle domain |elevation| < {EULER_DOMAIN_DEG:g} deg"
     trackers = session.streams_of_kind("attitude")
     gaps = trackers[0].gaps() if trackers else []
     if gaps:
-        out.update(gap_scores(estimate, truth.t, truth.values, gaps))
+        out.update(gap_scores(estimate, truth.t, truth.values, gaps, estimate_t))
     return out
 
 
@@ -157,18 +153,26 @@ def _attitude9_run(session: Session, solver: str) -> Result:
 
 
 def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | None:
-    from ..metrics import broad_errors, nearest_samples, on_truth_times
+    from ..metrics import broad_errors, estimate_gaps, inside_gaps, nearest_samples, on_truth_times, why_missing
 
     truth = session.truth
     if truth is None or not isinstance(estimate, Estimate):
         return None
+    estimate_t = estimate.t
     estimate = on_truth_times(estimate, truth.t)  # the truth on any grid
     movement = np.ones(len(truth.t))
     if "movement" in session.streams:  # the flag at each truth time (its nearest sample)
         flag = session.stream("movement")
         movement = flag.values[nearest_samples(flag.t, truth.t), 0]
-    errors = broad_errors(estimate.quat_wxyz, truth.values, movement)
-    return {"total_deg": errors.total, "heading_deg": errors.heading, "inclination_deg": errors.inclination, "truth_samples_scored": errors.samples}
+    # inside a dropout an online estimate has nothing (not a failure of the method: the sensor was silent), said
+    dropped = inside_gaps(estimate_gaps(estimate_t), truth.t) & (movement > 0)
+    errors = broad_errors(estimate.quat_wxyz, truth.values, np.where(dropped, 0.0, movement))
+    out: dict[str, Any] = {"total_deg": errors.total, "heading_deg": errors.heading, "inclination_deg": errors.inclination,
+                           "truth_samples_scored": errors.samples}
+    if dropped.any() and not np.isfinite(estimate.quat_wxyz[dropped]).all():
+        out["truth_samples_missing"] = int(dropped.sum())
+        out["truth_samples_missing_why"] = why_missing(estimate_t, truth.t[dropped])
+    return out
 
 
 # -------------------------------------------------------------------------------------- gaze
