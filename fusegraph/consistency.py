@@ -27,6 +27,19 @@ MIN_MISFIT_DEG = 3.0
 """...and the reading as written is off by at least this much (median, degrees): noise alone is never named."""
 
 
+FOLLOWS = 0.2
+"""Gaze pixels follow the head's turn when their slope against it is above this (measured as written: Tobii 0.43 / 0.39 for
+u / v, simulations 0.44-0.58: the slow samples include some pursuit of head-fixed targets; mirrored, the same negative)."""
+
+
+def _most_heard_per_epoch(t: FloatArray, receiver: FloatArray) -> int:
+    """The most ranges one receiver took at one time (its epoch): the transmitters it hears (90th percentile over
+    epochs, so that a rare echo is not one)."""
+    key = np.stack([t, receiver], axis=1)
+    _, counts = np.unique(key, axis=0, return_counts=True)
+    return int(np.percentile(counts, 90))
+
+
 class ConsistencyError(ValueError):
     """Two streams disagree in a way one unit or convention mistake explains (``session`` turns it into a SessionError)."""
 
@@ -103,8 +116,36 @@ def tracker_against_gyro(gyro_t: FloatArray, gyro: FloatArray, tracker_t: FloatA
     return out[0], out[1]
 
 
-def check_streams(streams: Mapping[str, Any]) -> None:
-    """Every consistency check the streams allow; a ``ConsistencyError`` names the stream and the likely cause."""
+def pixels_against_gyro(gyro_t: FloatArray, gyro: FloatArray, pixel_t: FloatArray, uv: FloatArray, focal_px: float) -> tuple[float, float] | None:
+    """Slopes of the gaze pixels' velocity (u, v) against what the head's turn makes a fixed world point do in the scene
+    camera (``factors.gaze``: du/dt = f w_z, dv/dt = f w_y for a point ahead), fitted over the slow samples (fixations,
+    smooth pursuit: the eye holds a world point, so the pixel follows the head; saccades are left out). About +1 each as
+    written; a v written pointing down gives -1 for v. None without enough head motion to tell."""
+    span = pixel_t <= pixel_t[0] + CHECK_SPAN_S
+    t, uv = pixel_t[span], uv[span]
+    ok = np.all(np.isfinite(uv), axis=1)
+    t, uv = t[ok], uv[ok]
+    if len(t) < 50:
+        return None
+    rate = np.stack([np.interp(t, gyro_t, gyro[:, axis]) for axis in (2, 1)], axis=1)  # w_z, w_y at the pixel times
+    dt = np.diff(t)
+    pixel_velocity = np.diff(uv, axis=0) / dt[:, None]
+    expected = focal_px * 0.5 * (rate[1:] + rate[:-1])
+    speed = np.linalg.norm(pixel_velocity, axis=1)
+    slow = (dt > 0) & (dt < 0.1) & (speed < np.percentile(speed, 60))
+    slopes = []
+    for axis in range(2):
+        x, y = expected[slow, axis], pixel_velocity[slow, axis]
+        if np.sqrt(np.mean(x**2)) < focal_px * 5.0 * DEG:  # under ~5 deg/s of head turn about this axis: nothing to tell
+            return None
+        slopes.append(float(np.dot(x, y) / np.dot(x, x)))
+    return slopes[0], slopes[1]
+
+
+def check_streams(streams: Mapping[str, Any]) -> list[str]:
+    """Every consistency check the streams allow; a ``ConsistencyError`` names the stream and the likely cause. Returns
+    what a check could not decide (one line per warning, naming the stream)."""
+    said: list[str] = []
     gyros = [s for s in streams.values() if s.kind == "gyro" and len(s) > 20]
     accels = [s for s in streams.values() if s.kind == "accel" and len(s) > 20]
     for gyro in gyros:
@@ -136,3 +177,18 @@ def check_streams(streams: Mapping[str, Any]) -> None:
             if float(stream.meta["width_px"]) > 10 and np.all(np.abs(values) <= 1.0):
                 raise ConsistencyError(f"stream '{stream.name}': every pixel within [-1, 1] for a {stream.meta['width_px']:g} px wide image: "
                                        "normalised coordinates? write pixels from the image centre, u right, v up")
+            for gyro in gyros:
+                slopes = pixels_against_gyro(gyro.t, gyro.values, stream.t, values, float(stream.meta.get("focal_px", 500.0)))
+                if slopes is not None and slopes[0] > FOLLOWS and slopes[1] < -FOLLOWS:
+                    raise ConsistencyError(f"stream '{stream.name}': its v moves against the head's pitch on '{gyro.name}' (slope {slopes[1]:.2f}, "
+                                           f"u {slopes[0]:.2f}): v pointing down? write v up (v = image centre row - row)")
+                if slopes is not None and slopes[0] < -FOLLOWS and slopes[1] > FOLLOWS:
+                    raise ConsistencyError(f"stream '{stream.name}': its u moves against the head's yaw on '{gyro.name}' (slope {slopes[0]:.2f}, "
+                                           f"v {slopes[1]:.2f}): u pointing left? write u right (u = column - image centre column)")
+        if stream.kind == "ranges" and "transmitters" in stream.meta and len(stream) > 20:
+            heard = _most_heard_per_epoch(stream.t, stream.values[:, 0])
+            declared = int(stream.meta["transmitters"])
+            if heard < declared:
+                said.append(f"stream '{stream.name}': transmitters = {declared}, but no receiver hears more than {heard} in one epoch: "
+                            f"{declared - heard} never transmit? (a missing transmitter's tracks are invented)")
+    return said

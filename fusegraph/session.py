@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import math
 import tomllib
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -162,9 +163,11 @@ class Session:
         from .consistency import ConsistencyError, check_streams
 
         try:
-            check_streams(self.streams)
+            undecided = check_streams(self.streams)
         except ConsistencyError as err:
             raise SessionError(f"{where}: {err}") from None
+        for line in undecided:
+            warnings.warn(f"{where}: {line}", SessionWarning, stacklevel=3)
 
     def stream(self, name: str) -> Stream:
         """The stream called ``name``; a SessionError lists the ones that exist."""
@@ -175,14 +178,34 @@ class Session:
             raise SessionError(f"{where}no stream '{name}' (have: {', '.join(self.streams)})") from None
 
     def synchronous(self, *names: str) -> list[Stream]:
-        """The named streams, checked to be sampled together with the first (a SessionError names the odd one)."""
+        """The named streams, checked to be sampled together with the first (a SessionError names the odd one).
+
+        Streams of one clock where one misses samples the others have (a dropout of one stream) are cut to the times they
+        all have, with a warning per stream that lost samples (the solver then bridges the gap as a dropout of all)."""
         streams = [self.stream(name) for name in names]
         first = streams[0]
-        for stream in streams[1:]:
-            if len(stream) != len(first) or not np.allclose(stream.t, first.t):
-                where = self.where
-                raise SessionError(f"{where}: stream '{stream.name}' must be sampled with '{first.name}' (same times)")
-        return streams
+        if all(len(s) == len(first) and np.allclose(s.t, first.t) for s in streams[1:]):
+            return streams
+        ticks = _shared_clock(streams)
+        if ticks is None:
+            odd = next(s for s in streams[1:] if len(s) != len(first) or not np.allclose(s.t, first.t))
+            raise SessionError(f"{self.where}: stream '{odd.name}' must be sampled with '{first.name}' (same times)")
+        shared, everywhere = ticks[0], ticks[0]
+        for other in ticks[1:]:
+            shared, everywhere = np.intersect1d(shared, other), np.union1d(everywhere, other)
+        cut = [s.select(np.isin(tk, shared)) for s, tk in zip(streams, ticks, strict=True)]
+        if any(len(c) < 0.5 * len(s) for c, s in zip(cut, streams, strict=True)):
+            raise SessionError(f"{self.where}: streams {', '.join(repr(n) for n in names)} share fewer than half their sample times: "
+                               "sample them together (same times)")
+        period = float(np.median(np.diff(first.t)))
+        for stream, tk in zip(streams, ticks, strict=True):  # one line per stream that misses samples the others have
+            absent = everywhere[~np.isin(everywhere, tk)] * period / 1000.0
+            if len(absent):
+                others = ", ".join(f"'{n}'" for n in names if n != stream.name)
+                warnings.warn(f"{self.where}: stream '{stream.name}' has no sample at {len(absent)} times between t = {absent[0]:.2f} and "
+                              f"{absent[-1]:.2f} s where {others} have one: those are left out too (a dropout of every stream there)",
+                              SessionWarning, stacklevel=2)
+        return cut
 
     def streams_of_kind(self, kind: str) -> list[Stream]:
         """All streams of one kind, in declaration order."""
@@ -201,6 +224,15 @@ class Session:
             self.stream(name)
         kept = {k: v for k, v in self.streams.items() if k not in names}
         return Session(self.system, kept, self.truth, self.meta, self.path)
+
+
+def _shared_clock(streams: list[Stream]) -> list[NDArray[np.int64]] | None:
+    """Each stream's stamps in thousandths of the first's median period when all run at one rate (median periods within
+    1 %) and so may be one clock with samples missing; None otherwise."""
+    periods = [float(np.median(np.diff(s.t))) if len(s) > 1 else np.nan for s in streams]
+    if not np.all(np.isfinite(periods)) or min(periods) <= 0 or max(periods) > 1.01 * min(periods):
+        return None
+    return [np.round(s.t / (periods[0] / 1000.0)).astype(np.int64) for s in streams]
 
 
 @dataclass(frozen=True)
@@ -392,7 +424,8 @@ def read_stream_csv(
     label = f"{path}" + (f" (stream '{name}')" if name else "")
     if not path.is_file():
         raise SessionError(f"{label}: file not found")
-    head = path.open("rb").read(4)
+    with path.open("rb") as handle:
+        head = handle.read(4)
     encoding = "utf-16" if head[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
     try:
         path.read_text(encoding=encoding)

@@ -392,3 +392,29 @@ def test_a_dropout_of_every_imu_stream_is_bridged_reported_and_recovered() -> No
         a, b = on_truth_times(whole, at).quat_wxyz, on_truth_times(broken, at).quat_wxyz
         apart_deg = np.rad2deg(np.linalg.norm(rotvec_from_quat(quat_multiply(quat_conjugate(a), b)), axis=1))
         assert np.all(apart_deg < 2.0), (solver, apart_deg)
+
+
+def test_a_dropout_of_the_magnetometer_alone_is_cut_from_every_stream_said_once_and_bridged() -> None:
+    """The magnetometer missing for 1 s (the gyro and accelerometer running on): one warning names the stream and the
+    span, the samples of the others there are left out, and the graph bridges the gap as a dropout of all; the peers run
+    on the same cut streams. A stream at another rate is still an error naming it."""
+    import warnings
+    from dataclasses import replace
+
+    from fusegraph.evaluation.runner import simulated_sessions, solve_session
+    from fusegraph.session import SessionError
+
+    _, session = simulated_sessions("attitude9", [0], duration_s=20.0)[0]
+    mag = session.stream("mag")
+    kept = (mag.t < 12.0) | (mag.t >= 13.0)
+    damaged = replace(session, streams={**session.streams, "mag": replace(mag, t=mag.t[kept], values=mag.values[kept])})
+    for solver in ("batch", "vqf"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = solve_session(damaged, solver)
+        said = [str(w.message) for w in caught if "has no sample" in str(w.message)]
+        assert len(said) == 1 and "stream 'mag' has no sample at 100 times between t = 12.00 and 12.99 s" in said[0], said
+        assert result.metrics["truth_samples_missing"] == 100 and "inside its dropouts" in result.metrics["truth_samples_missing_why"]
+    slow = replace(mag, t=mag.t[::2], values=mag.values[::2])
+    with pytest.raises(SessionError, match="stream 'mag' must be sampled with 'gyro'"):
+        replace(session, streams={**session.streams, "mag": slow}).synchronous("gyro", "accel", "mag")

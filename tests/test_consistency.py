@@ -48,3 +48,23 @@ def test_ranges_in_millimetres_and_normalised_pixels_are_named() -> None:
     width = float(gaze.stream("gaze").meta["width_px"])
     with pytest.raises(SessionError, match="normalised"):
         _with(gaze, "gaze", gaze.stream("gaze").values / width).validate()
+
+
+def test_gaze_pixels_with_v_down_or_u_left_are_named_by_the_head_s_turn() -> None:
+    """During fixations the gaze pixel follows the head's turn (du/dt = f w_z, dv/dt = f w_y): slope ~0.5 as simulated
+    (0.4 on the Tobii recording); a mirrored axis gives the same slope negative, named. The threshold is 0.2."""
+    _, gaze = simulated_sessions("gaze", [0], duration_s=30.0)[0]
+    gaze.validate()
+    uv = gaze.stream("gaze").values
+    with pytest.raises(SessionError, match="v pointing down"):
+        _with(gaze, "gaze", uv * [1.0, -1.0]).validate()
+    with pytest.raises(SessionError, match="u pointing left"):
+        _with(gaze, "gaze", uv * [-1.0, 1.0]).validate()
+
+
+def test_more_transmitters_declared_than_any_receiver_hears_is_a_warning() -> None:
+    _, ranges = simulated_sessions("ultrasonic", [0], duration_s=5.0)[0]
+    stream = ranges.streams_of_kind("ranges")[0]
+    declared = int(stream.meta["transmitters"])
+    with pytest.warns(UserWarning, match=f"transmitters = {declared + 2}, but no receiver hears more than {declared}"):
+        _with(ranges, stream.name, stream.values, transmitters=declared + 2).validate()

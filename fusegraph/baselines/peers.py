@@ -27,9 +27,7 @@ def run_imufusion(session: Session) -> Estimate:
     construction (a convention given to ``AhrsSettings``' constructor is not kept: heading would be 90 deg off)."""
     import imufusion
 
-    gyro, accel, mag = session.stream("gyro"), session.stream("accel"), session.stream("mag")
-    if not (len(gyro) == len(accel) == len(mag)) or not np.allclose(gyro.t, accel.t) or not np.allclose(gyro.t, mag.t):
-        raise ValueError("imufusion needs gyro, accel and mag sampled together (same length and times)")
+    gyro, accel, mag = session.synchronous("gyro", "accel", "mag")  # a one-stream dropout cut from all (said)
     period = float(np.median(np.diff(gyro.t)))
     rate = 1.0 / period
     settings = imufusion.AhrsSettings()
@@ -62,9 +60,7 @@ def run_vqf(session: Session, offline: bool = False) -> Estimate:
     """VQF 9D with default parameters on a session's gyro/accel/mag streams (same rate, same clock)."""
     import vqf
 
-    gyro, accel, mag = session.stream("gyro"), session.stream("accel"), session.stream("mag")
-    if not (len(gyro) == len(accel) == len(mag)) or not np.allclose(gyro.t, accel.t) or not np.allclose(gyro.t, mag.t):
-        raise ValueError("VQF needs gyro, accel and mag sampled together (same length and times)")
+    gyro, accel, mag = session.synchronous("gyro", "accel", "mag")  # a one-stream dropout cut from all (said)
     sample_time = float(np.median(np.diff(gyro.t)))
     gyr, acc, mg = (np.ascontiguousarray(s.values, dtype=float) for s in (gyro, accel, mag))
     start = time.perf_counter()
