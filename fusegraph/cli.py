@@ -321,8 +321,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None, line: str | None = None) -> None:
+    """Every warning as one stderr line starting with ``warning:`` (a session's own say what and where; others name
+    their kind and source)."""
+    from .session import SessionWarning
+
+    text = " ".join(str(message).split())
+    if not issubclass(category, SessionWarning):
+        text = f"{category.__name__}: {text} ({Path(filename).name}:{lineno})"
+    print(f"warning: {text}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
+    import warnings
+
     args = build_parser().parse_args(argv)
+    with warnings.catch_warnings():  # restored on return (tests call main in one process)
+        warnings.showwarning = _show_warning
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(COMMANDS[args.command](args) or 0)
     except BrokenPipeError:  # `fusegraph sensors | head`: the reader has gone; nothing to say to it

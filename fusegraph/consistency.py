@@ -58,9 +58,14 @@ def _angle_deg(a: FloatArray, b: FloatArray) -> FloatArray:
     return np.rad2deg(np.arccos(np.clip(np.einsum("ni,ni->n", a, b), -1.0, 1.0)))
 
 
-def gyro_against_gravity(t: FloatArray, gyro: FloatArray, accel: FloatArray) -> tuple[float, float] | None:
-    """Median misfit (deg) of the gravity direction the accelerometer shows 1 s later against the one the gyro predicts,
-    for the gyro as written and x pi/180 (deg/s); None when the sensor hardly tilted (nothing to compare)."""
+SWAPS = {"x, y": (1, 0, 2), "y, z": (0, 2, 1), "x, z": (2, 1, 0)}
+"""Two columns of a 3-axis stream written in each other's place (against the other sensor of the same body)."""
+
+
+def gyro_against_gravity(t: FloatArray, gyro: FloatArray, accel: FloatArray) -> dict[str, float] | None:
+    """Median misfit (deg) of the gravity direction the accelerometer shows 1 s later against the one the gyro predicts:
+    for the gyro as written (``as written``), x pi/180 (``deg/s``) and with two columns swapped (``SWAPS``' keys); None
+    when the sensor hardly tilted (nothing to compare)."""
     keep = t <= t[0] + CHECK_SPAN_S
     t, gyro, accel = t[keep], gyro[keep], accel[keep]
     if len(t) < 20:
@@ -78,19 +83,21 @@ def gyro_against_gravity(t: FloatArray, gyro: FloatArray, accel: FloatArray) -> 
     tilted = quiet & (_angle_deg(up[i], up[j]) > 5.0)
     if tilted.sum() < 10:
         return None
-    out = []
-    for scale in (1.0, DEG):
-        quat = _integrated(t, gyro * scale)
+    out = {}
+    candidates = {"as written": gyro, "deg/s": gyro * DEG, **{name: gyro[:, order] for name, order in SWAPS.items()}}
+    for name, rate in candidates.items():
+        quat = _integrated(t, rate)
         relative = quat_multiply(quat_conjugate(quat[i[tilted]]), quat[j[tilted]])  # body at i -> body at j
         predicted = np.einsum("nji,nj->ni", matrix_from_quat(relative), up[i[tilted]])  # gravity seen from the body at j
-        out.append(float(np.median(_angle_deg(predicted, up[j[tilted]]))))
-    return out[0], out[1]
+        out[name] = float(np.median(_angle_deg(predicted, up[j[tilted]])))
+    return out
 
 
-def tracker_against_gyro(gyro_t: FloatArray, gyro: FloatArray, tracker_t: FloatArray, quat: FloatArray) -> tuple[float, float] | None:
+def tracker_against_gyro(gyro_t: FloatArray, gyro: FloatArray, tracker_t: FloatArray, quat: FloatArray) -> dict[str, float] | None:
     """Median misfit (deg) between the rotation the tracker shows over 0.2 s and the one the gyro integrates (both in the
-    body frame, which the head preset requires to be the same), for the quaternion columns as written (w, x, y, z) and
-    read as (x, y, z, w); None without motion to compare. (The angle alone cannot tell: it is the same for any order.)"""
+    body frame, which the head preset requires to be the same), for the quaternion columns as written (w, x, y, z:
+    ``as written``), read as (x, y, z, w) (``scalar last``) and with two gyro columns swapped (``SWAPS``' keys); None
+    without motion to compare. (The angle alone cannot tell: it is the same for any order.)"""
     keep = gyro_t <= gyro_t[0] + CHECK_SPAN_S
     gyro_t, gyro = gyro_t[keep], gyro[keep]
     inside = (tracker_t > gyro_t[0]) & (tracker_t < gyro_t[-1])
@@ -108,12 +115,15 @@ def tracker_against_gyro(gyro_t: FloatArray, gyro: FloatArray, tracker_t: FloatA
     moving = np.linalg.norm(by_gyro, axis=1) > 3.0
     if moving.sum() < 10:
         return None
-    out = []
-    for order in ((0, 1, 2, 3), (3, 0, 1, 2)):
+    out = {}
+    for name, order in (("as written", (0, 1, 2, 3)), ("scalar last", (3, 0, 1, 2))):
         q = quat_normalize(quat[:, order])
         turned = np.rad2deg(rotvec_from_quat(quat_multiply(quat_conjugate(q[i[moving]]), q[j[moving]])))
-        out.append(float(np.median(np.linalg.norm(turned - by_gyro[moving], axis=1))))
-    return out[0], out[1]
+        out[name] = float(np.median(np.linalg.norm(turned - by_gyro[moving], axis=1)))
+        if name == "as written":  # a small turn's rotation vector takes the gyro's column order
+            for swap, columns in SWAPS.items():
+                out[swap] = float(np.median(np.linalg.norm(turned - by_gyro[moving][:, columns], axis=1)))
+    return out
 
 
 def pixels_against_gyro(gyro_t: FloatArray, gyro: FloatArray, pixel_t: FloatArray, uv: FloatArray, focal_px: float) -> tuple[float, float] | None:
@@ -142,6 +152,34 @@ def pixels_against_gyro(gyro_t: FloatArray, gyro: FloatArray, pixel_t: FloatArra
     return slopes[0], slopes[1]
 
 
+def _same_body(gyro: Any, accels: list[Any]) -> list[Any]:
+    """The accelerometers sampled with a gyro, the one of its body alone when the names say (``thigh_gyro`` ->
+    ``thigh_accel``): another body's tilt says nothing of this gyro."""
+    together = [a for a in accels if len(a) == len(gyro) and np.allclose(a.t, gyro.t)]
+    named = [a for a in together if a.name == gyro.name.replace("gyro", "accel")]
+    return named or together
+
+
+_CAUSES = {
+    "deg/s": "{0:.1f} deg once x pi/180: degrees per second? set units = 'deg/s' or convert",
+    "scalar last": "{0:.1f} deg with its columns read x, y, z, w: quaternions written scalar LAST? write qw, qx, qy, qz",
+}
+
+
+def _name_mistake(fit: Mapping[str, float], mistake: str | None, stream: str, finding: str, swapped: str | None = None) -> None:
+    """Raise when one mistake fits far better than the streams as written (``MISTAKE_FITS``, ``MIN_MISFIT_DEG``): the
+    named one (``mistake``) or two columns swapped (in ``swapped``'s stream, else ``stream``'s)."""
+    written = fit["as written"]
+    if written < MIN_MISFIT_DEG:
+        return
+    if mistake is not None and fit[mistake] <= MISTAKE_FITS * written:
+        raise ConsistencyError(f"stream '{stream}': {finding}, " + _CAUSES[mistake].format(fit[mistake]))
+    swap = min(SWAPS, key=lambda name: fit[name])
+    if fit[swap] <= MISTAKE_FITS * written:
+        raise ConsistencyError(f"stream '{swapped or stream}': {finding}, {fit[swap]:.1f} deg with its {swap} columns swapped: "
+                               "axes written in each other's place? (or the other sensor's)")
+
+
 def check_streams(streams: Mapping[str, Any]) -> list[str]:
     """Every consistency check the streams allow; a ``ConsistencyError`` names the stream and the likely cause. Returns
     what a check could not decide (one line per warning, naming the stream)."""
@@ -149,21 +187,16 @@ def check_streams(streams: Mapping[str, Any]) -> list[str]:
     gyros = [s for s in streams.values() if s.kind == "gyro" and len(s) > 20]
     accels = [s for s in streams.values() if s.kind == "accel" and len(s) > 20]
     for gyro in gyros:
-        if _declared_units(gyro.meta):
-            continue
-        for accel in accels:
-            if len(accel) == len(gyro) and np.allclose(accel.t, gyro.t):
-                fit = gyro_against_gravity(gyro.t, gyro.values, accel.values)
-                if fit is not None and fit[0] >= MIN_MISFIT_DEG and fit[1] <= MISTAKE_FITS * fit[0]:
-                    raise ConsistencyError(
-                        f"stream '{gyro.name}': the gyro turns gravity {fit[0]:.1f} deg away from where '{accel.name}' sees it a "
-                        f"second later, {fit[1]:.1f} deg once x pi/180: degrees per second? set units = 'deg/s' or convert")
+        for accel in _same_body(gyro, accels):
+            fit = gyro_against_gravity(gyro.t, gyro.values, accel.values)
+            if fit is not None:
+                _name_mistake(fit, "deg/s" if not _declared_units(gyro.meta) else None, gyro.name,
+                              f"the gyro turns gravity {fit['as written']:.1f} deg away from where '{accel.name}' sees it a second later")
         for tracker in (s for s in streams.values() if s.kind == "attitude" and len(s) > 20 and s.meta.get("role") != "truth"):
             fit = tracker_against_gyro(gyro.t, gyro.values, tracker.t, tracker.values)
-            if fit is not None and fit[0] >= MIN_MISFIT_DEG and fit[1] <= MISTAKE_FITS * fit[0]:
-                raise ConsistencyError(
-                    f"stream '{tracker.name}': its rotation over 0.2 s is {fit[0]:.1f} deg (median) from '{gyro.name}''s, "
-                    f"{fit[1]:.1f} deg with its columns read x, y, z, w: quaternions written scalar LAST? write qw, qx, qy, qz")
+            if fit is not None:
+                _name_mistake(fit, "scalar last", tracker.name,
+                              f"the rotation over 0.2 s of '{tracker.name}' is {fit['as written']:.1f} deg (median) from the gyro's", swapped=gyro.name)
     for stream in streams.values():
         if stream.kind == "ranges" and "receivers_m" in stream.meta and not _declared_units(stream.meta) and len(stream):
             receivers = np.atleast_2d(np.asarray(stream.meta["receivers_m"], dtype=float))
@@ -185,10 +218,29 @@ def check_streams(streams: Mapping[str, Any]) -> list[str]:
                 if slopes is not None and slopes[0] < -FOLLOWS and slopes[1] > FOLLOWS:
                     raise ConsistencyError(f"stream '{stream.name}': its u moves against the head's yaw on '{gyro.name}' (slope {slopes[0]:.2f}, "
                                            f"v {slopes[1]:.2f}): u pointing left? write u right (u = column - image centre column)")
+        if stream.kind == "ranges" and len(stream) > 20:
+            from .factors.gyro import GAP_MIN_S, GAP_PERIODS
+
+            epochs = np.unique(stream.t)
+            steps = np.diff(epochs)
+            for i in np.flatnonzero(steps > max(GAP_PERIODS * float(np.median(steps)), GAP_MIN_S))[:3]:
+                said.append(f"stream '{stream.name}': no range for {steps[i]:.2f} s after t = {epochs[i]:.2f} s (a dropout: the tracks coast)")
+        if stream.kind == "ranges" and len(stream) > 1:
+            repeats = int(np.all(np.diff(np.column_stack([stream.t, stream.values]), axis=0) == 0, axis=1).sum())
+            if repeats:
+                said.append(f"stream '{stream.name}': {repeats} rows repeat the row before exactly (time, receiver, range): a record "
+                            "written twice? each counts as a measurement")
         if stream.kind == "ranges" and "transmitters" in stream.meta and len(stream) > 20:
             heard = _most_heard_per_epoch(stream.t, stream.values[:, 0])
             declared = int(stream.meta["transmitters"])
             if heard < declared:
                 said.append(f"stream '{stream.name}': transmitters = {declared}, but no receiver hears more than {heard} in one epoch: "
                             f"{declared - heard} never transmit? (a missing transmitter's tracks are invented)")
+    mags = [s for s in streams.values() if s.kind == "mag" and len(s) > 20]
+    for cal in (s for s in mags if s.name.endswith("_cal")):  # a calibration recording and the stream it calibrates, said to share a unit
+        for mag in (s for s in mags if s.name == cal.name[: -len("_cal")] and s.meta.get("unit") == cal.meta.get("unit")):
+            ratio = float(np.median(np.linalg.norm(cal.values, axis=1)) / max(np.median(np.linalg.norm(mag.values, axis=1)), 1e-12))
+            if not 1.0 / 3.0 < ratio < 3.0:  # offsets and disturbances change the norm by tens of percent, units by 10-100x
+                raise ConsistencyError(f"stream '{cal.name}': its field is {ratio:.3g}x that of '{mag.name}' (median norm): another unit? "
+                                       "write both in one unit")
     return said

@@ -68,3 +68,27 @@ def test_more_transmitters_declared_than_any_receiver_hears_is_a_warning() -> No
     declared = int(stream.meta["transmitters"])
     with pytest.warns(UserWarning, match=f"transmitters = {declared + 2}, but no receiver hears more than {declared}"):
         _with(ranges, stream.name, stream.values, transmitters=declared + 2).validate()
+
+
+def test_swapped_gyro_columns_and_a_calibration_in_another_unit_are_named() -> None:
+    _, head = simulated_sessions("head", [0], duration_s=20.0)[0]
+    gyro = head.stream("gyro").values
+    with pytest.raises(SessionError, match="x, y columns swapped"):
+        _with(head, "gyro", gyro[:, [1, 0, 2]]).validate()
+    _, nine = simulated_sessions("attitude9", [0], duration_s=30.0)[0]
+    nine.validate()
+    with pytest.raises(SessionError, match="mag_cal'.*another unit"):
+        _with(nine, "mag_cal", nine.stream("mag_cal").values * 57.3).validate()
+
+
+def test_a_ranges_dropout_and_a_record_written_twice_are_warnings() -> None:
+    _, ranges = simulated_sessions("ultrasonic", [0], duration_s=8.0)[0]
+    stream = ranges.streams_of_kind("ranges")[0]
+    kept = (stream.t < 3.0) | (stream.t >= 5.0)
+    gap = replace(ranges, streams={**ranges.streams, stream.name: replace(stream, t=stream.t[kept], values=stream.values[kept])})
+    with pytest.warns(UserWarning, match=r"no range for 2\.\d\d s after t = 2\.9"):
+        gap.validate()
+    twice = np.insert(np.arange(len(stream)), 10, 10)
+    doubled = replace(ranges, streams={**ranges.streams, stream.name: replace(stream, t=stream.t[twice], values=stream.values[twice])})
+    with pytest.warns(UserWarning, match="1 rows repeat the row before exactly"):
+        doubled.validate()

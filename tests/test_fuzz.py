@@ -86,7 +86,8 @@ def test_damaged_sessions_are_a_clear_error_or_a_result(pristine: Path, tmp_path
         pytest.fail(f"{faults} passed as a valid session")
 
 
-GENERIC_FAULTS = ("nan_value", "time_backwards", "truncated", "drop_block", "scale_57")
+GENERIC_FAULTS = ("nan_value", "time_backwards", "truncated", "drop_block", "scale_57", "duplicate_row", "swap_columns", "empty_stream",
+                  "extra_stream", "key_typo")
 SYSTEMS = {"head": "online", "attitude9": "online", "gaze": "online", "bicycle": "online", "walking": "online", "ultrasonic": "online"}
 
 
@@ -120,15 +121,33 @@ def _damage_largest(root: Path, fault: str, rng: np.random.Generator) -> None:
         del table[int(0.4 * n) : int(0.6 * n)]
     elif fault == "scale_57":
         table = [[r[0], *(repr(float(v) * 57.3) if v not in ("", "nan") else v for v in r[1:])] for r in table]
+    elif fault == "duplicate_row":
+        i = int(rng.integers(len(table)))
+        table.insert(i, list(table[i]))
+    elif fault == "swap_columns":  # the first two value columns in each other's place
+        table = [[r[0], r[2], r[1], *r[3:]] if len(r) > 2 else r for r in table]
+    elif fault == "empty_stream":
+        table = []
+    elif fault == "extra_stream":  # a file and a stream of a kind nobody declared
+        (root / "extra.csv").write_text("t,a\n0.0,1.0\n1.0,2.0\n")
+        toml = root / "session.toml"
+        toml.write_text(toml.read_text() + '\n[streams.extra]\nkind = "thermometer"\nfile = "extra.csv"\n')
+        return
+    elif fault == "key_typo":  # a misspelled key in the stream's entry
+        toml = root / "session.toml"
+        text = toml.read_text()
+        toml.write_text(text.replace(f'file = "{path.name}"', f'fiel = "{path.name}"', 1))
+        return
     path.write_text("\n".join([header, *(",".join(r) for r in table)]) + "\n")
 
 
-@settings(max_examples=18, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(system=st.sampled_from(sorted(SYSTEMS)), fault=st.sampled_from(GENERIC_FAULTS), seed=st.integers(0, 1000))
 def test_every_system_gives_a_clear_error_or_a_result_on_a_damaged_recording(every_system: dict[str, Path], tmp_path_factory: pytest.TempPathFactory,
                                                                              system: str, fault: str, seed: int, capsys: pytest.CaptureFixture[str]) -> None:
-    """Any system, any of these faults: exit 0 (a dropout is bridged or said; a scaled stream a loader cannot always
-    tell) or exit 2 with a one-line error, never a traceback or an internal error."""
+    """Any system, any of these faults: exit 0 (a dropout is bridged and said; a scaled stream or swapped columns a
+    loader cannot always tell) or exit 2 with a one-line error naming the file or stream, never a traceback or an
+    internal error; faults the loader can see are an error or a one-line warning."""
     root = tmp_path_factory.mktemp("case_all") / system
     shutil.copytree(every_system[system], root)
     _damage_largest(root, fault, np.random.default_rng(seed))
@@ -136,7 +155,11 @@ def test_every_system_gives_a_clear_error_or_a_result_on_a_damaged_recording(eve
     err = capsys.readouterr().err
     assert code in (0, 2), (system, fault, err)
     assert "Traceback" not in err and "internal error" not in err, (system, fault, err)
+    lines = err.strip().splitlines()
+    assert all(line.startswith(("warning: ", "fusegraph run: error: ")) for line in lines), err  # one line each
     if code == 2:
-        assert err.startswith("fusegraph run: error:"), err
-    if fault in ("nan_value", "time_backwards", "truncated"):
+        assert lines[-1].startswith("fusegraph run: error:") and (".csv" in lines[-1] or "session.toml" in lines[-1]), err
+    if fault in ("nan_value", "time_backwards", "truncated", "empty_stream", "extra_stream", "key_typo"):
         assert code == 2, (system, fault, "a fault the loader sees passed")
+    if fault in ("drop_block", "duplicate_row") and code == 0:
+        assert any(line.startswith("warning: ") for line in lines), (system, fault, "passed unsaid")

@@ -62,8 +62,10 @@ def from_session(session: Session) -> BicycleSession:
     header = session.meta.get("session", {})
     config = BicycleScenarioConfig(ride=str(header.get("ride", "downhill")), duration_s=float(t[-1] - t[0]), brake_s=float(header.get("brake_s", np.nan)))
     truth = np.full((len(t), 4), np.nan)
-    if session.truth is not None and session.truth.kind == "attitude" and len(session.truth) == len(t):
-        truth = session.truth.values.copy()
+    if session.truth is not None and session.truth.kind == "attitude":  # on the sensors' clock: at the times kept
+        index = np.clip(np.searchsorted(session.truth.t, t), 0, len(session.truth) - 1)
+        if np.allclose(session.truth.t[index], t, rtol=0.0, atol=1e-9):
+            truth = session.truth.values[index].copy()
     v = {name: s.values for name, s in streams.items()}
     return BicycleSession(t=t, thigh_gyro=v["thigh_gyro"], thigh_accel=v["thigh_accel"], thigh_mag=v["thigh_mag"], frame_gyro=v["frame_gyro"],
                           frame_accel=v["frame_accel"], frame_mag=v["frame_mag"], thigh_quat_wxyz=truth, frame_quat_wxyz=np.full((len(t), 4), np.nan),
@@ -155,12 +157,13 @@ def declared(session: Session) -> tuple[BicycleModel, Ekf9Config, Ekf9Config]:
     return model, paper, alone
 
 
-def run_declared(session: Session, solver: str) -> FloatArray:
-    """A bicycle session's solver (``no_removal``, ``paper_pipeline``, ``online``, ``batch``) with its declared settings."""
+def run_declared(session: Session, solver: str) -> tuple[FloatArray, FloatArray]:
+    """A bicycle session's solver (``no_removal``, ``paper_pipeline``, ``online``, ``batch``) with its declared settings:
+    the sample times (those every stream has) and the thigh attitude there."""
     ride = from_session(session)
     model, paper, alone = declared(session)
     if solver == "no_removal":
-        return run_no_removal(ride, alone)
+        return ride.t, run_no_removal(ride, alone)
     if solver == "paper_pipeline":
-        return run_pipeline(ride, paper)
-    return {"online": run_online, "batch": run_batch}[solver](ride, model)
+        return ride.t, run_pipeline(ride, paper)
+    return ride.t, {"online": run_online, "batch": run_batch}[solver](ride, model)

@@ -235,8 +235,7 @@ def _bicycle_run(session: Session, solver: str) -> Result:
     from . import bicycle
 
     start = time.perf_counter()
-    quat = bicycle.run_declared(session, _BICYCLE_SOLVERS[solver])
-    t = session.stream("thigh_gyro").t
+    t, quat = bicycle.run_declared(session, _BICYCLE_SOLVERS[solver])
     return Estimate(solver, t.copy(), quat, None, time.perf_counter() - start)
 
 
