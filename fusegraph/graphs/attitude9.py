@@ -35,6 +35,7 @@ from ..factors.imu import (
     still_samples,
     velocity_prior_factor,
 )
+from ..factors.linear import robust
 from ..factors.mag import FieldReference, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
 from ..tuned import tuned
@@ -70,6 +71,10 @@ RECENT_GYRO_S = 10.0
 #: Pushed blocks joined to the kept gyro samples at the latest after this many (a block may be one sample).
 _JOIN_BLOCKS = 64
 
+_SAME_READING_SIGMAS = 3.0
+"""A reading after a gap is where the still body's readings were when within this many of their scatter (x sqrt 2)."""
+_REST_CAUCHY_K = 2.0
+"""Cauchy width (sigmas) of the rest bridge: the gravity factor's (``GravityNoise.cauchy_k``)."""
 RESTART_S = 1.0
 """Online, after a dropout: seconds of specific force and field averaged in the gyro's frame before the attitude is
 re-levelled from them (one reading in motion can be tens of degrees off gravity; see ``_Restart``)."""
@@ -159,6 +164,18 @@ class Attitude9Model:
         return replace(self, imu=imu, gravity=gravity, mag=replace(self.mag, heading_sigma_deg=factor * self.mag.heading_sigma_deg))
 
 
+def _mean_direction(vectors: FloatArray) -> tuple[FloatArray, float]:
+    """Mean unit direction of readings and their RMS angle from it, rad."""
+    unit = vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
+    mean = unit.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    return mean, float(np.sqrt(np.mean(np.arccos(np.clip(unit @ mean, -1.0, 1.0)) ** 2)))
+
+
+def _angle_rad(direction: FloatArray, reading: FloatArray) -> float:
+    return float(np.arccos(np.clip(direction @ (reading / np.linalg.norm(reading)), -1.0, 1.0)))
+
+
 def initial_attitude(accel_body: FloatArray, mag_body: FloatArray | None) -> gtsam.Rot3:
     """world_R_body (ENU) from one gravity and one field reading (TRIAD); heading 0 without a field."""
     accel = np.asarray(accel_body, dtype=float)[None, :]
@@ -214,6 +231,8 @@ class Attitude9Builder:
         self._params = preintegration_params(self.model.imu) if self.model.imu.gyro_scale_sigma == 0 else None
         self._still_run = 0  # consecutive still samples
         self._nominal_dt: float | None = None  # the sample period (median of the first block's steps)
+        self._still_rate_rad_s = 0.0  # RMS bias-corrected rate over the newest still samples (a rest bridge's sigma)
+        self._still_directions: tuple[tuple[FloatArray, float], ...] | None = None  # gravity, field: mean direction, scatter (rad)
         self.gaps: list[tuple[float, float]] = []
         """Dropouts bridged: (time of the last sample before, length), seconds."""
         self._bridges: set[int] = set()  # keyframes that follow a dropout
@@ -369,12 +388,23 @@ class Attitude9Builder:
         model = self.model
         gap_s = t - self._last_t
         self.gaps.append((self._last_t, gap_s))
-        sigma_rot = min(math.pi, GAP_RATE_RAD_S * gap_s)
-        # the first guess after the gap: gravity and the field where there is a magnetometer (what the body is now), else
-        # the attitude before it
-        attitude = initial_attitude(accel, mag) if mag is not None else self._nav.attitude()
-        self._bridges.add(k)
-        noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot] * 3, [1e3] * 3])
+        before = self._still_directions if self._still_run * (self._nominal_dt or 0.0) >= model.motion.rest_window_s else None
+        at_rest = still and before is not None and mag is not None and all(
+            _angle_rad(direction, reading) <= _SAME_READING_SIGMAS * math.sqrt(2.0) * max(scatter, 1e-4)
+            for (direction, scatter), reading in zip(before, (accel, mag), strict=True))
+        if at_rest:
+            # at rest before (the model's rest detector), still after, and gravity and the field where they were within
+            # their scatter (a body moved and put down changes one of them): it did not turn. As fast as the gyro turned
+            # while it was still, over the gap; a Cauchy kernel lets the evidence overturn it
+            sigma_rot = max(self._still_rate_rad_s, 1e-4) * gap_s
+            attitude = self._nav.attitude()
+        else:
+            sigma_rot = min(math.pi, GAP_RATE_RAD_S * gap_s)
+            # the first guess after the gap: gravity and the field where there is a magnetometer (what the body is now),
+            # else the attitude before it
+            attitude = initial_attitude(accel, mag) if mag is not None else self._nav.attitude()
+            self._bridges.add(k)
+        noise = robust(gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot] * 3, [1e3] * 3]), _REST_CAUCHY_K if at_rest else 0.0)
         add = self._pending.add
         add(k - 1, gtsam.BetweenFactorPose3(self.X(k - 1), self.X(k), gtsam.Pose3(), noise))
         add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), gap_s, model.imu))
@@ -394,7 +424,7 @@ class Attitude9Builder:
         self._keyframe_guess.append(guess.attitude())
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
         self._nav = guess
-        self._restart = _Restart(k) if self._solved else None  # the batch starts again in ``inertial_initial``
+        self._restart = _Restart(k) if self._solved and not at_rest else None  # the batch starts again in ``inertial_initial``
         self._after_keyframe(k, guess.attitude(), mag)
 
     def _push(self, t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray | None, still: FloatArray,
@@ -435,6 +465,13 @@ class Attitude9Builder:
         if start < len(t):
             self._interval.append((accel[start:], gyro[start:], dt[start:]))
         self._last_t, self._count, self._still_run = float(t[-1]), count0 + len(t), int(still_run[-1])
+        if still[-1] and mag is not None:  # the block's last still samples: how fast a still body turns (the gyro less its
+            # bias), and its gravity and field directions with their scatter (what a rest bridge compares)
+            tail = slice(len(t) - min(int(still_run[-1]), len(t)), None)
+            self._still_rate_rad_s = float(np.sqrt(np.mean(np.sum((gyro[tail] - np.asarray(self._bias.gyroscope())) ** 2, axis=1))))
+            self._still_directions = tuple(_mean_direction(x[tail]) for x in (accel, mag))
+        elif not still[-1]:
+            self._still_directions = None
 
     def _start(self, t: float, accel: FloatArray, mag: FloatArray | None) -> None:
         rot = initial_attitude(accel, mag)
