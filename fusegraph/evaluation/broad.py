@@ -52,6 +52,22 @@ def bench_broad(
         out["mean"][method] = {key: float(np.mean([r[key] for r in rows])) for key in ("total", "heading", "inclination", "x_realtime")}
     out.update(methods=report["methods"], sessions=report["sessions"])
     out["published"] = published_baselines(Path(directory or DEFAULT_DIR))
+    out["settings"] = tuning_provenance()
+    return out
+
+
+def tuning_provenance() -> dict[str, dict[str, Any]]:
+    """How the settings on main were chosen (``tuned.toml``): per BROAD study, the trials, the in-sample and the
+    leave-one-trial-out (cross-validated) mean total RMSE, deg. On a folder of other trials the bench runs these settings
+    unchanged: its figures are out of sample."""
+    from ..tuned import SYSTEM_STUDIES, tuned
+
+    out = {}
+    for study in SYSTEM_STUDIES["attitude9"]:
+        table = tuned(study)
+        trials = table.get("trials", [])
+        out[study] = {"in_sample": table.get("in_sample"), "cross_validated": table.get("cross_validated"),
+                      "trials": len(trials) if isinstance(trials, list) else trials}
     return out
 
 

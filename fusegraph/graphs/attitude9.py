@@ -142,7 +142,7 @@ class Attitude9Model:
     """Zero-mean position/velocity pseudo-measurements and the rest detector."""
     mag: MagNoise = field(default_factory=lambda: mag_noise_tuned("broad_mag"))
     """Magnetometer heading noise and disturbance rejection, chosen for the online estimate by leave-one-trial-out over
-    the eleven BROAD trials (``fusegraph tune broad_mag``; the values and their scores are in ``tuned.toml`` [broad_mag])."""
+    the thirteen BROAD trials (``fusegraph tune broad_mag``; the values and their scores are in ``tuned.toml`` [broad_mag])."""
     mag_calibration: MagCalibration = field(default_factory=MagCalibration)
     """M = G m + B applied to every reading."""
     use_mag: bool = True
