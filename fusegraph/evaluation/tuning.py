@@ -103,7 +103,7 @@ def leave_one_group_out(scores: Mapping[str, Mapping[str, float]]) -> dict[str, 
             "held_out": held_out, "all": in_sample}
 
 
-BROAD_EKF_GRID: Mapping[str, Sequence[float]] = {"gyro_sigma_rad_s": (0.01, 0.03, 0.1, 0.3), "mag_yaw_sigma_rad": (0.05, 0.1, 0.2),
+BROAD_EKF_GRID: Mapping[str, Sequence[float]] = {"gyro_sigma_rad_s": (0.01, 0.03, 0.1, 0.3), "mag_yaw_sigma_rad": (0.05, 0.1, 0.2, 0.4),
                                                   "accel_inflation": (0.0, 20.0)}
 """The 9-axis EKF's open settings tried by ``broad_ekf`` (the accelerometer's 0.5 m/s^2 stays: a Kalman filter's estimate
 depends on its noises' ratios, and the gyro's and the magnetometer's are both searched against it)."""
