@@ -31,8 +31,8 @@ class Ekf9Config:
     accel_inflation: float = float(value("broad_ekf", "accel_inflation"))
     """Extra sigma per m/s^2 that |a| departs from g (translational acceleration). In no paper: an option. Chosen
     with the gyro noise by leave-one-trial-out on the thirteen BROAD trials (``fusegraph tune broad_ekf``,
-    ``tuned.toml``: off, 7.60 deg in-sample, 11.45 deg cross-validated; on eleven 7.93 / 12.49; 20, the earlier default,
-    31.6 deg)."""
+    ``tuned.toml``: off, with 0.03 rad/s and 0.2 rad, 6.94 deg in-sample, 7.95 deg cross-validated; on eleven 7.93 / 12.49;
+    20, the earlier default, 31.6 deg)."""
     mag_yaw_sigma_rad: float = float(value("broad_ekf", "mag_yaw_sigma_rad"))
     """Magnetometer yaw noise, rad (the papers give none; chosen with the gyro noise, ``fusegraph tune broad_ekf``)."""
     mag_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
