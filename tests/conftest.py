@@ -77,3 +77,27 @@ def requires_shared_data(subdir: str) -> pytest.MarkDecorator:
     """Skip (with the reason) when the real recordings are not beside the repository."""
     path = SHARED_DATA / subdir
     return pytest.mark.skipif(not path.is_dir(), reason=f"real recordings not found at {path} (CI has them beside the repo)")
+
+
+def cut_streams(session, names: tuple[str, ...], start_s: float, end_s: float):  # type: ignore[no-untyped-def]
+    """The session without the named streams' samples in [start_s, end_s) (a dropout)."""
+    from dataclasses import replace
+
+    streams = dict(session.streams)
+    for name in names:
+        stream = session.stream(name)
+        kept = (stream.t < start_s) | (stream.t >= end_s)
+        streams[name] = replace(stream, t=stream.t[kept], values=stream.values[kept])
+    return replace(session, streams=streams)
+
+
+def solve_saying(session, solver: str, about: str):  # type: ignore[no-untyped-def]
+    """``solve_session`` with every warning recorded: (its outcome, the messages that contain ``about``)."""
+    import warnings
+
+    from fusegraph.evaluation.runner import solve_session
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome = solve_session(session, solver)
+    return outcome, [str(w.message) for w in caught if about in str(w.message)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-from conftest import assert_jacobians_match, random_rot3, requires_shared_data
+from conftest import assert_jacobians_match, cut_streams, random_rot3, requires_shared_data, solve_saying
 
 from fusegraph.factors.accel import GravityNoise, gravity_factor
 from fusegraph.factors.mag import FieldReference, MagNoise, field_norm_dip, fit_mag_calibration, heading_factor, heading_sigma_rad
@@ -368,25 +368,19 @@ def test_a_dropout_of_every_imu_stream_is_bridged_reported_and_recovered() -> No
     after: at most 1.2 deg; 3 s after: seed 4 0.25 deg (7.4 deg before the online restart re-levelled from 1 s of
     specific force and field in the gyro's frame, ``_Restart``). A gap followed by the scenario's disturbance (20-21 s)
     leaves only 1 s of clean field: 0.4-4 deg at 5 s over seeds 0-5 (10-24 deg without the restart)."""
-    import warnings
-    from dataclasses import replace
 
     from fusegraph.evaluation.runner import simulated_sessions, solve_session
     from fusegraph.geometry import quat_conjugate, quat_multiply, rotvec_from_quat
     from fusegraph.metrics import on_truth_times
 
     _, session = simulated_sessions("attitude9", [4], duration_s=40.0)[0]
-    cut = {name: replace(s, t=s.t[(s.t < 12.0) | (s.t >= 13.0)], values=s.values[(s.t < 12.0) | (s.t >= 13.0)])
-           if name in ("gyro", "accel", "mag") else s for name, s in session.streams.items()}
-    damaged = replace(session, streams=cut)
+    damaged = cut_streams(session, ("gyro", "accel", "mag"), 12.0, 13.0)
     gyro_deg_s = np.rad2deg(np.linalg.norm(session.stream("gyro").values[(session.stream("gyro").t > 11) & (session.stream("gyro").t < 14)], axis=1))
     assert np.median(gyro_deg_s) > 50.0  # the gap is in motion
     for solver in ("online", "batch"):
         whole = solve_session(session, solver).estimate
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            broken = solve_session(damaged, solver).estimate
-        said = [str(w.message) for w in caught if "bridged" in str(w.message)]
+        outcome, said = solve_saying(damaged, solver, "bridged")
+        broken = outcome.estimate
         assert len(said) == 1 and "1.01 s after t = 11.99 s" in said[0]  # last sample before, first after: 11.99 -> 13.00, said
         at = np.array([14.0, 16.0, 18.0, 20.0]) if solver == "batch" else np.array([16.0, 18.0, 20.0])
         a, b = on_truth_times(whole, at).quat_wxyz, on_truth_times(broken, at).quat_wxyz
@@ -398,21 +392,16 @@ def test_a_dropout_of_the_magnetometer_alone_is_cut_from_every_stream_said_once_
     """The magnetometer missing for 1 s (the gyro and accelerometer running on): one warning names the stream and the
     span, the samples of the others there are left out, and the graph bridges the gap as a dropout of all; the peers run
     on the same cut streams. A stream at another rate is still an error naming it."""
-    import warnings
     from dataclasses import replace
 
-    from fusegraph.evaluation.runner import simulated_sessions, solve_session
+    from fusegraph.evaluation.runner import simulated_sessions
     from fusegraph.session import SessionError
 
     _, session = simulated_sessions("attitude9", [0], duration_s=20.0)[0]
     mag = session.stream("mag")
-    kept = (mag.t < 12.0) | (mag.t >= 13.0)
-    damaged = replace(session, streams={**session.streams, "mag": replace(mag, t=mag.t[kept], values=mag.values[kept])})
+    damaged = cut_streams(session, ("mag",), 12.0, 13.0)
     for solver in ("batch", "vqf"):
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            result = solve_session(damaged, solver)
-        said = [str(w.message) for w in caught if "has no sample" in str(w.message)]
+        result, said = solve_saying(damaged, solver, "has no sample")
         assert len(said) == 1 and "stream 'mag' has no sample at 100 times between t = 12.00 and 12.99 s" in said[0], said
         assert result.metrics["truth_samples_missing"] == 100 and "inside its dropouts" in result.metrics["truth_samples_missing_why"]
     slow = replace(mag, t=mag.t[::2], values=mag.values[::2])

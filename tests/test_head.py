@@ -7,6 +7,7 @@ from dataclasses import replace
 import gtsam
 import numpy as np
 import pytest
+from conftest import cut_streams, solve_saying
 
 from fusegraph.factors.attitude import AttitudeNoise
 from fusegraph.factors.gyro import GyroNoise
@@ -512,21 +513,14 @@ def test_a_gyro_dropout_is_bridged_by_the_tracker_and_said() -> None:
     quality (measured 0.78 / 0.42 / 0.80 deg RMS over the whole 40 s, against 0.31 / 0.35 / 0.47 undamaged); the online
     estimate has nothing inside it (1,500 truth samples unscored, said why) and is within 2 deg of the truth 5 s after it
     (measured 1.25 deg; undamaged 0.75). One warning per solver names the gap."""
-    import warnings
 
-    from fusegraph.evaluation.runner import solve_session
     from fusegraph.metrics import on_truth_times
 
     session = simulate_head(0, duration_s=40.0)
     assert session.truth is not None
-    gyro = session.stream("gyro")
-    kept = (gyro.t < 10.0) | (gyro.t >= 25.0)
-    damaged = replace(session, streams={**session.streams, "gyro": replace(gyro, t=gyro.t[kept], values=gyro.values[kept])})
+    damaged = cut_streams(session, ("gyro",), 10.0, 25.0)
     for solver in ("online", "batch"):
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            result = solve_session(damaged, solver)
-        said = [str(w.message) for w in caught if "no gyro sample" in str(w.message)]
+        result, said = solve_saying(damaged, solver, "no gyro sample")
         assert len(said) == 1 and "15.01 s after t = 9.99 s" in said[0], said
         metrics = result.metrics
         if solver == "batch":

@@ -90,8 +90,6 @@ class _Restart:
     frame by the gyro averages to gravity (the velocity stays bounded) and the field to the field; their TRIAD, turned
     back to the newest keyframe, is its guess and a prior as wide as the start's."""
 
-    keyframe: int
-    """The bridge keyframe."""
     bridge_R_body: gtsam.Rot3 = field(default_factory=gtsam.Rot3)
     """The newest keyframe's attitude in the bridge keyframe's frame (the gyro alone)."""
     force_sum: FloatArray = field(default_factory=lambda: np.zeros(3))
@@ -231,8 +229,7 @@ class Attitude9Builder:
         self._params = preintegration_params(self.model.imu) if self.model.imu.gyro_scale_sigma == 0 else None
         self._still_run = 0  # consecutive still samples
         self._nominal_dt: float | None = None  # the sample period (median of the first block's steps)
-        self._still_rate_rad_s = 0.0  # RMS bias-corrected rate over the newest still samples (a rest bridge's sigma)
-        self._still_directions: tuple[tuple[FloatArray, float], ...] | None = None  # gravity, field: mean direction, scatter (rad)
+        self._still_tail: tuple[FloatArray, FloatArray, FloatArray] | None = None  # gyro, accel, field: the newest still samples
         self.gaps: list[tuple[float, float]] = []
         """Dropouts bridged: (time of the last sample before, length), seconds."""
         self._bridges: set[int] = set()  # keyframes that follow a dropout
@@ -388,15 +385,17 @@ class Attitude9Builder:
         model = self.model
         gap_s = t - self._last_t
         self.gaps.append((self._last_t, gap_s))
-        before = self._still_directions if self._still_run * (self._nominal_dt or 0.0) >= model.motion.rest_window_s else None
-        at_rest = still and before is not None and mag is not None and all(
+        tail = self._still_tail if self._still_run * (self._nominal_dt or 0.0) >= model.motion.rest_window_s else None
+        at_rest = still and tail is not None and mag is not None and all(
             _angle_rad(direction, reading) <= _SAME_READING_SIGMAS * math.sqrt(2.0) * max(scatter, 1e-4)
-            for (direction, scatter), reading in zip(before, (accel, mag), strict=True))
+            for (direction, scatter), reading in zip((_mean_direction(tail[1]), _mean_direction(tail[2])), (accel, mag), strict=True))
         if at_rest:
             # at rest before (the model's rest detector), still after, and gravity and the field where they were within
             # their scatter (a body moved and put down changes one of them): it did not turn. As fast as the gyro turned
-            # while it was still, over the gap; a Cauchy kernel lets the evidence overturn it
-            sigma_rot = max(self._still_rate_rad_s, 1e-4) * gap_s
+            # (less its bias) while it was still, over the gap; a Cauchy kernel lets the evidence overturn it
+            assert tail is not None
+            rate_rad_s = float(np.sqrt(np.mean(np.sum((tail[0] - np.asarray(self._bias.gyroscope())) ** 2, axis=1))))
+            sigma_rot = max(rate_rad_s, 1e-4) * gap_s
             attitude = self._nav.attitude()
         else:
             sigma_rot = min(math.pi, GAP_RATE_RAD_S * gap_s)
@@ -424,7 +423,7 @@ class Attitude9Builder:
         self._keyframe_guess.append(guess.attitude())
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
         self._nav = guess
-        self._restart = _Restart(k) if self._solved and not at_rest else None  # the batch starts again in ``inertial_initial``
+        self._restart = _Restart() if self._solved and not at_rest else None  # the batch starts again in ``inertial_initial``
         self._after_keyframe(k, guess.attitude(), mag)
 
     def _push(self, t: FloatArray, gyro: FloatArray, accel: FloatArray, mag: FloatArray | None, still: FloatArray,
@@ -465,13 +464,11 @@ class Attitude9Builder:
         if start < len(t):
             self._interval.append((accel[start:], gyro[start:], dt[start:]))
         self._last_t, self._count, self._still_run = float(t[-1]), count0 + len(t), int(still_run[-1])
-        if still[-1] and mag is not None:  # the block's last still samples: how fast a still body turns (the gyro less its
-            # bias), and its gravity and field directions with their scatter (what a rest bridge compares)
+        if still[-1] and mag is not None:  # the block's last still samples (views: a rest bridge reads them, rarely)
             tail = slice(len(t) - min(int(still_run[-1]), len(t)), None)
-            self._still_rate_rad_s = float(np.sqrt(np.mean(np.sum((gyro[tail] - np.asarray(self._bias.gyroscope())) ** 2, axis=1))))
-            self._still_directions = tuple(_mean_direction(x[tail]) for x in (accel, mag))
+            self._still_tail = (gyro[tail], accel[tail], mag[tail])
         elif not still[-1]:
-            self._still_directions = None
+            self._still_tail = None
 
     def _start(self, t: float, accel: FloatArray, mag: FloatArray | None) -> None:
         rot = initial_attitude(accel, mag)
