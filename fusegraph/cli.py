@@ -172,7 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "mobgap: Mobilise-D lab recordings in mobgap's layout -> walking sessions per test and trial (lower-back IMU; "
                          "the INDIP reference's bouts, steps, stride lengths in [truth_extra]). plaza: Plaza1|Plaza2 (shipped with gtsam) "
                          "-> a walking session driven by wheel odometry with beacon ranges (start found from the ranges). tobii: a Tobii Pro Glasses 3 "
-                         "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth). csv: one stream of a "
+                         "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth). pupil: a Pupil Invisible export "
+                         "folder (imu.csv, gaze.csv) -> a gaze session without a magnetometer, the device's fixations for scoring. csv: one stream of a "
                          "vendor's CSV export mapped onto a kind (--kind, --columns, --units, --time-units), into a new session "
                          "(--system) or added to one. xdf: a Lab Streaming Layer recording (LabRecorder), its streams mapped "
                          "with --map onto session streams.",
@@ -183,13 +184,14 @@ def build_parser() -> argparse.ArgumentParser:
                          "  fusegraph run sessions/oxford --solver steps --out studies/oxford\n"
                          "  fusegraph import plaza Plaza2 --out sessions/plaza2 && fusegraph run sessions/plaza2 --solver batch --json\n"
                          "  fusegraph import tobii ../shared/data/gaze_tobii --out sessions/tobii && fusegraph run sessions/tobii --solver batch\n"
+                         "  fusegraph import pupil ../shared/data/gaze_pupil_invisible --out sessions/pupil && fusegraph report gaze sessions/pupil\n"
                          "  fusegraph import csv imu.csv --system attitude9 --kind gyro --columns t=Timestamp,wx=GyrX,wy=GyrY,wz=GyrZ "
                          "--units deg/s --time-units ms --out sessions/mine\n"
                          "  fusegraph import csv imu.csv --kind accel --columns t=Timestamp,ax=AccX,ay=AccY,az=AccZ --units g --time-units ms "
                          "--out sessions/mine   # adds a stream\n"
                          "  fusegraph import xdf run1.xdf --system head --map HMD_gyro=gyro --map Polhemus=tracker:attitude --out sessions/run1",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    imp.add_argument("format", choices=["broad", "hapt", "mobgap", "oxford", "plaza", "tobii", "uwb", "csv", "xdf"])
+    imp.add_argument("format", choices=["broad", "hapt", "mobgap", "oxford", "plaza", "pupil", "tobii", "uwb", "csv", "xdf"])
     imp.add_argument("source", type=Path, help="the recording (file or folder)")
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
     imp.add_argument("--system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"],
@@ -276,10 +278,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "tracker 100 ms late with the realistic profile's errors; the optical attitude at the gyro rate as the reference): "
                          "tracker, Method II (noise chosen leaving the trial out), the paper's values, iSAM2 online, batch; RMS per axis in "
                          "movement, Euler-angle domain exits listed.\n"
-                         "gaze-recorded: the head-worn eye tracker's recording in DIR (default ../shared/data/gaze_tobii): the gaze-to-IMU "
+                         "gaze-recorded: the head-worn eye tracker's export in DIR (default ../shared/data/gaze_tobii; a Tobii Pro Glasses 3 "
+                         "folder with imudata.gz or a Pupil Invisible one with imu.csv, told apart by their files): the gaze-to-IMU "
                          "time offset found from the data, fixations that read no IMU (the device's own, else eye-in-head velocity), and "
                          "the dispersion of the world gaze ray in them (median over fixations) for the head-frame gaze, the raw gyro, the "
-                         "paper's EKF, fusegraph online and batch.\n"
+                         "paper's EKF, fusegraph online and batch (and the device's own attitude where the export has a whole one).\n"
                          "soak: the online head tracker over an hour of data (--duration, default 3600 s here): speed per 10 minutes and peak memory.\n"
                          "activity: every walking cycle the waist front end detects in DIR (UCI HAPT's raw folder, default ../shared/data/hapt, "
                          "or sessions from `import hapt`) against the hand label of its segment: fusegraph's classifier (leave-one-user-out "
@@ -300,7 +303,8 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak", "head-recorded", "gaze-recorded", "activity", "gait"])
     ben.add_argument("directory", nargs="?", type=Path, help="broad, head-recorded: directory of BROAD trials (*.mat; default ../shared/data/broad) "
                      "or, head-recorded, of the head sessions `import broad --system head` wrote; "
-                     "gaze-recorded: the eye-tracker export (default ../shared/data/gaze_tobii); activity: HAPT's raw folder or imported sessions")
+                     "gaze-recorded: the eye-tracker export (Tobii or Pupil Invisible; default ../shared/data/gaze_tobii); "
+                     "activity: HAPT's raw folder or imported sessions")
     ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600); ultrasonic: seconds per run (default 20)")
     ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
     ben.add_argument("--profile", choices=["ideal", "realistic"], default="realistic", help="head: sensor error profile")

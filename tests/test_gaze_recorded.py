@@ -84,22 +84,72 @@ def test_tobii_export_loads_in_si_units_and_head_axes() -> None:
     assert data.config.target_depth_m == 2.0 and data.config.camera.focal_px == 880.0
 
 
+def _bench_is_the_report(fmt: str, directory, tmp_path, capsys) -> dict:  # type: ignore[no-untyped-def]
+    """``bench gaze-recorded DIR`` and ``import FMT DIR`` + ``report gaze --json`` agree to the last digit; the bench's JSON."""
+    import json
+
+    from fusegraph.cli import main
+    from fusegraph.evaluation.gaze_recorded import ROWS, bench_gaze_recorded
+
+    bench = bench_gaze_recorded(directory)
+    assert main(["import", fmt, str(directory), "--out", str(tmp_path / fmt)]) == 0
+    capsys.readouterr()
+    assert main(["report", "gaze", str(tmp_path / fmt), "--solvers", ",".join(ROWS), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["sessions"][fmt]
+    for name in ROWS:
+        assert rows[name]["metrics"]["dispersion_deg"] == bench["dispersion_deg"][name], name
+        assert rows[name]["metrics"]["fixations"] == bench["fixations"] >= 5
+    return bench
+
+
 @requires_shared_data("gaze_tobii")
 def test_the_recorded_gaze_bench_is_the_report_of_the_imported_session(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
     """`import tobii` + `report gaze DIR --json` gives the bench's dispersions to the last digit: the import declares the
     gaze delay and the unusable magnetometer, every solver applies them."""
-    import json
-
-    from fusegraph.cli import main
     from fusegraph.datasets.tobii import DEFAULT_DIR
-    from fusegraph.evaluation.gaze_recorded import ROWS, bench_gaze_recorded
 
-    bench = bench_gaze_recorded(DEFAULT_DIR)
-    assert main(["import", "tobii", str(DEFAULT_DIR), "--out", str(tmp_path / "tobii")]) == 0
-    capsys.readouterr()
-    assert main(["report", "gaze", str(tmp_path / "tobii"), "--solvers", ",".join(ROWS), "--json"]) == 0
-    rows = json.loads(capsys.readouterr().out)["sessions"]["tobii"]
-    for name in ROWS:
-        assert rows[name]["metrics"]["dispersion_deg"] == bench["dispersion_deg"][name], name
-        assert rows[name]["metrics"]["fixations"] == bench["fixations"] >= 5
+    bench = _bench_is_the_report("tobii", DEFAULT_DIR, tmp_path, capsys)
     assert not bench["use_mag"] and 0.0 < bench["time_offset_s"] < 0.05
+
+
+def test_a_clipping_sensor_is_found_and_its_samples_are_not_trusted() -> None:
+    from fusegraph.consistency import clipped_samples, saturation_level
+    from fusegraph.graphs.attitude9 import Attitude9Builder, Attitude9Model
+
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 4.0, 0.005)
+    accel = np.tile([0.0, 0.0, 9.81], (t.size, 1)) + rng.normal(0, 0.05, (t.size, 3))
+    assert saturation_level(accel) is None  # noise never repeats its own extreme
+    accel[t >= 2.0, 2] = 19.6133  # a 2 g range reached in the second half (a landing)
+    level = saturation_level(accel)
+    assert level == pytest.approx(19.6133) and clipped_samples(accel, level).sum() == (t >= 2.0).sum()
+
+    def gravity_factors(model: Attitude9Model) -> int:
+        builder = Attitude9Builder(model)
+        builder.add_samples(t, rng.normal(0, 0.01, (t.size, 3)), accel, None)
+        graph = builder.take().graph()
+        return sum(isinstance(graph.at(i), gtsam.AttitudeFactorPose3) for i in range(graph.size()))
+
+    import gtsam
+
+    trusted, bounded = gravity_factors(Attitude9Model(use_mag=False)), gravity_factors(Attitude9Model(use_mag=False, accel_range_m_s2=level))
+    assert (trusted, bounded) == (19, 9)  # one per keyframe closed every 0.2 s after the start (0.2-3.8 s); none from 2.0 s on
+
+
+@requires_shared_data("gaze_pupil_invisible")
+def test_pupil_invisible_export_loads_in_head_axes_and_its_bench_is_the_report(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """`import pupil`: gyro in rad/s and accel in m/s^2 in the head frame (standing still at the start: +g up), the gaze
+    rays as pinhole pixels, blinks dropped and counted, the device's fixations; `report gaze` gives the bench's figures."""
+    from fusegraph.consistency import check_streams
+    from fusegraph.datasets.pupil import DEFAULT_DIR, FOCAL_PX, load_pupil
+
+    session = load_pupil(DEFAULT_DIR)
+    accel, gaze = session.stream("accel"), session.stream("gaze")
+    still = accel.t < 2.0
+    assert np.median(accel.values[still, 2]) > 8.0 and abs(np.median(accel.values[still, 0])) < 2.0  # head z up, x forward
+    assert np.abs(gaze.values).max() < FOCAL_PX * np.tan(np.deg2rad(46.0))  # rays inside the 82 deg field of view, plus its corners
+    assert session.meta["session"]["gaze_untracked"] == 2376 and not session.meta["session"]["use_mag"]
+    assert len(np.unique(session.stream("fixation").values[session.stream("fixation").values > 0])) >= 40
+    assert any("clipped" in line and "'accel'" in line for line in check_streams(session.streams))
+    bench = _bench_is_the_report("pupil", DEFAULT_DIR, tmp_path, capsys)
+    assert bench["export"] == "pupil" and bench["fixation_source"] == "device" and bench["dispersion_deg"]["device"] is None

@@ -26,6 +26,9 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
 * ``tobii``: a Tobii Pro Glasses 3 export folder (``imudata.gz``, ``gazedata.gz``) -> one gaze session
   (gyro in rad/s and head axes, accel, mag on the IMU times, gaze pixels; no wall: ``target_depth_m``);
   no truth (``bench gaze-recorded`` scores fixations). See ``datasets.tobii``.
+* ``pupil``: a Pupil Labs Pupil Invisible export folder (``imu.csv``, ``gaze.csv``) -> one gaze session (gyro in rad/s
+  and head axes, accel in m/s^2, no magnetometer, the gaze rays as pinhole pixels, the device's fixations as the
+  scoring-only ``fixation`` stream). See ``datasets.pupil``.
 """
 
 from __future__ import annotations
@@ -63,6 +66,8 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
         return [save_session(found[0][1], out)]
     if fmt == "tobii":
         return [save_session(tobii_session(source), out)]
+    if fmt == "pupil":
+        return [save_session(pupil_session(source), out)]
     if fmt == "hapt":
         from .hapt import hapt_sessions
 
@@ -71,7 +76,7 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
         from .mobgap_lab import mobgap_sessions
 
         return [save_session(session, out / name) for name, session in mobgap_sessions(source)]
-    raise SessionError(f"unknown format {fmt!r} (known: broad, hapt, mobgap, oxford, plaza, tobii, uwb)")
+    raise SessionError(f"unknown format {fmt!r} (known: broad, hapt, mobgap, oxford, plaza, pupil, tobii, uwb)")
 
 
 def broad_sessions(source: Path, trials: Sequence[str] = (), system: str = "attitude9") -> list[tuple[str, Session]]:
@@ -153,21 +158,37 @@ def tobii_session(directory: Path) -> Session:
     """
     from dataclasses import replace
 
-    from ..frontends.gaze_timing import gaze_time_offset
-    from ..systems.gaze import from_session
     from .tobii import load_tobii
 
-    session = _portable(load_tobii(directory))
-    offset, sigma = gaze_time_offset(from_session(session))
-    gaze = session.stream("gaze")
-    streams = {**session.streams, "gaze": replace(gaze, meta={**gaze.meta, "time_offset_s": offset, "time_offset_sigma_s": sigma})}
+    session = _with_gaze_offset(_portable(load_tobii(directory)))
     header = dict(session.meta["session"])
     field = float(np.median(np.linalg.norm(session.stream("mag").values, axis=1)))
     if not EARTH_FIELD_UT[0] <= field <= EARTH_FIELD_UT[1] and "mag_cal" not in session.streams:
         header["use_mag"] = False
         header["description"] = (f"{header.get('description', '')}; the magnetometer reads {field:.0f} uT (the Earth's field is "
                                  f"{EARTH_FIELD_UT[0]:g}-{EARTH_FIELD_UT[1]:g}) with no calibration recording: not used (use_mag = false)")
-    return replace(session, streams=streams, meta={**session.meta, "session": header})
+    return replace(session, meta={**session.meta, "session": header})
+
+
+def pupil_session(directory: Path) -> Session:
+    """A Pupil Invisible export as a gaze session (``datasets.pupil``), the gaze stream's delay behind the IMU declared as
+    for the Tobii (``time_offset_s``, from the gaze and the gyro alone). It has no magnetometer (``use_mag = false``)."""
+    from .pupil import load_pupil
+
+    return _with_gaze_offset(_portable(load_pupil(directory)))
+
+
+def _with_gaze_offset(session: Session) -> Session:
+    """The gaze stream with its delay behind the IMU declared (``frontends.gaze_timing.gaze_time_offset``), which every
+    gaze solver applies."""
+    from dataclasses import replace
+
+    from ..frontends.gaze_timing import gaze_time_offset
+    from ..systems.gaze import from_session
+
+    offset, sigma = gaze_time_offset(from_session(session))
+    gaze = session.stream("gaze")
+    return replace(session, streams={**session.streams, "gaze": replace(gaze, meta={**gaze.meta, "time_offset_s": offset, "time_offset_sigma_s": sigma})})
 
 
 def _portable(session: Session) -> Session:

@@ -6,7 +6,13 @@ detector where the export has one, else eye-in-head velocity: ``frontends.gaze_t
 over fixations of each one's RMS angle to its mean direction.
 
 Rows: ``head_frame`` (no head attitude: the gaze in the head frame), ``gyro`` (the raw gyro integrated, no bias
-estimate), the paper's ``ekf``, fusegraph ``online`` and ``batch``.
+estimate), ``device`` (the device's own head attitude: null, with the reason in ``device_attitude``, when the export has
+no whole one: the Tobii export has none, the Pupil Invisible's has roll and pitch without a heading), the paper's
+``ekf``, fusegraph ``online`` and ``batch``.
+
+Either export is read, told apart by its files (``export_kind``): a Tobii Pro Glasses 3 folder (``imudata.gz``:
+``import tobii``) or a Pupil Labs Pupil Invisible one (``imu.csv`` + ``gaze.csv``: ``import pupil``, the device's own
+fixations and no magnetometer).
 
 The magnetometer of the shipped recording reads 110-131 uT (the Earth's field is ~50): a constant part from the
 glasses themselves that 65 s of turning +-70 deg about one axis cannot calibrate (a sphere fit gives 31 uT and an
@@ -30,6 +36,20 @@ from .runner import solve_session
 
 ROWS = ("head_frame", "gyro", "ekf", "online", "batch")
 """The table's rows: the gaze preset's solvers, no fusion first."""
+DEVICE_ATTITUDE = {"tobii": "the export has no head attitude", "pupil": "the export's roll and pitch (the cloud's Madgwick filter) have no heading"}
+"""Why the ``device`` row is null, per export."""
+
+
+def export_kind(directory: Path) -> str:
+    """``tobii`` or ``pupil``, from the export's files; an error names the folder and what each export holds."""
+    from ..session import SessionError
+
+    if (directory / "imudata.gz").is_file():
+        return "tobii"
+    if (directory / "imu.csv").is_file() and (directory / "gaze.csv").is_file():
+        return "pupil"
+    raise SessionError(f"{directory}: not an eye-tracker export fusegraph reads (a Tobii Pro Glasses 3 folder has imudata.gz and "
+                       "gazedata.gz; a Pupil Invisible export has imu.csv and gaze.csv)")
 
 
 @dataclass(frozen=True)
@@ -48,15 +68,19 @@ class RecordedGaze:
     """The fixations scored."""
     fixation_source: str
     """``device`` or ``eye_velocity``."""
+    export: str
+    """``tobii`` or ``pupil`` (``export_kind``)."""
 
 
 def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = False) -> RecordedGaze:
     """The eye-tracker export in ``directory`` imported and run by every row's solver."""
-    from ..datasets.importers import tobii_session
+    from ..datasets.importers import pupil_session, tobii_session
     from ..datasets.tobii import DEFAULT_DIR
     from ..systems.gaze import from_session
 
-    session = tobii_session(Path(directory or DEFAULT_DIR))
+    directory = Path(directory or DEFAULT_DIR)
+    export = export_kind(directory)
+    session = tobii_session(directory) if export == "tobii" else pupil_session(directory)
     if use_mag:
         session = replace(session, meta={**session.meta, "session": {**session.meta["session"], "use_mag": True}})
     estimates, metrics = {}, {}
@@ -66,7 +90,7 @@ def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = 
         estimates[row], metrics[row] = outcome.estimate, outcome.metrics
     data = from_session(session)
     found, source = scoring_fixations(data, session.stream("fixation").values[:, 0] if "fixation" in session.streams else None)
-    return RecordedGaze(session, data, estimates, metrics, found, source)
+    return RecordedGaze(session, data, estimates, metrics, found, source, export)
 
 
 def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
@@ -77,8 +101,10 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
     gaze = run.session.stream("gaze").meta
     header = run.session.meta["session"]
     return {
-        "dispersion_deg": {name: m["dispersion_deg"] for name, m in run.metrics.items()},
-        "dispersion_mean_deg": {name: m["dispersion_mean_deg"] for name, m in run.metrics.items()},
+        "dispersion_deg": {"device": None, **{name: m["dispersion_deg"] for name, m in run.metrics.items()}},
+        "dispersion_mean_deg": {"device": None, **{name: m["dispersion_mean_deg"] for name, m in run.metrics.items()}},
+        "device_attitude": DEVICE_ATTITUDE[run.export],
+        "export": run.export,
         "fixation_source": run.fixation_source,
         "fixation_fraction": float(sum(len(f.rows) for f in found) / max(len(data.tracker_t), 1)),
         "time_offset_s": float(gaze["time_offset_s"]),
@@ -108,13 +134,15 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
     labels = {
         "head_frame": "gaze in the head frame (no fusion)",
         "gyro": "raw gyro integrated",
+        "device": "the device's own attitude",
         "ekf": "the paper's EKF",
         "online": "fusegraph online",
         "batch": "fusegraph batch",
     }
     lines = [
-        f"gaze on a recorded head-worn eye tracker ({result['duration_s']:.0f} s; {result['gaze_samples']} gaze samples, "
-        f"{result['gaze_untracked']} untracked; magnetometer {'used' if result['use_mag'] else 'not used (uncalibratable)'})",
+        f"gaze on a recorded head-worn eye tracker ({result['export']}; {result['duration_s']:.0f} s; {result['gaze_samples']} gaze samples, "
+        f"{result['gaze_untracked']} untracked; magnetometer "
+        f"{'used' if result['use_mag'] else 'not used' + (' (uncalibratable)' if result['export'] == 'tobii' else ' (none)')})",
         f"gaze-to-IMU time offset: {1000 * result['time_offset_s']:.1f} ms (sigma {1000 * result['time_offset_sigma_s']:.1f} ms, "
         "block bootstrap); gaze stamps corrected by it for every method",
         f"{result['fixations']} fixations from {'the device' if result['fixation_source'] == 'device' else 'eye-in-head velocity (no IMU)'} "
@@ -123,6 +151,9 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         f"{'method':<36} {'dispersion [deg]: median':>26} {'mean':>8} {'x real time':>12}",
     ]
     for name, value in d.items():
+        if value is None:
+            lines.append(f"{labels['device']:<36} none: {result['device_attitude']}")
+            continue
         speed = result["x_realtime"].get(name)
         lines.append(f"{labels.get(name, name):<36} {value:26.3f} {result['dispersion_mean_deg'][name]:8.3f} {'' if speed is None else f'{speed:12.0f}'}")
     for name in ("online", "batch"):

@@ -75,6 +75,9 @@ _SAME_READING_SIGMAS = 3.0
 """A reading after a gap is where the still body's readings were when within this many of their scatter (x sqrt 2)."""
 _REST_CAUCHY_K = 2.0
 """Cauchy width (sigmas) of the rest bridge: the gravity factor's (``GravityNoise.cauchy_k``)."""
+CLIPPED_ACCEL_DENSITY = 100.0
+"""Accelerometer noise density of an interval with a clipped sample, m/s^2/sqrt(Hz): 45 m/s of velocity over 0.2 s, i.e.
+nothing (a 2 g range clips a trampoline landing of 4-6 g); the IMU factor keeps the gyro's rotation."""
 RESTART_S = 1.0
 """Online, after a dropout: seconds of specific force and field averaged in the gyro's frame before the attitude is
 re-levelled from them (one reading in motion can be tens of degrees off gravity; see ``_Restart``)."""
@@ -150,6 +153,10 @@ class Attitude9Model:
     the motion priors alone carry the tilt)."""
     initial_attitude_sigma_deg: float = 5.0
     """Sigma of the start-up attitude from the first accelerometer and magnetometer samples."""
+    accel_range_m_s2: float = math.inf
+    """The accelerometer's range (``consistency.saturation_level`` of the stream): a sample at it is clipped, a bound and not
+    a measurement. An interval holding one gets ``CLIPPED_ACCEL_DENSITY`` (its velocity change unknown, the gyro's rotation
+    kept) and a clipped keyframe sample no gravity factor."""
 
     def with_noise_scaled(self, factor: float) -> Attitude9Model:
         """The model told every sensor sigma ``factor`` times what it declares (gyro and accelerometer densities and
@@ -410,7 +417,7 @@ class Attitude9Builder:
         add(k, velocity_prior_factor(self.V(k), model.motion.velocity_sigma_m_s if math.isfinite(model.motion.velocity_sigma_m_s) else 50.0))
         if math.isfinite(model.motion.position_sigma_m):
             add(k, position_prior_factor(self.X(k), model.motion.position_sigma_m))
-        if model.gravity is not None:
+        if model.gravity is not None and not self._clipped(accel):
             add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
         guess = gtsam.NavState(attitude, self._nav.position(), np.zeros(3))
         self._pending.insert(self.X(k), guess.pose())
@@ -490,11 +497,18 @@ class Attitude9Builder:
         self._last_t = t
         self._count += 1
 
+    def _clipped(self, accel: FloatArray) -> bool:
+        """Whether a sample (or a block of them) reached the accelerometer's range (``Attitude9Model.accel_range_m_s2``)."""
+        return math.isfinite(self.model.accel_range_m_s2) and bool(np.abs(accel).max() >= self.model.accel_range_m_s2 * (1.0 - 1e-6))
+
     def _preintegrate(self, accel: FloatArray, gyro: FloatArray, dt: FloatArray) -> gtsam.PreintegratedImuMeasurements:
         """The interval's samples, with a gyro noise that grows with the rotation rate (scale errors)."""
         params = self._params
-        if params is None:
+        clipped = self._clipped(accel)
+        if params is None or clipped:
             params = preintegration_params(self.model.imu, float(np.sqrt(np.mean(np.einsum("ij,ij->i", gyro, gyro)))), float(dt.sum()))
+        if clipped:
+            params.setAccelerometerCovariance(CLIPPED_ACCEL_DENSITY**2 * np.eye(3))
         pim = gtsam.PreintegratedImuMeasurements(params, self._bias)
         integrate = pim.integrateMeasurement
         for a, w, d in zip(accel, gyro, dt.tolist(), strict=True):
@@ -534,7 +548,7 @@ class Attitude9Builder:
         rest_samples = int(round(model.motion.rest_window_s / max(pim.deltaTij(), 1e-9) * (self._count - self.keyframe_index[-1])))
         if self._still_run >= max(rest_samples, 1):
             add(k, velocity_prior_factor(self.V(k), model.motion.rest_velocity_sigma_m_s))
-        if model.gravity is not None:
+        if model.gravity is not None and not self._clipped(accel):
             add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
         self._pending.insert(self.X(k), predicted.pose())
         self._pending.insert(self.V(k), predicted.velocity())

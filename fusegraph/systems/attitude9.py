@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
+from ..consistency import stream_range
 from ..estimate import Estimate
 from ..factors.accel import GravityNoise, declared_gravity
 from ..factors.attitude import AttitudeTrack
@@ -120,6 +121,8 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
         model = replace(model, imu=replace(model.imu, **imu)) if imu else model
         if model.gravity is not None:
             model = replace(model, gravity=declared_gravity(meta, model.gravity))
+    if "accel" in session.streams:  # a clipping accelerometer's samples at its range are bounds, not measurements
+        model = replace(model, accel_range_m_s2=stream_range(session.stream("accel")))
     if "mag" not in session.streams:
         return model
     meta = session.stream("mag").meta

@@ -234,8 +234,10 @@ def from_session(session: Session) -> GazeSession:
     together, the tracker's ``gaze`` pixels (kind ``pixel``, camera in its metadata), ``wall_m`` (or, without a
     wall, ``target_depth_m``) in ``[session]``; the truth (gaze point, world x, y, z at the tracker times) is optional."""
     where = session.where
-    imu = dict(zip(("gyro", "accel", "mag"), session.synchronous("gyro", "accel", "mag"), strict=True))
+    names = ("gyro", "accel", "mag") if "mag" in session.streams else ("gyro", "accel")  # no magnetometer: use_mag = false
+    imu = dict(zip(names, session.synchronous(*names), strict=True))
     t = imu["gyro"].t
+    mag = imu["mag"].values if "mag" in imu else np.full((len(t), 3), np.nan)
     gaze_stream = session.stream("gaze")
     if gaze_stream.kind != "pixel":
         raise SessionError(f"{where}: stream 'gaze' must be of kind 'pixel', not '{gaze_stream.kind}'")
@@ -247,7 +249,7 @@ def from_session(session: Session) -> GazeSession:
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream):
         truth = session.truth.values[:, 1:3].copy()
     tracker_t = gaze_stream.t - float(gaze_stream.meta.get("time_offset_s", 0.0))  # a sample at stamp - the declared delay
-    return GazeSession(t=t, gyro_rad_s=imu["gyro"].values, accel_m_s2=imu["accel"].values, mag=imu["mag"].values, tracker_t=tracker_t,
+    return GazeSession(t=t, gyro_rad_s=imu["gyro"].values, accel_m_s2=imu["accel"].values, mag=mag, tracker_t=tracker_t,
                        gaze_px=gaze_stream.values, truth_quat_wxyz=np.full((len(t), 4), np.nan), truth_gaze_xz_m=truth, config=config,
                        head_tracker=attitude_tracker(session))
 

@@ -182,11 +182,14 @@ def _gaze_run(session: Session, solver: str) -> Result:
     from dataclasses import replace
 
     from ..baselines.ekf_gaze import GazeEkfConfig
+    from ..consistency import stream_range
     from ..frontends.gaze_timing import gyro_attitude
     from . import gaze
 
     data = gaze.from_session(session)
     use_mag = bool(session.meta.get("session", {}).get("use_mag", True))
+    if use_mag and "mag" not in session.streams:
+        raise SessionError(f"{session.where}: no stream 'mag': declare use_mag = false in [session] to run without a magnetometer")
     start = time.perf_counter()
     if solver in ("gyro", "head_frame"):
         attitude = gyro_attitude(data) if solver == "gyro" else np.tile([1.0, 0.0, 0.0, 0.0], (len(data.tracker_t), 1))
@@ -197,7 +200,7 @@ def _gaze_run(session: Session, solver: str) -> Result:
         result = gaze.run_ekf(data, replace(GazeEkfConfig(), use_mag=use_mag))
     else:
         model = gaze.GazeModel() if solver == "online" else gaze.batch_model()
-        model = replace(model, head=replace(model.head, use_mag=use_mag))
+        model = replace(model, head=replace(model.head, use_mag=use_mag, accel_range_m_s2=stream_range(session.stream("accel"))))
         result = gaze.RUNNERS[solver](data, model)  # type: ignore[operator]
     return PointEstimate(solver, data.tracker_t.copy(), np.asarray(result.points_xz_m)[:, None, :], ("X_m", "Z_m"), float(result.runtime_s),
                          {"world_R_head": result.world_R_head})
@@ -454,7 +457,7 @@ PRESETS: dict[str, Preset] = {
     "gaze": Preset(
         name="gaze",
         summary="the gaze point on a wall in world coordinates from a head 9-axis IMU and an eye tracker's scene-image gaze pixels",
-        streams="gyro, accel, mag sampled together; gaze (kind pixel, with the scene camera's focal_px, width_px, height_px, pixel_sigma); "
+        streams="gyro, accel, mag sampled together (no mag: use_mag = false); gaze (kind pixel; the camera's focal_px, width_px, height_px, pixel_sigma); "
         "optional head attitude tracker (kind attitude, own room frame, latency_s)",
         session_keys=(KeySpec("wall_m", None, "distance from the head to the wall along world +x, m (this or target_depth_m is required)"),
                       KeySpec("target_depth_m", None, "no wall known (a recording in a room): each fixation point held at this depth "

@@ -1,0 +1,138 @@
+"""A Pupil Labs Pupil Invisible recording (a Pupil Cloud export: ``imu.csv``, ``gaze.csv``, ``blinks.csv``) as a gaze Session.
+
+What becomes of each file (columns found by their header names, any order; ``../shared/data/gaze_pupil_invisible``):
+
+* ``imu.csv``: ``timestamp [ns]`` (the phone's clock, as the gaze's), ``gyro x/y/z [deg/s]`` (converted to rad/s),
+  ``acceleration x/y/z [g]`` (times 9.80665 to m/s^2). The IMU sits in the right temple with x to the right, y down
+  and z to the front (Pupil Labs' data-streams page for Pupil Invisible); fusegraph's head frame is x forward, y left,
+  z up, so head = (z, -x, -y) of the IMU (a rotation). No magnetometer: the session declares ``use_mag = false``.
+  The export's ``roll``/``pitch`` (the cloud's Madgwick filter) come without a yaw, so they are not a head attitude
+  the fixations could score; they are not imported.
+* ``gaze.csv``: per gaze sample the ray's ``azimuth [deg]`` (to the right) and ``elevation [deg]`` (up) in the scene
+  camera, which the export computed from ``gaze x/y [px]`` with the camera's own intrinsics and lens distortion. The
+  ray is projected into a distortion-free pinhole camera (stream ``gaze``, kind ``pixel``: u right, v up from the
+  centre, ``u = f tan(az)``, ``v = f tan(el) / cos(az)``) whose focal length follows from the datasheet's 82 x 82 deg
+  field of view over 1088 x 1080 pixels (544 / tan 41 deg = 626 px): the pinhole the gaze system models is then exact.
+  The scene camera (left temple) is taken as looking along the IMU's z axis: the glasses hold both, and no
+  calibration between them is in the export. Rows inside a blink (``blink id``) or with ``worn`` = 0 carry no gaze:
+  dropped and counted (``[session] gaze_untracked``).
+* ``fixation id`` (Pupil Cloud's own fixation detector, which reads the gaze) -> stream ``fixation`` (kind ``flag``,
+  0 outside a fixation): the fixations that score every method (JSON ``fixation_source: "device"``).
+* ``blinks.csv`` is not needed: the gaze rows carry their blink id.
+
+No ground truth: ``bench gaze-recorded`` scores the dispersion of the world gaze ray in the device's fixations.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from ..session import KIND_COLUMNS, Session, SessionError, Stream
+
+#: Where the recording lives beside the repository (tests skip when it is absent).
+DEFAULT_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "gaze_pupil_invisible"
+
+WIDTH_PX, HEIGHT_PX = 1088, 1080
+FIELD_OF_VIEW_DEG = 82.0
+"""The scene camera's horizontal and vertical field of view (Pupil Labs' datasheet), degrees."""
+FOCAL_PX = (WIDTH_PX / 2) / float(np.tan(np.deg2rad(FIELD_OF_VIEW_DEG / 2)))
+"""Focal length of the distortion-free pinhole the rays are projected into, pixels (626)."""
+PIXEL_SIGMA = FOCAL_PX * float(np.tan(np.deg2rad(1.0)))
+"""Gaze pixel noise declared to the estimators: 1 deg, the figure the Tobii import declares (its 15 px at 880 px)."""
+TARGET_DEPTH_M = 2.0
+"""Depth at which each fixation point is held (no wall; only the direction matters without head translation)."""
+STANDARD_GRAVITY_M_S2 = 9.80665
+
+#: IMU axes (x right, y down, z forward) -> fusegraph head axes (x forward, y left, z up)
+HEAD_FROM_IMU = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+IMU_COLUMNS = ("timestamp [ns]", "gyro x [deg/s]", "gyro y [deg/s]", "gyro z [deg/s]",
+               "acceleration x [g]", "acceleration y [g]", "acceleration z [g]")
+GAZE_COLUMNS = ("timestamp [ns]", "azimuth [deg]", "elevation [deg]", "worn", "fixation id", "blink id")
+
+
+def _table(path: Path, needed: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The named columns of a CSV export as float arrays (empty cells NaN); an error names the file and what is missing."""
+    if not path.is_file():
+        raise SessionError(f"{path}: not found (a Pupil Invisible export folder has imu.csv and gaze.csv)")
+    with path.open(newline="", encoding="utf-8") as handle:
+        reader = csv.reader(handle)
+        header = next(reader, None)
+        if header is None:
+            raise SessionError(f"{path}: empty file")
+        missing = [c for c in needed if c not in header]
+        if missing:
+            raise SessionError(f"{path}: no column {', '.join(repr(c) for c in missing)} (found {', '.join(header)}); "
+                               "a Pupil Cloud export of a Pupil Invisible recording has them")
+        index = [header.index(c) for c in needed]
+        rows = []
+        for number, row in enumerate(reader, start=2):
+            try:
+                rows.append([float(row[i]) if row[i].strip() else np.nan for i in index])
+            except (ValueError, IndexError):
+                raise SessionError(f"{path}: line {number} is not a row of numbers in {', '.join(needed)}") from None
+    if not rows:
+        raise SessionError(f"{path}: no rows")
+    values = np.asarray(rows)
+    return {c: values[:, j] for j, c in enumerate(needed)}
+
+
+def _seconds(path: Path, ns: np.ndarray, t0_ns: float) -> np.ndarray:
+    if not np.isfinite(ns).all():
+        raise SessionError(f"{path}: a row without a timestamp")
+    back = np.nonzero(np.diff(ns) <= 0)[0]
+    if back.size:
+        raise SessionError(f"{path}: timestamps not increasing at row {back[0] + 2} ({ns[back[0]]:.0f} then {ns[back[0] + 1]:.0f} ns)")
+    return (ns - t0_ns) * 1e-9
+
+
+def pinhole_pixels(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, focal_px: float = FOCAL_PX) -> np.ndarray:
+    """The gaze rays (azimuth to the right, elevation up) as pixels of a pinhole camera (u right, v up from the centre)."""
+    az, el = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
+    return focal_px * np.stack([np.tan(az), np.tan(el) / np.cos(az)], axis=1)
+
+
+def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
+    """The export folder as a gaze Session (see the module docstring)."""
+    directory = Path(directory)
+    imu_path, gaze_path = directory / "imu.csv", directory / "gaze.csv"
+    imu = _table(imu_path, IMU_COLUMNS)
+    gaze = _table(gaze_path, GAZE_COLUMNS)
+    t0_ns = float(imu["timestamp [ns]"][0])  # the IMU's first sample is t = 0 (int64 ns lose nothing in float64 relative to it)
+    t = _seconds(imu_path, imu["timestamp [ns]"], t0_ns)
+    gaze_t = _seconds(gaze_path, gaze["timestamp [ns]"], t0_ns)
+    gyro = np.stack([imu[c] for c in IMU_COLUMNS[1:4]], axis=1)
+    accel = np.stack([imu[c] for c in IMU_COLUMNS[4:7]], axis=1)
+    for name, values, path in (("gyro", gyro, imu_path), ("acceleration", accel, imu_path)):
+        bad = np.nonzero(~np.isfinite(values).all(axis=1))[0]
+        if bad.size:
+            raise SessionError(f"{path}: {name} empty or not a number at row {bad[0] + 2}")
+    tracked = (gaze["worn"] != 0) & ~(gaze["blink id"] > 0) & np.isfinite(gaze["azimuth [deg]"]) & np.isfinite(gaze["elevation [deg]"])
+    if not tracked.any():
+        raise SessionError(f"{gaze_path}: no gaze sample outside blinks with the glasses worn")
+    pixels = pinhole_pixels(gaze["azimuth [deg]"][tracked], gaze["elevation [deg]"][tracked])
+    fixation_id = np.nan_to_num(gaze["fixation id"][tracked])
+    imu_meta = {"rate_hz": 1.0 / float(np.median(np.diff(t))), "frame": "head (x forward, y left, z up)"}
+    streams = {
+        "gyro": Stream("gyro", "gyro", t, np.deg2rad(gyro) @ HEAD_FROM_IMU.T, KIND_COLUMNS["gyro"], 0.0, dict(imu_meta)),
+        "accel": Stream("accel", "accel", t.copy(), STANDARD_GRAVITY_M_S2 * accel @ HEAD_FROM_IMU.T, KIND_COLUMNS["accel"], 0.0, dict(imu_meta)),
+        "gaze": Stream("gaze", "pixel", gaze_t[tracked], pixels, KIND_COLUMNS["pixel"], 0.0,
+                       {"rate_hz": 1.0 / float(np.median(np.diff(gaze_t[tracked]))), "focal_px": FOCAL_PX, "width_px": WIDTH_PX,
+                        "height_px": HEIGHT_PX, "pixel_sigma": PIXEL_SIGMA}),
+        "fixation": Stream("fixation", "flag", gaze_t[tracked].copy(), fixation_id[:, None], KIND_COLUMNS["flag"], 0.0,
+                           {"description": "the device's fixation id per gaze sample (Pupil Cloud's detector), 0 outside a fixation"}),
+    }
+    meta = {
+        "session": {
+            "system": "gaze",
+            "dataset": "Pupil Labs Pupil Invisible",
+            "target_depth_m": TARGET_DEPTH_M,
+            "use_mag": False,
+            "gaze_untracked": int((~tracked).sum()),
+            "description": "head-worn eye tracker: IMU (no magnetometer), gaze rays in the scene camera, the device's fixations; no ground truth",
+        }
+    }
+    return Session("gaze", streams, None, meta, directory)
