@@ -236,7 +236,7 @@ def check_streams(streams: Mapping[str, Any]) -> list[str]:
         level = saturation_level(stream.values)
         if level is not None:
             said.append(f"stream '{stream.name}': {int(clipped_samples(stream.values, level).sum())} samples at the sensor's range "
-                        f"(+-{level:.4g}): clipped, not trusted as measurements")
+                        f"(+-{level:.4g} {'rad/s' if stream.kind == 'gyro' else 'm/s^2'}): clipped, not trusted as measurements")
     for stream in streams.values():
         if stream.kind == "ranges" and "receivers_m" in stream.meta and not _declared_units(stream.meta) and len(stream):
             receivers = np.atleast_2d(np.asarray(stream.meta["receivers_m"], dtype=float))

@@ -251,9 +251,11 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     return leave_one_group_out(scores)
 
 
-UWB_CALIBRATED_GRID: Mapping[str, Sequence[float]] = {"range_sigma_m": (0.05, 0.1, 0.2)}
+UWB_CALIBRATED_GRID: Mapping[str, Sequence[float]] = {"range_sigma_m": (0.1, 0.2), "assoc_sigma_m": (0.025, 0.05, 0.1, 0.4)}
 """The range noise of a moving tag tried by ``uwb_calibrated`` (the rigid-body UWB tracker with a declared range
-calibration): the static calibration's own residuals are 1-4 cm; motion, multipath and timing add to them."""
+calibration): the static calibration's own residuals are 1-4 cm; motion, multipath and timing add to them (0.05 m lost
+to 0.1 and 0.2 on both runs before). With it the sigma of the unlabelled assignment (twice the range noise before: 0.4 m
+against tags whose ranges differ by tens of centimetres)."""
 
 
 def uwb_calibrated_logo(sessions: Sequence[str | Path] = ()) -> dict[str, Any]:

@@ -43,13 +43,14 @@ class UwbConfig:
     bias_walk_m_sqrt_s: float = 0.005
     """Random walk of the range biases, m/sqrt(s)."""
     bias_per_tag: bool = False
-    """True: one range bias per anchor AND tag (tag 2 reads -0.06..+0.47 m off by anchor). Measured:
-    labelled 0.215 m either way, but unlabelled 0.246 m with 24 biases (they follow whatever
-    association) against 0.217 m with one per anchor."""
+    """True: one range bias per anchor AND tag (tag 2 reads -0.06..+0.47 m off by anchor). Measured: labelled 0.215 m
+    either way, but unlabelled 0.246 m with 24 biases (they follow whatever association) against 0.217 m with one per anchor."""
     gate_chi2: float = 9.0
     """Association gate (3 sigma)."""
     cauchy_k: float = 3.0
     """Cauchy width in range sigmas."""
+    assoc_sigma_m: float | None = None
+    """Unlabelled: the sigma of a range against its tag's predicted range in the assignment, metres (None: twice ``range_sigma_m``)."""
 
 
 def _state_motion(dt: float, psd: float, psd_turn: float, bias_walk: float, biases: int) -> tuple[FloatArray, FloatArray]:
@@ -175,7 +176,7 @@ class UwbTracker:
             predicted = self._scale.T * self._predicted_ranges(self.tag_xy(pred)) + bias
             for a in range(n_anchor):
                 heard = np.isfinite(ranges[a])
-                found = assign_ranges(ranges[a][heard], predicted[:, a], np.full(self.tags, 2 * cfg.range_sigma_m), cfg.gate_chi2)
+                found = assign_ranges(ranges[a][heard], predicted[:, a], np.full(self.tags, cfg.assoc_sigma_m or 2 * cfg.range_sigma_m), cfg.gate_chi2)
                 labels[a, np.nonzero(heard)[0]] = found
         a_idx, t_idx = np.nonzero(labels >= 0)
         tag_of = labels[a_idx, t_idx]
@@ -216,12 +217,12 @@ class UwbTracker:
 
 def calibrated_config(setting: dict[str, float] | None = None) -> UwbConfig:
     """The tracker when the session declares a range calibration: the biases constant (the calibration's, refined by
-    the data: a walk of 1e-6 m/sqrt(s) is numerically constant over hours) and the range noise of a moving tag as
-    ``tune uwb_calibrated`` chose it by leave-one-run-out (``tuned.toml``)."""
+    the data: a walk of 1e-6 m/sqrt(s) is numerically constant over hours), the range noise of a moving tag and the
+    assignment's sigma as ``tune uwb_calibrated`` chose them by leave-one-run-out (``tuned.toml``)."""
     from ..tuned import tuned
 
     chosen = setting if setting is not None else tuned("uwb_calibrated")
-    return UwbConfig(range_sigma_m=float(chosen["range_sigma_m"]), bias_walk_m_sqrt_s=1e-6)
+    return UwbConfig(range_sigma_m=float(chosen["range_sigma_m"]), bias_walk_m_sqrt_s=1e-6, assoc_sigma_m=chosen.get("assoc_sigma_m"))
 
 
 def ranges_by_receiver(epochs: RangeEpochs, tags: int) -> FloatArray:
