@@ -469,3 +469,43 @@ def test_a_dropout_at_rest_costs_nothing_and_a_body_moved_in_it_is_found_again()
     i = int(np.searchsorted(moved.truth.t, 26.0))
     error = broad_errors(on_truth_times(estimate, moved.truth.t[i : i + 1]).quat_wxyz, moved.truth.values[i : i + 1], np.ones(1))
     assert error.total < 2.0, error
+
+
+def _turning(seconds: float, rate_hz: float = 5.0, seed: int = 0) -> list[gtsam.Rot3]:
+    """Keyframe attitudes of a hand turning the sensor about every axis (smooth random rates up to ~1 rad/s)."""
+    rng = np.random.default_rng(seed)
+    steps = int(seconds * rate_hz)
+    rates = np.cumsum(rng.normal(0, 0.15, (steps, 3)), axis=0)
+    rates -= np.linspace(0, 1, steps)[:, None] * rates[-1]  # bounded
+    out, R = [], gtsam.Rot3()
+    for w in rates:
+        R = R.compose(gtsam.Rot3.Expmap(np.clip(w, -1.0, 1.0) / rate_hz))
+        out.append(R)
+    return out
+
+
+def test_a_carried_magnet_is_separated_from_the_earth_field_by_the_rotation() -> None:
+    from fusegraph.factors.mag import HardIron
+
+    earth = np.array([0.0, 20.0, -40.0])  # uT, ENU: north and down (dip 63 deg)
+    reference = FieldReference(float(np.linalg.norm(earth)), float(np.arctan2(40.0, 20.0)))
+    noise = MagNoise(hard_iron_s=5.0, hard_iron_fit=0.1, hard_iron_min=0.2)
+    magnet = np.array([10.0, -5.0, 8.0])  # uT in the sensor frame, 14 uT: a magnet riding on the sensor
+    rng = np.random.default_rng(1)
+    tracker = HardIron(noise, reference)
+    for k, R in enumerate(_turning(20.0)):
+        reading = R.unrotate(earth) + magnet + rng.normal(0, 0.3, 3)
+        corrected = tracker.correct(0.2 * k, R, reading)
+    assert tracker.trusted and np.linalg.norm(tracker.bias - magnet) < 0.5  # uT: 0.3 uT noise over ~25 readings in memory
+    assert np.linalg.norm(corrected - R.unrotate(earth)) < 1.5  # the reading is the Earth's field again (noise + the estimate)
+    # a magnet near the path: the field depends on where the sensor is, in the world frame, not on the sensor: no b is taken
+    tracker = HardIron(noise, reference)
+    for k, R in enumerate(_turning(20.0, seed=2)):
+        nearby = 15.0 * np.array([np.sin(0.3 * k), np.cos(0.2 * k), 0.5])  # uT, changes as the sensor moves about
+        tracker.correct(0.2 * k, R, R.unrotate(earth + nearby) + rng.normal(0, 0.3, 3))
+        assert not tracker.trusted, k
+    # the sensor held still: b cannot be told from the field, so nothing is corrected
+    tracker = HardIron(noise, reference)
+    for k in range(100):
+        tracker.correct(0.2 * k, gtsam.Rot3(), earth + magnet)
+    assert not tracker.trusted and not tracker.bias.any()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from conftest import requires_shared_data
 
@@ -112,9 +113,11 @@ def test_a_broad_study_chooses_by_leave_one_trial_out_in_one_or_two_processes(tm
     one = tuning.broad_graph_logo("broad_motion", str(tmp_path))
     assert one == tuning.broad_graph_logo("broad_motion", str(tmp_path), workers=2)
     assert set(one["held_out"]) == set(stems) and len(one["all"]) == 2
-    # on these two trials the hand-held prior wins on each, so both folds choose it and the figures agree
+    # over both trials the hand-held prior wins; each fold is chosen on the other trial alone (on trial 32, with its carried
+    # magnet removed, 2 m/s scores better), and the cross-validated figure is the mean of the held-out scores
     assert one["chosen"].startswith(f"velocity_sigma_m_s={chosen['velocity_sigma_m_s']}")
-    assert one["cross_validated"] == pytest.approx(one["in_sample"])
+    assert one["cross_validated"] == pytest.approx(float(np.mean([h["score"] for h in one["held_out"].values()])))
+    assert one["cross_validated"] >= one["in_sample"] - 1e-9
 
 
 def test_a_broad_bias_point_changes_the_bias_model_only() -> None:

@@ -194,6 +194,13 @@ Online chose the grid's lowest walks (1e-5 and 1e-6: over a three-minute trial t
 the accelerometer's on two edges of this grid (a step beyond them is not measured yet)."""
 
 
+BROAD_HARD_IRON_GRID: Mapping[str, Sequence[float]] = {"hard_iron_s": (0.0, 5.0, 10.0, 20.0), "hard_iron_fit": (0.05, 0.1),
+                                                        "hard_iron_min": (0.1, 0.2)}
+"""The carried-magnet model tried by ``broad_hard_iron`` (``factors.mag.HardIron``; the other studies' settings as they
+chose): its memory (0: no hard-iron state), how well it must explain the readings (residual, and its field's norm and dip
+against the reference) and how large the offset must be, as fractions of the reference norm."""
+
+
 BROAD_ONLINE_GRID: Mapping[str, Sequence[float]] = {"relinearize_skip": (1.0, 2.0, 5.0, 10.0)}
 """The online solver's own setting tried by ``broad_online`` (the model as the other studies chose): how many iSAM2 updates
 apart it checks which variables to relinearise (gtsam's default 10). Every check relinearised ~21 variables on BROAD (the
@@ -205,14 +212,16 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     """The 9-axis model with one grid point of a BROAD study applied to the solver's tuned model."""
     from dataclasses import replace
 
-    from ..graphs.attitude9 import mag_noise_from
+    from ..graphs.attitude9 import mag_noise_from, with_hard_iron
     from ..systems.attitude9 import broad_model, with_bias, with_motion
 
     base = broad_model(solver)
     if study == "broad_online":
         return base
     if study == "broad_mag":
-        return replace(base, mag=mag_noise_from(point))
+        return replace(base, mag=mag_noise_from(point, base.mag))
+    if study == "broad_hard_iron":
+        return replace(base, mag=with_hard_iron(base.mag, point))
     return with_bias(base, point) if study == "broad_bias" else with_motion(base, point)
 
 
@@ -288,9 +297,10 @@ def uwb_calibrated_logo(sessions: Sequence[str | Path] = ()) -> dict[str, Any]:
 
 
 BROAD_GRIDS: dict[str, Mapping[str, Sequence[float]]] = {"broad_ekf": BROAD_EKF_GRID, "broad_mag": BROAD_MAG_GRID, "broad_motion": BROAD_MOTION_GRID,
-                                                          "broad_bias": BROAD_BIAS_GRID, "broad_online": BROAD_ONLINE_GRID}
+                                                          "broad_bias": BROAD_BIAS_GRID, "broad_online": BROAD_ONLINE_GRID,
+                                                          "broad_hard_iron": BROAD_HARD_IRON_GRID}
 """The BROAD studies' grids by name."""
-BROAD_PER_SOLVER = ("broad_mag", "broad_motion", "broad_bias")
+BROAD_PER_SOLVER = ("broad_mag", "broad_motion", "broad_bias", "broad_hard_iron")
 """The BROAD studies that tune the online and the batch estimate each (``--solver``; the batch's written as ``<study>_batch``)."""
 
 
@@ -495,7 +505,7 @@ def _main_activity(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.evaluation.tuning", description=__doc__)
     parser.add_argument("study",
-                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias / broad_online "
+                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias / broad_online / broad_hard_iron "
                         "(leave-one-trial-out on BROAD)")
     parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias: which estimate they tune")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))

@@ -1,4 +1,5 @@
-"""Magnetometer: heading only, from the tilt-compensated field, with calibration and disturbance rejection.
+"""Magnetometer: heading only, from the tilt-compensated field, with calibration, a carried magnet's offset (``HardIron``)
+and disturbance rejection.
 
 Calibration (the founding papers'): M = G m + B, per-axis gain G and offset B, from a calibration
 recording (``fit_mag_calibration``: an axis-aligned ellipsoid fit) or given.
@@ -82,6 +83,14 @@ class MagNoise:
     """Cauchy kernel width in sigmas; 0 = Gaussian."""
     reference_s: float = 0.5
     """The reference norm and dip are the mean over the first this many seconds."""
+    hard_iron_s: float = 0.0
+    """Memory of the hard-iron estimate (``HardIron``), seconds; 0: no hard-iron state (the readings as calibrated)."""
+    hard_iron_fit: float = 0.05
+    """The hard-iron estimate corrects the readings while the model explains them: its residual RMS and its field's norm
+    departure under this fraction of the reference norm, its field's dip within this many radians of the reference dip."""
+    hard_iron_min: float = 0.1
+    """...and while the offset is a magnet's, not what attitude errors in fast motion fit: larger than this fraction of the
+    reference norm."""
 
 
 @dataclass(frozen=True)
@@ -96,6 +105,69 @@ def field_norm_dip(world_R_body: gtsam.Rot3, mag_body: FloatArray) -> tuple[floa
     """Norm and dip of a body-frame field reading levelled with an attitude."""
     x, y, z = world_R_body.rotate(np.asarray(mag_body, dtype=float)).tolist()  # scalar math: numpy's per-call checks cost more
     return math.sqrt(x * x + y * y + z * z), math.atan2(-z, math.hypot(x, y))
+
+
+class HardIron:
+    """A magnet carried with the sensor: a constant offset ``b`` in the sensor frame on top of the Earth's field,
+    m_k = world_R_body_k^T B + b. As the body turns, the Earth's part turns in the sensor frame and ``b`` does not, so
+    (B, b) follow linearly from the readings and the attitudes (the gyro's relative rotations carry the separation):
+    recursive least squares with a memory of ``MagNoise.hard_iron_s`` (a magnet attached or removed is forgotten at that
+    pace). The readings are corrected by ``b`` only while the model explains them (residual RMS under
+    ``MagNoise.hard_iron_fit`` of the norm) and ``b`` is observable (the sensor turned enough in the memory: the smallest
+    eigenvalue of its information, per reading, above ``_MIN_SPREAD``) and the field it leaves is the Earth's (its norm
+    within that fraction of the reference's, its dip within that many radians); else they pass as read and the norm/dip
+    gate judges them. A magnet near the path (a field that depends on where the sensor is) fits no constant ``b`` with the
+    Earth's field beside it."""
+
+    _MIN_SPREAD = 0.1
+    """Least rotation spread (the b-block's information per reading after the field's is removed: 0 without any turn,
+    up to 2/3 for turns about every axis) for ``b`` to be taken."""
+
+    def __init__(self, noise: MagNoise, reference: FieldReference):
+        self.noise = noise
+        self.reference = reference
+        self.norm = reference.norm
+        # the normal equations of m = R^T B + b have a fixed shape: [[W I, C], [C^T, W I]] (R R^T = I), C = sum of w R
+        self._weight = 0.0
+        self._rotations = np.zeros((3, 3))
+        self._vector = np.zeros(6)  # sum of w (R m, m)
+        self._square = 0.0
+        self._t: float | None = None
+        self.bias = np.zeros(3)
+        """The current estimate of b (sensor frame, the readings' unit)."""
+        self.trusted = False
+        """Whether the readings are being corrected by it."""
+
+    def _solve(self) -> FloatArray:
+        W, C = self._weight, self._rotations
+        info = np.block([[W * np.eye(3), C], [C.T, W * np.eye(3)]]) + 1e-6 * W * np.eye(6)  # without a turn: the least-norm split
+        return np.asarray(np.linalg.solve(info, self._vector), dtype=float)
+
+    def correct(self, t_s: float, world_R_body: gtsam.Rot3, mag_body: FloatArray) -> FloatArray:
+        """Take a reading at ``t_s`` with the attitude it was taken at; the reading corrected by the estimate so far."""
+        m = np.asarray(mag_body, dtype=float)
+        R = world_R_body.matrix()
+        forget = math.exp(-(t_s - self._t) / self.noise.hard_iron_s) if self._t is not None else 1.0
+        self._t = t_s
+        theta = self._solve() if self._weight > 6 else None
+        residual = float(np.sum((m - R.T @ theta[:3] - theta[3:]) ** 2)) if theta is not None else 0.0
+        self._weight = forget * self._weight + 1.0
+        self._rotations = forget * self._rotations + R
+        self._vector = forget * self._vector + np.r_[R @ m, m]
+        self._square = forget * self._square + residual
+        self.trusted = False
+        if theta is not None:
+            tolerance = self.noise.hard_iron_fit
+            field = theta[:3]  # the Earth's part in the world: must be the reference field (norm and dip), else no carried magnet
+            fits = (math.sqrt(self._square / self._weight / 3.0) < tolerance * self.norm
+                    and abs(float(np.linalg.norm(field)) - self.norm) < tolerance * self.norm
+                    and abs(math.atan2(-field[2], math.hypot(field[0], field[1])) - self.reference.dip_rad) < tolerance
+                    and float(np.linalg.norm(theta[3:])) > self.noise.hard_iron_min * self.norm)
+            # observability of b: its information once the field's is eliminated, per reading: 1 - (largest singular value
+            # of the memory's mean rotation)^2 (0 without a turn)
+            self.trusted = fits and 1.0 - float(np.linalg.norm(self._rotations / self._weight, 2)) ** 2 > self._MIN_SPREAD
+        self.bias = np.asarray(theta[3:], dtype=float) if self.trusted and theta is not None else np.zeros(3)
+        return m - self.bias
 
 
 def heading_sigma_rad(noise: MagNoise, reference: FieldReference, norm: float, dip_rad: float) -> float:
@@ -124,7 +196,8 @@ CATALOGUE = (
         units=("any (uT, gauss or normalised; say which in unit)",) * 3,
         frame="body (sensor) axes",
         factors="heading from the tilt-compensated, calibrated field (AttitudeFactorPose3 to north with the vertical component free); "
-        "sigma grows with the field's norm and dip departures; Cauchy kernel against disturbances",
+        "sigma grows with the field's norm and dip departures; Cauchy kernel against disturbances; attitude9/gaze: a magnet carried on the "
+        "sensor (a sensor-frame offset the rotation separates from the Earth's field) estimated and removed while it explains the readings",
         keys=(
             KeySpec("calibration_gain", None, "per-axis gain [gx, gy, gz] (calibrated = gain * (raw - offset)); else fitted to a mag_cal stream"),
             KeySpec("calibration_offset", None, "per-axis offset [ox, oy, oz], in the stream's unit"),

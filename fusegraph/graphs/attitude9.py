@@ -36,9 +36,9 @@ from ..factors.imu import (
     velocity_prior_factor,
 )
 from ..factors.linear import robust
-from ..factors.mag import FieldReference, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
+from ..factors.mag import FieldReference, HardIron, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
-from ..tuned import tuned
+from ..tuned import tuned, tuned_studies
 from .increment import GraphIncrement
 
 
@@ -119,15 +119,26 @@ class _Restart:
         return world_R_bridge.compose(self.bridge_R_body)
 
 
-def mag_noise_from(settings: Mapping[str, float]) -> MagNoise:
-    """The magnetometer model of a ``broad_mag`` setting (a grid point, or the chosen one): heading sigma, gains, Cauchy width."""
-    return MagNoise(heading_sigma_deg=float(settings["heading_sigma_deg"]), norm_gain=float(settings["gains"]), dip_gain=float(settings["gains"]),
-                    cauchy_k=float(settings["cauchy_k"]))
+def mag_noise_from(settings: Mapping[str, float], base: MagNoise | None = None) -> MagNoise:
+    """The magnetometer model of a ``broad_mag`` setting (a grid point, or the chosen one): heading sigma, gains, Cauchy width
+    (the rest, e.g. the hard-iron model, as in ``base``)."""
+    return replace(base or MagNoise(), heading_sigma_deg=float(settings["heading_sigma_deg"]), norm_gain=float(settings["gains"]),
+                   dip_gain=float(settings["gains"]), cauchy_k=float(settings["cauchy_k"]))
+
+
+def with_hard_iron(noise: MagNoise, settings: Mapping[str, float]) -> MagNoise:
+    """``noise`` with a ``broad_hard_iron`` setting (a grid point, or the chosen one): the carried magnet's memory, fit
+    tolerance and least size (``factors.mag.HardIron``)."""
+    return replace(noise, hard_iron_s=float(settings["hard_iron_s"]), hard_iron_fit=float(settings["hard_iron_fit"]),
+                   hard_iron_min=float(settings["hard_iron_min"]))
 
 
 def mag_noise_tuned(study: str) -> MagNoise:
-    """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``)."""
-    return mag_noise_from(tuned(study))
+    """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``), with the
+    hard-iron model its ``broad_hard_iron`` study chose (``broad_hard_iron_batch``), once that study has run."""
+    noise = mag_noise_from(tuned(study))
+    hard_iron = study.replace("broad_mag", "broad_hard_iron")
+    return with_hard_iron(noise, tuned(hard_iron)) if hard_iron != study and hard_iron in tuned_studies() else noise
 
 
 @dataclass(frozen=True)
@@ -227,6 +238,7 @@ class Attitude9Builder:
         """Online: keyframe k's attitude right after the update that added it (causal)."""
         self.posterior_gyro_bias: list[FloatArray] = []
         self._reference_samples: list[tuple[float, float]] = []
+        self._hard_iron: HardIron | None = None
         self._nav = gtsam.NavState()
         self._bias = gtsam.imuBias.ConstantBias()
         self._interval: list[tuple[FloatArray, FloatArray, FloatArray]] = []  # blocks of (accel, gyro, dt) rows since the last keyframe
@@ -562,11 +574,15 @@ class Attitude9Builder:
     def _after_keyframe(self, k: int, world_R_body: gtsam.Rot3, mag: FloatArray | None) -> None:
         if mag is None:
             return
+        if self._hard_iron is not None:
+            mag = self._hard_iron.correct(self.keyframe_t[-1], world_R_body, mag)
         self.mag_readings.append((k, mag))
         norm, dip = field_norm_dip(world_R_body, mag)
         if self.reference is None or self.keyframe_t[-1] - self.keyframe_t[0] <= self.model.mag.reference_s:
             self._reference_samples.append((norm, dip))
             self.reference = FieldReference(*np.mean(self._reference_samples, axis=0))
+        elif self._hard_iron is None and self.model.mag.hard_iron_s > 0:  # a carried magnet's offset, from the reference on
+            self._hard_iron = HardIron(self.model.mag, self.reference)
         if not self.deferred_mag:
             self._pending.add(k, self._heading(k, world_R_body, mag, norm, dip, robust=True))
 
