@@ -247,6 +247,16 @@ def _read_model(path: Path, mtime_ns: int) -> ActivityModel:
                          trees, int(data["context_cycles"]), dict(data["provenance"]))
 
 
+def with_activity(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, gravity: FloatArray, cycles: Sequence[Cycle],
+                  model: ActivityModel | None = None) -> list[Cycle]:
+    """The cycles with each one's activity by ``model`` (default: the model on main) instead of the paper's rules
+    (``Cycle.activity`` as ``pdr.detect_cycles`` gives it); ``gravity`` the gravity filter's output the cycles came from."""
+    from dataclasses import replace
+
+    calls = (model or load_model()).classify(cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles), np.array([c.t for c in cycles]))
+    return [replace(c, activity=call) for c, call in zip(cycles, calls, strict=True)]
+
+
 def classify_waist(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, config: PdrConfig,
                    model: ActivityModel | None = None) -> tuple[list[Cycle], list[str], FloatArray]:
     """The walking cycles of one waist recording (``pdr.detect_cycles`` with ``config``), each one's activity by

@@ -31,7 +31,9 @@ def format_walking_table(result: dict[str, object]) -> str:
     """The bench's tables as text."""
     lines = []
     cols = [*ACTIVITIES, "none"]
-    for key, title in (("confusion", "independent (pendulum) gait"), ("confusion_signature_gait", "signature gait (the first generator)")):
+    for key, title in (("confusion", "independent (pendulum) gait by fusegraph's waist classifier"),
+                       ("confusion_paper_rules", "independent (pendulum) gait by the paper's rules"),
+                       ("confusion_signature_gait", "signature gait (the first generator) by the paper's rules, which the walk's graph takes")):
         conf = result.get(key)
         if not isinstance(conf, dict):
             continue
