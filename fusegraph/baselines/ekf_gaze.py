@@ -33,7 +33,8 @@ class GazeEkfConfig:
     gaze_walk_m_per_sqrt_s: float = float(value("gaze_ekf", "gaze_walk_m_per_sqrt_s"))
     """Random walk of the gaze point, m/sqrt(s): small keeps a fixation steady, large follows a saccade (same study)."""
     pixel_sigma: float = 5.0
-    """Gaze pixel noise, pixels."""
+    """Gaze pixel noise, pixels (the gaze preset passes the session's declared ``pixel_sigma``, as the graph reads it; 5 px
+    is the simulated camera's)."""
     use_mag: bool = True
     """Correct the yaw with the magnetometer (off for a recording whose magnetometer cannot be calibrated)."""
 

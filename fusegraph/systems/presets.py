@@ -197,7 +197,7 @@ def _gaze_run(session: Session, solver: str) -> Result:
         return PointEstimate(solver, data.tracker_t.copy(), points[:, None, :], ("X_m", "Z_m"), time.perf_counter() - start,
                              {"world_R_head": None if solver == "head_frame" else attitude})
     if solver == "ekf":
-        result = gaze.run_ekf(data, replace(GazeEkfConfig(), use_mag=use_mag))
+        result = gaze.run_ekf(data, replace(GazeEkfConfig(), use_mag=use_mag, pixel_sigma=data.config.camera.pixel_sigma))  # the declared noise, as ours
     else:
         model = gaze.GazeModel() if solver == "online" else gaze.batch_model()
         model = replace(model, head=replace(model.head, use_mag=use_mag, accel_range_m_s2=stream_range(session.stream("accel"))))
