@@ -107,6 +107,9 @@ def field_norm_dip(world_R_body: gtsam.Rot3, mag_body: FloatArray) -> tuple[floa
     return math.sqrt(x * x + y * y + z * z), math.atan2(-z, math.hypot(x, y))
 
 
+_EYE3 = np.eye(3)
+
+
 class HardIron:
     """A magnet carried with the sensor: a constant offset ``b`` in the sensor frame on top of the Earth's field,
     m_k = world_R_body_k^T B + b. As the body turns, the Earth's part turns in the sensor frame and ``b`` does not, so
@@ -139,9 +142,11 @@ class HardIron:
         """Whether the readings are being corrected by it."""
 
     def _solve(self) -> FloatArray:
-        W, C = self._weight, self._rotations
-        info = np.block([[W * np.eye(3), C], [C.T, W * np.eye(3)]]) + 1e-6 * W * np.eye(6)  # without a turn: the least-norm split
-        return np.asarray(np.linalg.solve(info, self._vector), dtype=float)
+        """(B, b) from the normal equations, B eliminated first (a 3 x 3 solve): b's information is W I - C^T C / W."""
+        W, C, v = self._weight, self._rotations, self._vector
+        schur = W * _EYE3 - C.T @ C / W + 1e-6 * W * _EYE3  # without a turn: the least-norm split
+        b = np.linalg.solve(schur, v[3:] - C.T @ v[:3] / W)
+        return np.concatenate([(v[:3] - C @ b) / W, b])
 
     def correct(self, t_s: float, world_R_body: gtsam.Rot3, mag_body: FloatArray) -> FloatArray:
         """Take a reading at ``t_s`` with the attitude it was taken at; the reading corrected by the estimate so far."""
