@@ -9,7 +9,7 @@ import numpy as np
 
 from ..datasets import steps_oxford
 from ..frontends.activity import with_activity
-from ..frontends.pdr import Cycle, Ride, SpeedModel, detect_cycles, fit_speed_model, gravity_filter
+from ..frontends.pdr import Cycle, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model, gravity_filter
 from ..records import ACTIVITIES, WalkingSession
 from ..report.walking import plot_walk
 from ..scenarios.walking import WalkingScenarioConfig, simulate_calibration_walk, simulate_walking
@@ -30,12 +30,13 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     # the activity confusion on the independent (pendulum) gait, whose signals do not follow the paper's rules: fusegraph's
     # waist classifier (trained on real waists, frontends.activity) and the paper's rules beside; the first generator's
     # figure (the paper's rules, which the walk's positioning runs take) beside them, and the positioning runs on its walk
-    pendulum = WalkingScenarioConfig(gait="pendulum")
-    independent = simulate_walking(seed, pendulum)
-    independent_speed = calibrated_speed_model(seed, pendulum)
-    independent_cycles, independent_rides, _ = analyse(independent, independent_speed)
-    gravity = gravity_filter(independent.t, independent.accel_m_s2, independent.gyro_rad_s, WAIST)
-    classified = with_activity(independent.t, independent.accel_m_s2, independent.gyro_rad_s, gravity, independent_cycles)
+    # (no steps become odometry here: the detectors and the classifier share one run of the gravity filter, a per-sample loop)
+    independent = simulate_walking(seed, WalkingScenarioConfig(gait="pendulum"))
+    t, accel, gyro = independent.t, independent.accel_m_s2, independent.gyro_rad_s
+    gravity = gravity_filter(t, accel, gyro, WAIST)
+    independent_cycles = detect_cycles(t, accel, gyro, WAIST, gravity)
+    independent_rides = detect_rides(t, accel, gyro, independent_cycles, WAIST, gravity)
+    classified = with_activity(t, accel, gyro, gravity, independent_cycles)
     session = simulate_walking(seed)
     speed = calibrated_speed_model(seed)
     cycles, rides, events = analyse(session, speed)

@@ -129,7 +129,6 @@ class HardIron:
     def __init__(self, noise: MagNoise, reference: FieldReference):
         self.noise = noise
         self.reference = reference
-        self.norm = reference.norm
         # the normal equations of m = R^T B + b have a fixed shape: [[W I, C], [C^T, W I]] (R R^T = I), C = sum of w R
         self._weight = 0.0
         self._rotations = np.zeros((3, 3))
@@ -164,10 +163,11 @@ class HardIron:
         if theta is not None:
             tolerance = self.noise.hard_iron_fit
             field = theta[:3]  # the Earth's part in the world: must be the reference field (norm and dip), else no carried magnet
-            fits = (math.sqrt(self._square / self._weight / 3.0) < tolerance * self.norm
-                    and abs(float(np.linalg.norm(field)) - self.norm) < tolerance * self.norm
+            norm = self.reference.norm
+            fits = (math.sqrt(self._square / self._weight / 3.0) < tolerance * norm
+                    and abs(float(np.linalg.norm(field)) - norm) < tolerance * norm
                     and abs(math.atan2(-field[2], math.hypot(field[0], field[1])) - self.reference.dip_rad) < tolerance
-                    and float(np.linalg.norm(theta[3:])) > self.noise.hard_iron_min * self.norm)
+                    and float(np.linalg.norm(theta[3:])) > self.noise.hard_iron_min * norm)
             # observability of b: its information once the field's is eliminated, per reading: 1 - (largest singular value
             # of the memory's mean rotation)^2 (0 without a turn)
             self.trusted = fits and 1.0 - float(np.linalg.norm(self._rotations / self._weight, 2)) ** 2 > self._MIN_SPREAD

@@ -253,8 +253,15 @@ def with_activity(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray,
     (``Cycle.activity`` as ``pdr.detect_cycles`` gives it); ``gravity`` the gravity filter's output the cycles came from."""
     from dataclasses import replace
 
-    calls = (model or load_model()).classify(cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles), np.array([c.t for c in cycles]))
+    calls, _ = _classified(t, accel_m_s2, gyro_rad_s, gravity, cycles, model)
     return [replace(c, activity=call) for c, call in zip(cycles, calls, strict=True)]
+
+
+def _classified(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, gravity: FloatArray, cycles: Sequence[Cycle],
+                model: ActivityModel | None) -> tuple[list[str], FloatArray]:
+    """Each cycle's activity by ``model`` (default: the model on main) and the cycles' ``BASE_FEATURES``."""
+    base = cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles)
+    return (model or load_model()).classify(base, np.array([c.t for c in cycles])), base
 
 
 def classify_waist(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, config: PdrConfig,
@@ -263,5 +270,4 @@ def classify_waist(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray
     ``model`` (default: the model on main), and their ``BASE_FEATURES`` (what a model is fitted on)."""
     gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, config)
     cycles = detect_cycles(t, accel_m_s2, gyro_rad_s, config, gravity=gravity)
-    base = cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles)
-    return cycles, (model or load_model()).classify(base, np.array([c.t for c in cycles])), base
+    return cycles, *_classified(t, accel_m_s2, gyro_rad_s, gravity, cycles, model)

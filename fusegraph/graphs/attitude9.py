@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
+from ..consistency import clipped_samples
 from ..factors.accel import GravityNoise, gravity_factor
 from ..factors.attitude import AttitudeTrack
 from ..factors.gyro import GAP_MIN_S, GAP_PERIODS, GAP_RATE_RAD_S
@@ -511,7 +512,7 @@ class Attitude9Builder:
 
     def _clipped(self, accel: FloatArray) -> bool:
         """Whether a sample (or a block of them) reached the accelerometer's range (``Attitude9Model.accel_range_m_s2``)."""
-        return math.isfinite(self.model.accel_range_m_s2) and bool(np.abs(accel).max() >= self.model.accel_range_m_s2 * (1.0 - 1e-6))
+        return math.isfinite(self.model.accel_range_m_s2) and bool(clipped_samples(np.atleast_2d(accel), self.model.accel_range_m_s2).any())
 
     def _preintegrate(self, accel: FloatArray, gyro: FloatArray, dt: FloatArray) -> gtsam.PreintegratedImuMeasurements:
         """The interval's samples, with a gyro noise that grows with the rotation rate (scale errors)."""
