@@ -232,3 +232,50 @@ def format_activity(result: dict[str, Any]) -> str:
         for label, row in m["confusion"].items():
             lines.append(f"    {label:<12} " + " ".join(pct(v) for v in row.values()) + f"   ({m['cycles'][label]} cycles)")
     return "\n".join(lines)
+
+
+STEP_STATISTICS = ("excursion_m", "vertical_rms_m_s2", "vertical_to_horizontal", "duration_s")
+"""Per-step signal statistics (``step_statistics``): the pelvis's vertical excursion (the vertical acceleration integrated
+twice, ``frontends.gait.pelvis_excursion`` with 0.5 Hz drift removal), the RMS of the vertical acceleration about its
+step mean, its ratio to the horizontal one's, and the step's duration."""
+
+
+def step_statistics(t: np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray, activity_of: Callable[[float, float], str | None]) -> dict[str, np.ndarray]:
+    """Per walking class, the ``STEP_STATISTICS`` of every step between two consecutive cycles of the walking preset's
+    front end (at most 1.2 s apart), a row per step (shape (n, 4)); ``activity_of(start, end)`` names a step's class (None:
+    not scored). The same code reads a real recording and a simulated one, so the two are compared like for like."""
+    from ..frontends.gait import pelvis_excursion
+    from ..frontends.pdr import detect_cycles, gravity_filter, vertical_horizontal
+    from ..systems.walking import WAIST
+
+    fs = 1.0 / float(np.median(np.diff(t)))
+    gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, WAIST)
+    cycle_t = np.array([c.t for c in detect_cycles(t, accel_m_s2, gyro_rad_s, WAIST, gravity)])
+    vertical, horizontal = vertical_horizontal(accel_m_s2, gravity)
+    height = pelvis_excursion(vertical, fs, 0.5, None, 2)
+    rows: dict[str, list[tuple[float, ...]]] = {a: [] for a in ACTIVITIES}
+    for start, end in zip(cycle_t[:-1], cycle_t[1:], strict=True):
+        activity = activity_of(float(start), float(end))
+        if end - start > 1.2 or activity not in rows:
+            continue
+        k = (t >= start) & (t < end)
+        v = vertical[k] - vertical[k].mean()
+        h = np.linalg.norm(horizontal[k] - horizontal[k].mean(axis=0), axis=1)
+        v_rms = float(np.sqrt(np.mean(v**2)))
+        rows[activity].append((float(np.ptp(height[k])), v_rms, v_rms / float(np.sqrt(np.mean(h**2))), float(end - start)))
+    return {a: np.array(r).reshape(-1, len(STEP_STATISTICS)) for a, r in rows.items()}
+
+
+def labelled_step_statistics(session: Session) -> dict[str, np.ndarray]:
+    """``step_statistics`` of a session with an ``activity`` label stream (``import hapt``): a step scores when one
+    walking label covers it."""
+    accel, gyro = session.synchronous("accel", "gyro")
+    labels = session.stream("activity")
+
+    def activity_of(start: float, end: float) -> str | None:
+        inside = labels.values[(labels.t >= start) & (labels.t < end), 0]
+        if not len(inside) or not np.all(inside == inside[0]):
+            return None
+        return WALKING_LABELS.get(int(inside[0]))
+
+    return step_statistics(accel.t, accel.values, gyro.values, activity_of)

@@ -23,8 +23,10 @@ def calibrated_speed_model(seed: int, config: WalkingScenarioConfig | None = Non
     return fit_speed_model(detect_cycles(calibration.t, calibration.accel_m_s2, calibration.gyro_rad_s, WAIST), calibration.bouts)
 
 
-def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None) -> dict[str, object]:
-    """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape."""
+def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None,
+                  hapt_dir: Path | None = None) -> dict[str, object]:
+    """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape (``gait_statistics``: the pendulum gait's
+    per-step statistics beside UCI HAPT's real waists, ``hapt_dir`` or ../shared/data/hapt)."""
     from . import plaza as plaza_system
 
     # the activity confusion on the independent (pendulum) gait, whose signals do not follow the paper's rules: fusegraph's
@@ -52,6 +54,7 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
                            "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
                            "wrong_fixes": int(session.fixes.wrong.sum())}
+    out["gait_statistics"] = gait_statistics(hapt_dir=hapt_dir)
     oxford = bench_oxford(Path(oxford_dir)) if oxford_dir is not None and Path(oxford_dir).is_dir() else {}
     out["oxford"] = oxford
     if plaza:
@@ -88,3 +91,38 @@ def confusion(session: WalkingSession, cycles: list[Cycle], rides: list[Ride]) -
         hit = any(r.start_s < end and r.end_s > start for r in rides)
         table["elevator"]["elevator" if hit else "none"] += 1
     return {a: dict(c) for a, c in table.items()}
+
+
+def simulated_step_statistics(walk: WalkingSession) -> dict[str, np.ndarray]:
+    """``evaluation.activity.step_statistics`` of a simulated walk: a step's class is that of the true step within a
+    quarter second of its first cycle."""
+    from .activity import step_statistics
+
+    step_t = np.asarray(walk.step_t)
+
+    def activity_of(start: float, end: float) -> str | None:
+        j = int(np.argmin(np.abs(step_t - start)))
+        return str(walk.step_activity[j]) if abs(step_t[j] - start) < 0.25 else None
+
+    return step_statistics(walk.t, walk.accel_m_s2, walk.gyro_rad_s, activity_of)
+
+
+def gait_statistics(seeds: tuple[int, ...] = (0, 1, 2), hapt_dir: Path | None = None) -> dict[str, dict[str, dict[str, float]]]:
+    """The medians of the per-step statistics (``evaluation.activity.STEP_STATISTICS``) per class: the pendulum gait over
+    ``seeds``, and the real waists of UCI HAPT (``hapt_dir``, default ../shared/data/hapt, when it is there): the check
+    that the simulated gait moves like the real one."""
+    from ..datasets.hapt import DEFAULT_DIR, hapt_sessions
+    from .activity import STEP_STATISTICS, labelled_step_statistics
+
+    def medians(parts: list[dict[str, np.ndarray]]) -> dict[str, dict[str, float]]:
+        out = {}
+        for activity in ("flat", "stairs_up", "stairs_down"):
+            rows = np.concatenate([p[activity] for p in parts])
+            out[activity] = {"steps": float(len(rows)), **{k: float(np.median(rows[:, i])) for i, k in enumerate(STEP_STATISTICS)}}
+        return out
+
+    result = {"pendulum_gait": medians([simulated_step_statistics(simulate_walking(s, WalkingScenarioConfig(gait="pendulum"))) for s in seeds])}
+    folder = Path(hapt_dir or DEFAULT_DIR)
+    if folder.is_dir():
+        result["hapt"] = medians([labelled_step_statistics(session) for _, session in hapt_sessions(folder)])
+    return result
