@@ -254,9 +254,9 @@ def test_bench_confusion_is_scored_on_the_independent_gait() -> None:
 
 def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
     """The classifier trained on real waists (HAPT) meets the simulated pendulum gait, which was not built for it. Of the
-    cycles the detector finds (it misses ~1 % of the flat steps), seeds 0 / 1 / 2 measure flat 89 / 87 / 92 % of all flat steps (the misses
-    are fast walking, > 1.3 m/s, called stairs down), stairs up 98 / 90 / 82 %, down 100 / 100 / 100 %: the floors
-    guard against a regression; the paper's rules call flat walking stairs (under 1 % flat)."""
+    cycles the detector finds (it misses ~1 % of the flat steps), seeds 0 / 1 / 2 measure flat 92 / 93 / 94 % of all flat steps (the
+    misses are fast walking, above 1.4 m/s, called stairs down), stairs up 100 / 98 / 100 %, down 100 / 100 / 100 %: the
+    floors guard against a regression; the paper's rules call flat walking stairs (under 1 % flat)."""
     from fusegraph.evaluation.walking import calibrated_speed_model, confusion
     from fusegraph.frontends.activity import with_activity
     from fusegraph.frontends.pdr import gravity_filter
@@ -274,7 +274,7 @@ def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
         return table[activity].get(activity, 0) / (sum(table[activity].values()) - table[activity].get("none", 0))
 
     assert sum(ours["flat"].values()) - ours["flat"].get("none", 0) > 0.95 * sum(ours["flat"].values())
-    assert correct(ours, "flat") > 0.8 and correct(ours, "stairs_up") > 0.85 and correct(ours, "stairs_down") > 0.95
+    assert correct(ours, "flat") > 0.88 and correct(ours, "stairs_up") > 0.9 and correct(ours, "stairs_down") > 0.95
     assert correct(rules, "flat") < 0.2
 
 
@@ -282,9 +282,9 @@ def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
 def test_the_pendulum_gait_moves_like_real_waists() -> None:
     """The simulated gait against UCI HAPT's real waists, by the same front end and code
     (``evaluation.activity.step_statistics``): every per-class median (pelvis excursion, vertical RMS, vertical-to-horizontal
-    ratio, step duration) within 35 % of the real one. Measured (seeds 0-2 against users 1-10): the largest gap is flat
-    walking's vertical-to-horizontal ratio, 1.48 against 1.13 (the model's pelvis has no heel-strike braking); a gait
-    whose stairs carried no horizontal motion (the ratio 7-11) or whose descent braked 0.2 s after contact fails."""
+    ratio, step duration) within 35 % of the real one. Measured (seeds 0-2 against users 1-10): the largest gap is the
+    vertical-to-horizontal ratio down stairs, 2.56 against 2.08, and 1.28 against 1.13 on flat ground; a gait whose
+    stairs carried no horizontal motion (the ratio 7-11) or whose forward surge was smoothed away (flat 1.48) fails."""
     from fusegraph.datasets.hapt import hapt_sessions
     from fusegraph.evaluation.activity import STEP_STATISTICS, labelled_step_statistics
     from fusegraph.evaluation.walking import simulated_step_statistics

@@ -174,7 +174,7 @@ class PendulumGait:
         return out
 
 
-STAIR_SURGE = 0.6
+STAIR_SURGE = 0.4
 """Forward speed oscillation on stairs, a fraction of the mean (the body moves forward mostly as the stance leg extends)."""
 DOWN_LOWERING = 0.7
 """Share of a step down in which the stance leg lowers the body (ending at the next contact)."""

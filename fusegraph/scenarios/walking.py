@@ -42,6 +42,7 @@ class _Tour:
     def __init__(self, rate_hz: float, start: tuple[float, float, float, float], gait: PendulumGait | None = None) -> None:
         self.gait = gait
         self.step_speed: list[float] = []
+        self.step_end_t: list[float] = []
         self.dt = 1.0 / rate_hz
         self.t = 0.0
         self.x, self.y, self.z, self.yaw = start
@@ -78,6 +79,7 @@ class _Tour:
         self.step_speed.append(speed)
         if self.gait is not None:
             self._emit(period, self.gait.step(kind, speed, period, yaw0, dyaw, z0, rise, k, scale))
+            self.step_end_t.append(self.t)
             self._finish_step(z0 + rise, yaw0, dyaw, speed, period)
             return
 
@@ -174,8 +176,15 @@ def _imu(tour: _Tour, rng: np.random.Generator, config: WalkingScenarioConfig) -
     rows = np.array(tour.rows)
     t, speed, yaw, z_gait, lateral, roll, pitch, _vz = rows.T
     dt = tour.dt
-    # velocity jumps at bout starts/stops smoothed over ~0.1 s (gait initiation is not instantaneous)
-    speed = gaussian_filter1d(speed, 5)
+    # velocity jumps at bout starts/stops smoothed over ~0.1 s (gait initiation is not instantaneous); the pendulum
+    # gait's steps jump only in their mean speed, so that is what is smoothed, its within-step surge kept as it is
+    if tour.gait is not None:
+        mean = np.zeros(len(t))
+        for start, end, v in zip(tour.step_t, tour.step_end_t, tour.step_speed, strict=True):
+            mean[(t >= start - 1e-9) & (t < end - 1e-9)] = v
+        speed = gaussian_filter1d(mean, 5) + (speed - mean)
+    else:
+        speed = gaussian_filter1d(speed, 5)
     # positions integrate the smoothed speed along the heading from the start (the origin)
     x = np.cumsum(speed * np.cos(yaw)) * dt
     y = np.cumsum(speed * np.sin(yaw)) * dt
