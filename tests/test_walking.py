@@ -254,8 +254,8 @@ def test_bench_confusion_is_scored_on_the_independent_gait() -> None:
 
 def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
     """The classifier trained on real waists (HAPT) meets the simulated pendulum gait, which was not built for it. Of the
-    cycles the detector finds (it misses ~1 % of the flat steps), seeds 0 / 1 / 2 measure flat 92 / 93 / 94 % of all flat steps (the
-    misses are fast walking, above 1.4 m/s, called stairs down), stairs up 100 / 98 / 100 %, down 100 / 100 / 100 %: the
+    cycles the detector finds (it misses ~1 % of the flat steps), seeds 0 / 1 / 2 measure flat 91 / 92 / 94 % of all flat steps (the
+    misses are fast walking, above 1.4 m/s, called stairs down), stairs up 100 %, down 100 %: the
     floors guard against a regression; the paper's rules call flat walking stairs (under 1 % flat)."""
     from fusegraph.evaluation.walking import calibrated_speed_model, confusion
     from fusegraph.frontends.activity import with_activity
@@ -282,9 +282,11 @@ def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
 def test_the_pendulum_gait_moves_like_real_waists() -> None:
     """The simulated gait against UCI HAPT's real waists, by the same front end and code
     (``evaluation.activity.step_statistics``): every per-class median (pelvis excursion, vertical RMS, vertical-to-horizontal
-    ratio, step duration) within 35 % of the real one. Measured (seeds 0-2 against users 1-10): the largest gap is the
-    vertical-to-horizontal ratio down stairs, 2.56 against 2.08, and 1.28 against 1.13 on flat ground; a gait whose
-    stairs carried no horizontal motion (the ratio 7-11) or whose forward surge was smoothed away (flat 1.48) fails."""
+    ratio, step duration) within 35 % of the real one, the correlation of the sagittal rotation with the vertical
+    acceleration within 0.5. Measured (seeds 0-2 against users 1-10): the largest gaps are the vertical-to-horizontal
+    ratio down stairs, 2.59 against 2.08, and the flat correlation, -0.69 against -0.23; a gait whose stairs carried no
+    horizontal motion (the ratio 7-11), whose forward surge was smoothed away (flat 1.48) or whose pelvis tilted forward
+    at heel strike (flat +0.69) fails."""
     from fusegraph.datasets.hapt import hapt_sessions
     from fusegraph.evaluation.activity import STEP_STATISTICS, labelled_step_statistics
     from fusegraph.evaluation.walking import simulated_step_statistics
@@ -296,7 +298,8 @@ def test_the_pendulum_gait_moves_like_real_waists() -> None:
         ours = np.median(simulated[activity], axis=0)
         theirs = np.median(np.concatenate([r[activity] for r in real]), axis=0)
         for name, a, b in zip(STEP_STATISTICS, ours, theirs, strict=True):
-            assert abs(a - b) < 0.35 * b, (activity, name, a, b)
+            # a correlation is compared as a difference (HAPT's stairs sit near 0); measured flat -0.69 against -0.23
+            assert abs(a - b) < (0.5 if name == "vertical_pitch_corr" else 0.35 * b), (activity, name, a, b)
 
 
 def test_plaza_bench_is_the_report_of_the_imported_run(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..frontends.activity import ACTIVITIES, FEATURES, ActivityModel, Tree, in_context, load_model, with_reference
+from ..frontends.activity import ACTIVITIES, BASE_FEATURES, FEATURES, ActivityModel, Tree, cycle_features, in_context, load_model, with_reference
 from ..metrics import WALKING_LABELS, activity_counts, activity_scores
 from ..session import Session, SessionError
 
@@ -234,10 +234,11 @@ def format_activity(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-STEP_STATISTICS = ("excursion_m", "vertical_rms_m_s2", "vertical_to_horizontal", "duration_s")
+STEP_STATISTICS = ("excursion_m", "vertical_rms_m_s2", "vertical_to_horizontal", "duration_s", "vertical_pitch_corr")
 """Per-step signal statistics (``step_statistics``): the pelvis's vertical excursion (the vertical acceleration integrated
 twice, ``frontends.gait.pelvis_excursion`` with 0.5 Hz drift removal), the RMS of the vertical acceleration about its
-step mean, its ratio to the horizontal one's, and the step's duration."""
+step mean, its ratio to the horizontal one's, the step's duration, and how the sagittal rotation goes with the vertical
+acceleration (the classifier's ``corr_vertical_pitch_rate`` of the step's first cycle, over ``WINDOW_S``)."""
 
 
 def step_statistics(t: np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray, activity_of: Callable[[float, float], str | None]) -> dict[str, np.ndarray]:
@@ -250,11 +251,13 @@ def step_statistics(t: np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarra
 
     fs = 1.0 / float(np.median(np.diff(t)))
     gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, WAIST)
-    cycle_t = np.array([c.t for c in detect_cycles(t, accel_m_s2, gyro_rad_s, WAIST, gravity)])
+    cycles = detect_cycles(t, accel_m_s2, gyro_rad_s, WAIST, gravity)
+    cycle_t = np.array([c.t for c in cycles])
+    pitch_corr = cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles)[:, BASE_FEATURES.index("corr_vertical_pitch_rate")]
     vertical, horizontal = vertical_horizontal(accel_m_s2, gravity)
     height = pelvis_excursion(vertical, fs, 0.5, None, 2)
     rows: dict[str, list[tuple[float, ...]]] = {a: [] for a in ACTIVITIES}
-    for start, end in zip(cycle_t[:-1], cycle_t[1:], strict=True):
+    for n, (start, end) in enumerate(zip(cycle_t[:-1], cycle_t[1:], strict=True)):
         activity = activity_of(float(start), float(end))
         if end - start > 1.2 or activity not in rows:
             continue
@@ -262,7 +265,7 @@ def step_statistics(t: np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarra
         v = vertical[k] - vertical[k].mean()
         h = np.linalg.norm(horizontal[k] - horizontal[k].mean(axis=0), axis=1)
         v_rms = float(np.sqrt(np.mean(v**2)))
-        rows[activity].append((float(np.ptp(height[k])), v_rms, v_rms / float(np.sqrt(np.mean(h**2))), float(end - start)))
+        rows[activity].append((float(np.ptp(height[k])), v_rms, v_rms / float(np.sqrt(np.mean(h**2))), float(end - start), float(pitch_corr[n])))
     return {a: np.array(r).reshape(-1, len(STEP_STATISTICS)) for a, r in rows.items()}
 
 

@@ -47,13 +47,13 @@ def format_walking_table(result: dict[str, object]) -> str:
     stats = result.get("gait_statistics")
     if isinstance(stats, dict):
         lines.append("per-step medians, the pendulum gait (seeds 0-2) against UCI HAPT's real waists (the same front end and code)")
-        lines.append(f"{'':26s}{'steps':>7s}{'excursion cm':>14s}{'vert. RMS m/s2':>16s}{'vert./horiz.':>14s}{'duration s':>12s}")
+        lines.append(f"{'':26s}{'steps':>7s}{'excursion cm':>14s}{'vert. RMS m/s2':>16s}{'vert./horiz.':>14s}{'duration s':>12s}{'vert.~pitch':>13s}")
         for a in ("flat", "stairs_up", "stairs_down"):
             for source in ("pendulum_gait", "hapt"):
                 if source in stats:
                     r = stats[source][a]
                     lines.append(f"{a + ' ' + source:26s}{int(r['steps']):7d}{100 * r['excursion_m']:14.1f}{r['vertical_rms_m_s2']:16.2f}"
-                                 f"{r['vertical_to_horizontal']:14.2f}{r['duration_s']:12.2f}")
+                                 f"{r['vertical_to_horizontal']:14.2f}{r['duration_s']:12.2f}{r['vertical_pitch_corr']:13.2f}")
         lines.append("")
     for key, title in (("walking", "walking (20% wrong fixes)"), ("walking_no_wrong_fixes", "walking (every fix correct)")):
         table = result[key]
