@@ -243,7 +243,7 @@ acceleration (the classifier's ``corr_vertical_pitch_rate`` of the step's first 
 
 def step_statistics(t: np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray, activity_of: Callable[[float, float], str | None]) -> dict[str, np.ndarray]:
     """Per walking class, the ``STEP_STATISTICS`` of every step between two consecutive cycles of the walking preset's
-    front end (at most 1.2 s apart), a row per step (shape (n, 4)); ``activity_of(start, end)`` names a step's class (None:
+    front end (at most 1.2 s apart), a row per step (shape (n, len(STEP_STATISTICS))); ``activity_of(start, end)`` names a step's class (None:
     not scored). The same code reads a real recording and a simulated one, so the two are compared like for like."""
     from ..frontends.gait import pelvis_excursion
     from ..frontends.pdr import detect_cycles, gravity_filter, vertical_horizontal

@@ -11,7 +11,8 @@ nothing of those rules; it is built from how a pelvis moves:
   highest), the double-support transition joins two arcs at heel strike. Cadence grows with speed as a
   power law (step frequency ~1.8 v^0.45 Hz, about 2 Hz at 1.3 m/s).
 * **Pelvis rotations**: obliquity (roll) and transverse rotation (yaw) once per stride, anterior tilt
-  (pitch) twice, tilted back in loading response (``TILT_PHASE_RAD``), with per-walker amplitudes; the lateral sway towards the stance foot once per stride.
+  (pitch) twice, tilted back in loading response (``TILT_PHASE_RAD``), with per-walker amplitudes; the
+  lateral sway towards the stance foot once per stride.
 * **Stairs**: up, the stance leg lifts the body over most of each step (knee and hip extension) and
   the trunk leans forward; down, the stance leg carries the body over the step, then lowers it
   (controlled lowering) until the leading foot's contact arrests the fall (weight acceptance). The
@@ -20,9 +21,10 @@ nothing of those rules; it is built from how a pelvis moves:
 * **Heel-strike transients**: a damped ~18 Hz oscillation of the soft tissue at each foot contact,
   strongest going down stairs, in the accelerometer only (it moves the sensor, not the pelvis).
 * **Checked against real waists**: ``bench walking`` prints the per-step medians (pelvis excursion, vertical
-  RMS, vertical-to-horizontal ratio, step duration) of this gait beside UCI HAPT's (users 1-10, the same
-  front end and code, ``evaluation.activity.step_statistics``); the stairs' shape constants below and the
-  arc and cadence ranges were set so the two agree (within 35 %, a test), never from a detector's score.
+  RMS, vertical-to-horizontal ratio, step duration, the sagittal rotation's correlation with the vertical
+  acceleration) of this gait beside UCI HAPT's (users 1-10, the same front end and code,
+  ``evaluation.activity.step_statistics``); the stairs' shape constants and tilt phase below and the arc and
+  cadence ranges were set so the two agree (a test), never from a detector's or classifier's score.
 * **Sensor on the belt**: a fixed mounting tilt per walk (pitch up to 15 deg, roll up to 8 deg, yaw up to
   10 deg): the IMU axes are not the body's.
 

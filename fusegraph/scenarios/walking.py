@@ -180,8 +180,9 @@ def _imu(tour: _Tour, rng: np.random.Generator, config: WalkingScenarioConfig) -
     # gait's steps jump only in their mean speed, so that is what is smoothed, its within-step surge kept as it is
     if tour.gait is not None:
         mean = np.zeros(len(t))
-        for start, end, v in zip(tour.step_t, tour.step_end_t, tour.step_speed, strict=True):
-            mean[(t >= start - 1e-9) & (t < end - 1e-9)] = v
+        for start, end, v in zip(np.searchsorted(t, np.array(tour.step_t) - 1e-9), np.searchsorted(t, np.array(tour.step_end_t) - 1e-9),
+                                 tour.step_speed, strict=True):
+            mean[start:end] = v
         speed = gaussian_filter1d(mean, 5) + (speed - mean)
     else:
         speed = gaussian_filter1d(speed, 5)
