@@ -318,3 +318,19 @@ def test_plaza_bench_is_the_report_of_the_imported_run(tmp_path, capsys) -> None
     assert rows["online"]["metrics"]["rmse_m"] == bench["online_rmse_m"]
     assert rows["batch"]["metrics"]["rmse_m"] == bench["batch_rmse_m"]
     assert bench["batch_rmse_m"] < 0.5 * bench["odometry_rmse_m"]
+
+
+def test_the_gait_statistics_figure_is_drawn(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """`bench walking --plot` draws the per-step statistics of both sources (constructed rows: the figure, not the data)."""
+    from fusegraph.evaluation.activity import STEP_STATISTICS
+    from fusegraph.evaluation.walking import gait_statistics
+    from fusegraph.report.walking import plot_gait_statistics
+
+    rng = np.random.default_rng(0)
+    rows = {source: {a: rng.normal(1.0, 0.1, (20, len(STEP_STATISTICS))) for a in ("flat", "stairs_up", "stairs_down")}
+            for source in ("pendulum_gait", "hapt")}
+    plot_gait_statistics(rows, STEP_STATISTICS, tmp_path / "gait.png")
+    assert (tmp_path / "gait.png").stat().st_size > 10_000
+    medians = gait_statistics(rows)
+    assert medians["hapt"]["flat"]["steps"] == 20
+    assert medians["hapt"]["flat"]["excursion_m"] == pytest.approx(float(np.median(rows["hapt"]["flat"][:, 0])))

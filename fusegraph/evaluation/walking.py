@@ -11,9 +11,10 @@ from ..datasets import steps_oxford
 from ..frontends.activity import with_activity
 from ..frontends.pdr import Cycle, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model, gravity_filter
 from ..records import ACTIVITIES, WalkingSession
-from ..report.walking import plot_walk
+from ..report.walking import plot_gait_statistics, plot_walk
 from ..scenarios.walking import WalkingScenarioConfig, simulate_calibration_walk, simulate_walking
 from ..systems.walking import WAIST, analyse, run_all, score
+from .activity import STEP_STATISTICS
 from .runner import report_sessions
 
 
@@ -54,7 +55,10 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
                            "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
                            "wrong_fixes": int(session.fixes.wrong.sum())}
-    out["gait_statistics"] = gait_statistics(hapt_dir=hapt_dir)
+    steps = step_rows(hapt_dir=hapt_dir)
+    out["gait_statistics"] = gait_statistics(steps)
+    if plot is not None:
+        plot_gait_statistics(steps, STEP_STATISTICS, plot.with_name(f"{plot.stem}_gait{plot.suffix}"))
     oxford = bench_oxford(Path(oxford_dir)) if oxford_dir is not None and Path(oxford_dir).is_dir() else {}
     out["oxford"] = oxford
     if plaza:
@@ -107,22 +111,26 @@ def simulated_step_statistics(walk: WalkingSession) -> dict[str, np.ndarray]:
     return step_statistics(walk.t, walk.accel_m_s2, walk.gyro_rad_s, activity_of)
 
 
-def gait_statistics(seeds: tuple[int, ...] = (0, 1, 2), hapt_dir: Path | None = None) -> dict[str, dict[str, dict[str, float]]]:
-    """The medians of the per-step statistics (``evaluation.activity.STEP_STATISTICS``) per class: the pendulum gait over
-    ``seeds``, and the real waists of UCI HAPT (``hapt_dir``, default ../shared/data/hapt, when it is there): the check
-    that the simulated gait moves like the real one."""
+def step_rows(seeds: tuple[int, ...] = (0, 1, 2), hapt_dir: Path | None = None) -> dict[str, dict[str, np.ndarray]]:
+    """Every step's ``evaluation.activity.STEP_STATISTICS`` per class, pooled: ``pendulum_gait`` over ``seeds`` and ``hapt``,
+    the real waists of UCI HAPT (``hapt_dir``, default ../shared/data/hapt, when it is there)."""
     from ..datasets.hapt import DEFAULT_DIR, hapt_sessions
-    from .activity import STEP_STATISTICS, labelled_step_statistics
+    from .activity import labelled_step_statistics
 
-    def medians(parts: list[dict[str, np.ndarray]]) -> dict[str, dict[str, float]]:
-        out = {}
-        for activity in ("flat", "stairs_up", "stairs_down"):
-            rows = np.concatenate([p[activity] for p in parts])
-            out[activity] = {"steps": float(len(rows)), **{k: float(np.median(rows[:, i])) for i, k in enumerate(STEP_STATISTICS)}}
-        return out
+    def pooled(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        return {a: np.concatenate([p[a] for p in parts]) for a in ("flat", "stairs_up", "stairs_down")}
 
-    result = {"pendulum_gait": medians([simulated_step_statistics(simulate_walking(s, WalkingScenarioConfig(gait="pendulum"))) for s in seeds])}
+    result = {"pendulum_gait": pooled([simulated_step_statistics(simulate_walking(s, WalkingScenarioConfig(gait="pendulum"))) for s in seeds])}
     folder = Path(hapt_dir or DEFAULT_DIR)
     if folder.is_dir():
-        result["hapt"] = medians([labelled_step_statistics(session) for _, session in hapt_sessions(folder)])
+        result["hapt"] = pooled([labelled_step_statistics(session) for _, session in hapt_sessions(folder)])
     return result
+
+
+def gait_statistics(rows: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, dict[str, float]]]:
+    """The medians of ``step_rows`` per source and class (and the number of steps): the check that the simulated gait
+    moves like the real one."""
+    from .activity import STEP_STATISTICS
+
+    return {source: {a: {"steps": float(len(r)), **{k: float(np.median(r[:, i])) for i, k in enumerate(STEP_STATISTICS)}}
+                     for a, r in per_class.items()} for source, per_class in rows.items()}

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from ..records import ACTIVITIES, WalkingSession
 from ..systems.walking import METHODS, WalkRun
 
@@ -24,6 +26,28 @@ def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> 
     top.set(xlabel="east (m)", ylabel="north (m)", title="walk, top view", aspect="equal")
     height.set(xlabel="time (s)", ylabel="height (m)", title="floors (3.5 m apart)")
     top.legend(fontsize=8)
+    save_figure(fig, path)
+
+
+def plot_gait_statistics(rows: dict[str, dict[str, np.ndarray]], names: tuple[str, ...], path: Path) -> None:
+    """Per statistic (``names``, the rows' columns) and class, the distribution over steps of the simulated pendulum gait
+    beside UCI HAPT's real waists (``evaluation.walking.step_rows``)."""
+    from ..report.plots import plt, save_figure  # headless pyplot
+
+    classes = ("flat", "stairs_up", "stairs_down")
+    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 4))
+    for i, (ax, name) in enumerate(zip(axes, names, strict=True)):
+        for j, source in enumerate(("pendulum_gait", "hapt")):
+            if source not in rows:
+                continue
+            data = [rows[source][a][:, i] for a in classes]
+            box = ax.boxplot(data, positions=np.arange(len(classes)) * 3 + j, widths=0.8, showfliers=False, patch_artist=True)
+            for patch in box["boxes"]:
+                patch.set_facecolor("tab:orange" if source == "hapt" else "tab:blue")
+        ax.set_xticks(np.arange(len(classes)) * 3 + 0.5, classes, fontsize=8)
+        ax.set_title(name, fontsize=9)
+    axes[0].legend([plt.Rectangle((0, 0), 1, 1, color=c) for c in ("tab:blue", "tab:orange")], ["pendulum gait", "UCI HAPT"], fontsize=8)
+    fig.suptitle("per-step statistics: the simulated gait (blue) against real waists (orange), the same front end and code")
     save_figure(fig, path)
 
 
