@@ -13,7 +13,7 @@ from ..frontends.pdr import Cycle, Ride, SpeedModel, detect_cycles, detect_rides
 from ..records import ACTIVITIES, WalkingSession
 from ..report.walking import plot_gait_statistics, plot_walk
 from ..scenarios.walking import WalkingScenarioConfig, simulate_calibration_walk, simulate_walking
-from ..systems.walking import WAIST, analyse, run_all, score
+from ..systems.walking import WAIST, analyse, events_from, run_all, score
 from .activity import STEP_STATISTICS
 from .runner import report_sessions
 
@@ -52,6 +52,11 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
         out[key] = {name: {**score(run, session), "seconds": run.seconds} for name, run in runs.items()}
         if plot is not None and key == "walking":
             plot_walk(session, runs, plot)
+    # the same runs on the pendulum gait, its steps' activities from fusegraph's classifier (the stairs factors take them)
+    pendulum_events = events_from(classified, independent_rides, calibrated_speed_model(seed, WalkingScenarioConfig(gait="pendulum")),
+                                  independent.building)
+    out["walking_pendulum_gait"] = {name: {**score(run, independent), "seconds": run.seconds}
+                                    for name, run in run_all(independent, pendulum_events, independent.fixes.pose).items()}
     out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
                            "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
                            "wrong_fixes": int(session.fixes.wrong.sum())}

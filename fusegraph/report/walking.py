@@ -79,7 +79,10 @@ def format_walking_table(result: dict[str, object]) -> str:
                     lines.append(f"{a + ' ' + source:26s}{int(r['steps']):7d}{100 * r['excursion_m']:14.1f}{r['vertical_rms_m_s2']:16.2f}"
                                  f"{r['vertical_to_horizontal']:14.2f}{r['duration_s']:12.2f}{r['vertical_pitch_corr']:13.2f}")
         lines.append("")
-    for key, title in (("walking", "walking (20% wrong fixes)"), ("walking_no_wrong_fixes", "walking (every fix correct)")):
+    for key, title in (("walking", "walking (20% wrong fixes)"), ("walking_no_wrong_fixes", "walking (every fix correct)"),
+                       ("walking_pendulum_gait", "pendulum gait (20% wrong fixes)")):
+        if key not in result:
+            continue
         table = result[key]
         assert isinstance(table, dict)
         lines.append("")
