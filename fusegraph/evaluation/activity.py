@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..frontends.activity import ACTIVITIES, BASE_FEATURES, FEATURES, ActivityModel, Tree, cycle_features, in_context, load_model, with_reference
+from ..frontends.pdr import Cycle
 from ..metrics import WALKING_LABELS, activity_counts, activity_scores
 from ..session import Session, SessionError
 
@@ -241,17 +242,22 @@ step mean, its ratio to the horizontal one's, the step's duration, and how the s
 acceleration (the classifier's ``corr_vertical_pitch_rate`` of the step's first cycle, over ``WINDOW_S``)."""
 
 
-def step_statistics(t: np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray, activity_of: Callable[[float, float], str | None]) -> dict[str, np.ndarray]:
+def step_statistics(t: np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarray, activity_of: Callable[[float, float], str | None],
+                    analysed: tuple[np.ndarray, Sequence[Cycle]] | None = None) -> dict[str, np.ndarray]:
     """Per walking class, the ``STEP_STATISTICS`` of every step between two consecutive cycles of the walking preset's
-    front end (at most 1.2 s apart), a row per step (shape (n, len(STEP_STATISTICS))); ``activity_of(start, end)`` names a step's class (None:
-    not scored). The same code reads a real recording and a simulated one, so the two are compared like for like."""
+    front end (at most 1.2 s apart), a row per step (shape (n, len(STEP_STATISTICS))); ``activity_of(start, end)`` names a
+    step's class (None: not scored); ``analysed``: the front end's gravity and cycles when the caller has them (the
+    gravity filter is a per-sample loop). The same code reads a real recording and a simulated one, so the two are
+    compared like for like."""
     from ..frontends.gait import pelvis_excursion
     from ..frontends.pdr import detect_cycles, gravity_filter, vertical_horizontal
     from ..systems.walking import WAIST
 
     fs = 1.0 / float(np.median(np.diff(t)))
-    gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, WAIST)
-    cycles = detect_cycles(t, accel_m_s2, gyro_rad_s, WAIST, gravity)
+    if analysed is None:
+        gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, WAIST)
+        analysed = gravity, detect_cycles(t, accel_m_s2, gyro_rad_s, WAIST, gravity)
+    gravity, cycles = analysed
     cycle_t = np.array([c.t for c in cycles])
     pitch_corr = cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles)[:, BASE_FEATURES.index("corr_vertical_pitch_rate")]
     vertical, horizontal = vertical_horizontal(accel_m_s2, gravity)

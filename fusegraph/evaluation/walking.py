@@ -60,7 +60,7 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
                            "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
                            "wrong_fixes": int(session.fixes.wrong.sum())}
-    steps = step_rows(hapt_dir=hapt_dir)
+    steps = step_rows(hapt_dir=hapt_dir, known={seed: (independent, gravity, independent_cycles)})
     out["gait_statistics"] = gait_statistics(steps)
     if plot is not None:
         plot_gait_statistics(steps, STEP_STATISTICS, plot.with_name(f"{plot.stem}_gait{plot.suffix}"))
@@ -102,9 +102,9 @@ def confusion(session: WalkingSession, cycles: list[Cycle], rides: list[Ride]) -
     return {a: dict(c) for a, c in table.items()}
 
 
-def simulated_step_statistics(walk: WalkingSession) -> dict[str, np.ndarray]:
-    """``evaluation.activity.step_statistics`` of a simulated walk: a step's class is that of the true step within a
-    quarter second of its first cycle."""
+def simulated_step_statistics(walk: WalkingSession, analysed: tuple[np.ndarray, list[Cycle]] | None = None) -> dict[str, np.ndarray]:
+    """``evaluation.activity.step_statistics`` of a simulated walk (``analysed``: its gravity and cycles, when known): a
+    step's class is that of the true step within a quarter second of its first cycle."""
     from .activity import step_statistics
 
     step_t = np.asarray(walk.step_t)
@@ -113,19 +113,24 @@ def simulated_step_statistics(walk: WalkingSession) -> dict[str, np.ndarray]:
         j = int(np.argmin(np.abs(step_t - start)))
         return str(walk.step_activity[j]) if abs(step_t[j] - start) < 0.25 else None
 
-    return step_statistics(walk.t, walk.accel_m_s2, walk.gyro_rad_s, activity_of)
+    return step_statistics(walk.t, walk.accel_m_s2, walk.gyro_rad_s, activity_of, analysed)
 
 
-def step_rows(seeds: tuple[int, ...] = (0, 1, 2), hapt_dir: Path | None = None) -> dict[str, dict[str, np.ndarray]]:
-    """Every step's ``evaluation.activity.STEP_STATISTICS`` per class, pooled: ``pendulum_gait`` over ``seeds`` and ``hapt``,
-    the real waists of UCI HAPT (``hapt_dir``, default ../shared/data/hapt, when it is there)."""
+def step_rows(seeds: tuple[int, ...] = (0, 1, 2), hapt_dir: Path | None = None,
+              known: dict[int, tuple[WalkingSession, np.ndarray, list[Cycle]]] | None = None) -> dict[str, dict[str, np.ndarray]]:
+    """Every step's ``evaluation.activity.STEP_STATISTICS`` per class, pooled: ``pendulum_gait`` over ``seeds`` (``known``:
+    a seed's pendulum walk, gravity and cycles the caller already has) and ``hapt``, the real waists of UCI HAPT
+    (``hapt_dir``, default ../shared/data/hapt, when it is there)."""
     from ..datasets.hapt import DEFAULT_DIR, hapt_sessions
     from .activity import labelled_step_statistics
 
     def pooled(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
         return {a: np.concatenate([p[a] for p in parts]) for a in ("flat", "stairs_up", "stairs_down")}
 
-    result = {"pendulum_gait": pooled([simulated_step_statistics(simulate_walking(s, WalkingScenarioConfig(gait="pendulum"))) for s in seeds])}
+    known = known or {}
+    walks = [simulated_step_statistics(known[s][0], known[s][1:]) if s in known else
+             simulated_step_statistics(simulate_walking(s, WalkingScenarioConfig(gait="pendulum"))) for s in seeds]
+    result = {"pendulum_gait": pooled(walks)}
     folder = Path(hapt_dir or DEFAULT_DIR)
     if folder.is_dir():
         result["hapt"] = pooled([labelled_step_statistics(session) for _, session in hapt_sessions(folder)])

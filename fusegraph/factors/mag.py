@@ -160,6 +160,7 @@ class HardIron:
         self._vector = forget * self._vector + np.r_[R @ m, m]
         self._square = forget * self._square + residual
         self.trusted = False
+        self.bias = np.zeros(3)
         if theta is not None:
             tolerance = self.noise.hard_iron_fit
             field = theta[:3]  # the Earth's part in the world: must be the reference field (norm and dip), else no carried magnet
@@ -171,7 +172,8 @@ class HardIron:
             # observability of b: its information once the field's is eliminated, per reading: 1 - (largest singular value
             # of the memory's mean rotation)^2 (0 without a turn)
             self.trusted = fits and 1.0 - float(np.linalg.norm(self._rotations / self._weight, 2)) ** 2 > self._MIN_SPREAD
-        self.bias = np.asarray(theta[3:], dtype=float) if self.trusted and theta is not None else np.zeros(3)
+            if self.trusted:
+                self.bias = theta[3:]
         return m - self.bias
 
 

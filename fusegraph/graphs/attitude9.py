@@ -138,8 +138,12 @@ def mag_noise_tuned(study: str) -> MagNoise:
     """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``), with the
     hard-iron model its ``broad_hard_iron`` study chose (``broad_hard_iron_batch``), once that study has run."""
     noise = mag_noise_from(tuned(study))
-    hard_iron = study.replace("broad_mag", "broad_hard_iron")
-    return with_hard_iron(noise, tuned(hard_iron)) if hard_iron != study and hard_iron in tuned_studies() else noise
+    hard_iron = HARD_IRON_STUDY.get(study)
+    return with_hard_iron(noise, tuned(hard_iron)) if hard_iron in tuned_studies() else noise
+
+
+HARD_IRON_STUDY = {"broad_mag": "broad_hard_iron", "broad_mag_batch": "broad_hard_iron_batch"}
+"""The hard-iron study that goes with each magnetometer study (the same estimate)."""
 
 
 @dataclass(frozen=True)
