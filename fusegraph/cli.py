@@ -232,7 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     tun.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml, which the reports and benches read")
     tun.add_argument("--sessions", nargs="+", type=Path, default=[], metavar="DIR",
                      help="BROAD studies: choose on these sessions (or folders of them, e.g. imported trials) by leave-one-recording-out")
-    tun.add_argument("--workers", type=int, default=1, help="processes scoring the grid: a simulated study's settings, or BROAD's trials (default 1)")
+    tun.add_argument("--workers", type=int, default=1, help="processes: a simulated study's settings, BROAD's trials or the UWB runs (default 1)")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
                          description="Read each declared input from an LSL stream (sample times from LSL's clock, moved onto this machine's "

@@ -55,6 +55,36 @@ def assign_receivers(ranges: list[FloatArray], predicted_m: FloatArray, sigma_m:
     return np.concatenate([_assign(chi2[end - m:end], gate_chi2) for m, end in zip(counts, ends, strict=True)])
 
 
+def swap_probability(z_a: FloatArray, z_b: FloatArray, predicted_i: FloatArray, predicted_j: FloatArray, sigma_i: FloatArray | float,
+                     sigma_j: FloatArray | float) -> FloatArray:
+    """Probability that two distances at one receiver, assigned a -> track i and b -> track j, belong the other way round
+    (the two-way mixture of Gaussian range errors, equal priors)."""
+    keep = ((z_a - predicted_i) / sigma_i) ** 2 + ((z_b - predicted_j) / sigma_j) ** 2
+    swap = ((z_a - predicted_j) / sigma_j) ** 2 + ((z_b - predicted_i) / sigma_i) ** 2
+    return np.asarray(1.0 / (1.0 + np.exp(np.clip(0.5 * (swap - keep), -50.0, 50.0))))
+
+
+def share_swaps(receiver_of: np.ndarray, track_of: np.ndarray, z_m: FloatArray, predicted_m: FloatArray,
+                sigma_m: float) -> tuple[np.ndarray, np.ndarray, FloatArray, FloatArray]:
+    """Assigned distances with the swaps they may hide: neighbouring distances at a receiver (in distance order) given to
+    tracks i and j could be the other way round; with the probability q of the swap (``swap_probability`` against
+    ``predicted_m``, (tracks, receivers)) each track weighs its own distance by 1 - q and the neighbour's by q (the EM
+    weights of the two-way mixture). Returns (receiver, track, distance, weight) per row: the given rows first (sorted),
+    then the shared ones with q above 1e-4."""
+    order = np.lexsort((z_m, receiver_of))
+    receiver_of, track_of, z_m = receiver_of[order], track_of[order], z_m[order]
+    first = np.nonzero(receiver_of[:-1] == receiver_of[1:])[0]
+    r, i, j = receiver_of[first], track_of[first], track_of[first + 1]
+    z_a, z_b = z_m[first], z_m[first + 1]
+    q = swap_probability(z_a, z_b, predicted_m[i, r], predicted_m[j, r], sigma_m, sigma_m)
+    own = np.ones(len(z_m))
+    np.subtract.at(own, first, q)
+    np.subtract.at(own, first + 1, q)
+    real = q > 1e-4  # the rest carry no information
+    return (np.r_[receiver_of, r[real], r[real]], np.r_[track_of, i[real], j[real]], np.r_[z_m, z_b[real], z_a[real]],
+            np.r_[np.clip(own, 0.0, 1.0), q[real], q[real]])
+
+
 def trilaterate(centres: FloatArray, radii: FloatArray, below: bool = True) -> tuple[FloatArray, np.ndarray]:
     """Points at distances ``radii`` (K, 3) from three ``centres`` (3, 3); the solution below their plane.
 

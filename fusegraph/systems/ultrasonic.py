@@ -22,7 +22,7 @@ import gtsam
 import numpy as np
 
 from ..factors.linear import robust
-from ..frontends.association import assign_receivers, locate
+from ..frontends.association import assign_receivers, locate, swap_probability
 from ..geometry import FloatArray
 from ..records import RangeEpochs
 from ..solvers.multiple_model import REST, MotionModes, PointBank, Prediction
@@ -167,9 +167,7 @@ class UltrasonicTracker:
             pair = receiver_of[a] == receiver_of[b]
             a, b, first = a[pair], b[pair], np.nonzero(pair)[0]
             r, i, j = receiver_of[a], label_of[a], label_of[b]
-            keep = ((z_all[a] - rho[r, i]) / sigma[r, i]) ** 2 + ((z_all[b] - rho[r, j]) / sigma[r, j]) ** 2
-            swap = ((z_all[a] - rho[r, j]) / sigma[r, j]) ** 2 + ((z_all[b] - rho[r, i]) / sigma[r, i]) ** 2
-            q = 1.0 / (1.0 + np.exp(np.clip(0.5 * (swap - keep), -50.0, 50.0)))
+            q = swap_probability(z_all[a], z_all[b], rho[r, i], rho[r, j], sigma[r, i], sigma[r, j])
             own_weight[first] -= q
             own_weight[first + 1] -= q
             real = q > 1e-4  # the rest carry no information: left out of the tables
