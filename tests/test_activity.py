@@ -38,6 +38,23 @@ def test_context_stays_inside_a_bout() -> None:
     np.testing.assert_allclose(in_context(log_p, t, 0), log_p)
 
 
+def test_a_causal_classification_does_not_read_the_future() -> None:
+    """``classify(causal=True)`` (what the online walking solver takes): the calls of the first k cycles are the same
+    whether the recording stops there or goes on; the offline calls (the recording's median, context either side) do
+    read later cycles. Seeded features that shift halfway (so the recording's median moves)."""
+    model = load_model()
+    rng = np.random.default_rng(0)
+    n = len(FEATURES) // 2
+    base = rng.normal(size=(60, n)) * 0.3
+    base[30:] += 2.0 * (np.abs(rng.normal(size=n)) + 0.5)
+    t = np.arange(60) * 0.55
+    whole = model.classify(base, t, causal=True)
+    for k in (5, 20, 41):
+        assert model.classify(base[:k], t[:k], causal=True) == whole[:k]
+    offline = [model.classify(base[:k], t[:k]) == model.classify(base, t)[:k] for k in (5, 20, 41)]
+    assert not all(offline)  # a guard that the check above can fail
+
+
 def test_scoring_counts_each_cycle_against_its_segment() -> None:
     """Constructed labels: 4 flat cycles (3 called right), 2 up (1), 1 down (1), 1 cycle while sitting over 30 s."""
     labels = np.array([1, 1, 1, 1, 2, 2, 3, 4])

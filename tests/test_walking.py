@@ -258,17 +258,15 @@ def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
     misses are fast walking, above 1.4 m/s, called stairs down), stairs up 100 %, down 100 %: the
     floors guard against a regression; the paper's rules call flat walking stairs (under 1 % flat)."""
     from fusegraph.evaluation.walking import calibrated_speed_model, confusion
-    from fusegraph.frontends.activity import with_activity
-    from fusegraph.frontends.pdr import gravity_filter
+    from fusegraph.frontends.pdr import detect_cycles
     from fusegraph.scenarios.walking import WalkingScenarioConfig
     from fusegraph.systems.walking import WAIST, analyse
 
     config = WalkingScenarioConfig(gait="pendulum")
     walk = simulate_walking(1, config)
-    cycles, rides, _ = analyse(walk, calibrated_speed_model(1, config))
-    gravity = gravity_filter(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST)
-    ours = confusion(walk, with_activity(walk.t, walk.accel_m_s2, walk.gyro_rad_s, gravity, cycles), rides)
-    rules = confusion(walk, cycles, rides)
+    cycles, rides, _ = analyse(walk, calibrated_speed_model(1, config))  # the walking graph's steps: the classifier's activities
+    ours = confusion(walk, cycles, rides)
+    rules = confusion(walk, detect_cycles(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST), rides)
 
     def correct(table: dict[str, dict[str, int]], activity: str) -> float:  # of the cycles found
         return table[activity].get(activity, 0) / (sum(table[activity].values()) - table[activity].get("none", 0))

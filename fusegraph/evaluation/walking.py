@@ -30,36 +30,37 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     per-step statistics beside UCI HAPT's real waists, ``hapt_dir`` or ../shared/data/hapt)."""
     from . import plaza as plaza_system
 
-    # the activity confusion on the independent (pendulum) gait, whose signals do not follow the paper's rules: fusegraph's
-    # waist classifier (trained on real waists, frontends.activity) and the paper's rules beside; the first generator's
-    # figure (the paper's rules, which the walk's positioning runs take) beside them, and the positioning runs on its walk
-    # (no steps become odometry here: the detectors and the classifier share one run of the gravity filter, a per-sample loop)
+    # the pendulum gait (checked against real waists): the activity confusion of fusegraph's waist classifier (trained on
+    # real waists, frontends.activity), which the walking graph takes (offline for batch, causal for the other methods),
+    # with the paper's rules beside; the positioning runs on it are the headline, the first generator's beside them
+    # (the detectors and the classifier share one run of the gravity filter, a per-sample loop)
     independent = simulate_walking(seed, WalkingScenarioConfig(gait="pendulum"))
     t, accel, gyro = independent.t, independent.accel_m_s2, independent.gyro_rad_s
     gravity = gravity_filter(t, accel, gyro, WAIST)
     independent_cycles = detect_cycles(t, accel, gyro, WAIST, gravity)
     independent_rides = detect_rides(t, accel, gyro, independent_cycles, WAIST, gravity)
-    classified = with_activity(t, accel, gyro, gravity, independent_cycles)
+    classified, live = (with_activity(t, accel, gyro, gravity, independent_cycles, causal=c) for c in (False, True))
+    pendulum_speed = calibrated_speed_model(seed, WalkingScenarioConfig(gait="pendulum"))
+    events, live_events = (events_from(c, independent_rides, pendulum_speed, independent.building) for c in (classified, live))
     session = simulate_walking(seed)
     speed = calibrated_speed_model(seed)
-    cycles, rides, events = analyse(session, speed)
+    cycles, rides, signature_events = analyse(session, speed)
+    signature_live = analyse(session, speed, causal=True)[2]
     out: dict[str, object] = {"confusion": confusion(independent, classified, independent_rides),
+                              "confusion_causal": confusion(independent, live, independent_rides),
                               "confusion_paper_rules": confusion(independent, independent_cycles, independent_rides),
                               "confusion_signature_gait": confusion(session, cycles, rides),
-                              "speed_model": {"intercept_m_s": speed.intercept_m_s, "slope_s": speed.slope_s}}
-    for key, fixes in (("walking", session.fixes.pose), ("walking_no_wrong_fixes", session.fixes.correct_pose)):
-        runs = run_all(session, events, fixes)
-        out[key] = {name: {**score(run, session), "seconds": run.seconds} for name, run in runs.items()}
+                              "speed_model": {"intercept_m_s": pendulum_speed.intercept_m_s, "slope_s": pendulum_speed.slope_s}}
+    for key, fixes in (("walking", independent.fixes.pose), ("walking_no_wrong_fixes", independent.fixes.correct_pose)):
+        runs = run_all(independent, events, fixes, live_events)
+        out[key] = {name: {**score(run, independent), "seconds": run.seconds} for name, run in runs.items()}
         if plot is not None and key == "walking":
-            plot_walk(session, runs, plot)
-    # the same runs on the pendulum gait, its steps' activities from fusegraph's classifier (the stairs factors take them)
-    pendulum_events = events_from(classified, independent_rides, calibrated_speed_model(seed, WalkingScenarioConfig(gait="pendulum")),
-                                  independent.building)
-    out["walking_pendulum_gait"] = {name: {**score(run, independent), "seconds": run.seconds}
-                                    for name, run in run_all(independent, pendulum_events, independent.fixes.pose).items()}
-    out["walking_info"] = {"duration_s": float(session.t[-1]), "steps_true": len(session.step_t), "cycles_detected": len(cycles),
-                           "rides_true": len(session.rides), "rides_detected": len(rides), "fixes": len(session.fixes.t),
-                           "wrong_fixes": int(session.fixes.wrong.sum())}
+            plot_walk(independent, runs, plot)
+    out["walking_signature_gait"] = {name: {**score(run, session), "seconds": run.seconds}
+                                     for name, run in run_all(session, signature_events, session.fixes.pose, signature_live).items()}
+    out["walking_info"] = {"duration_s": float(independent.t[-1]), "steps_true": len(independent.step_t), "cycles_detected": len(classified),
+                           "rides_true": len(independent.rides), "rides_detected": len(independent_rides), "fixes": len(independent.fixes.t),
+                           "wrong_fixes": int(independent.fixes.wrong.sum())}
     steps = step_rows(hapt_dir=hapt_dir, known={seed: (independent, gravity, independent_cycles)})
     out["gait_statistics"] = gait_statistics(steps)
     if plot is not None:

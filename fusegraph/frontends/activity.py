@@ -123,11 +123,16 @@ def _corr(a: FloatArray, b: FloatArray) -> float:
     return float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb)) if sa > 0 and sb > 0 else 0.0
 
 
-def with_reference(base: FloatArray) -> FloatArray:
+def with_reference(base: FloatArray, causal: bool = False) -> FloatArray:
     """``FEATURES`` from ``BASE_FEATURES`` of ONE recording's cycles: each also as its difference from the recording's
-    median (the person's own reference; offline: it needs the whole recording)."""
+    median (the person's own reference; offline: it needs the whole recording). ``causal``: from the median of the
+    cycles so far instead (what a live estimate can know)."""
     base = np.nan_to_num(np.asarray(base, dtype=float))
-    median = np.median(base, axis=0) if len(base) else np.zeros(base.shape[1])
+    median: FloatArray
+    if causal:
+        median = np.array([np.median(base[: k + 1], axis=0) for k in range(len(base))]).reshape(base.shape)
+    else:
+        median = np.median(base, axis=0) if len(base) else np.zeros(base.shape[1])
     return np.hstack([base, base - median])
 
 
@@ -137,8 +142,9 @@ def bouts(cycle_t: FloatArray) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(np.diff(cycle_t) > BOUT_GAP_S)]).astype(int) if len(cycle_t) else np.zeros(0, dtype=int)
 
 
-def in_context(log_proba: FloatArray, cycle_t: FloatArray, context_cycles: int) -> FloatArray:
-    """Each cycle's mean log-probability over ``context_cycles`` cycles either side inside its bout."""
+def in_context(log_proba: FloatArray, cycle_t: FloatArray, context_cycles: int, causal: bool = False) -> FloatArray:
+    """Each cycle's mean log-probability over ``context_cycles`` cycles either side inside its bout (``causal``: the
+    cycle and the ``context_cycles`` before it)."""
     if context_cycles <= 0 or not len(log_proba):
         return log_proba
     out = np.empty_like(log_proba)
@@ -147,7 +153,7 @@ def in_context(log_proba: FloatArray, cycle_t: FloatArray, context_cycles: int) 
         idx = np.flatnonzero(labels == bout)
         cumulative = np.vstack([np.zeros(log_proba.shape[1]), np.cumsum(log_proba[idx], axis=0)])
         lo = np.clip(np.arange(len(idx)) - context_cycles, 0, len(idx))
-        hi = np.clip(np.arange(len(idx)) + context_cycles + 1, 0, len(idx))
+        hi = np.clip(np.arange(len(idx)) + (1 if causal else context_cycles + 1), 0, len(idx))
         out[idx] = (cumulative[hi] - cumulative[lo]) / (hi - lo)[:, None]
     return out
 
@@ -207,11 +213,12 @@ class ActivityModel:
         raw -= raw.max(axis=1, keepdims=True)
         return raw - np.log(np.exp(raw).sum(axis=1, keepdims=True))
 
-    def classify(self, base: FloatArray, cycle_t: FloatArray) -> list[str]:
-        """The activity of each cycle of ONE recording from its ``cycle_features`` and times."""
+    def classify(self, base: FloatArray, cycle_t: FloatArray, causal: bool = False) -> list[str]:
+        """The activity of each cycle of ONE recording from its ``cycle_features`` and times (``causal``: from the cycles
+        up to each one only: the reference and the context of a live estimate)."""
         if not len(base):
             return []
-        scores = in_context(self.log_proba(with_reference(base)), cycle_t, self.context_cycles)
+        scores = in_context(self.log_proba(with_reference(base, causal)), cycle_t, self.context_cycles, causal)
         return [self.classes[k] for k in scores.argmax(axis=1)]
 
     def as_json(self) -> dict[str, Any]:
@@ -248,20 +255,21 @@ def _read_model(path: Path, mtime_ns: int) -> ActivityModel:
 
 
 def with_activity(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, gravity: FloatArray, cycles: Sequence[Cycle],
-                  model: ActivityModel | None = None) -> list[Cycle]:
+                  model: ActivityModel | None = None, causal: bool = False) -> list[Cycle]:
     """The cycles with each one's activity by ``model`` (default: the model on main) instead of the paper's rules
-    (``Cycle.activity`` as ``pdr.detect_cycles`` gives it); ``gravity`` the gravity filter's output the cycles came from."""
+    (``Cycle.activity`` as ``pdr.detect_cycles`` gives it); ``gravity`` the gravity filter's output the cycles came from;
+    ``causal``: each cycle classified from the cycles up to it (``ActivityModel.classify``)."""
     from dataclasses import replace
 
-    calls, _ = _classified(t, accel_m_s2, gyro_rad_s, gravity, cycles, model)
+    calls, _ = _classified(t, accel_m_s2, gyro_rad_s, gravity, cycles, model, causal)
     return [replace(c, activity=call) for c, call in zip(cycles, calls, strict=True)]
 
 
 def _classified(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, gravity: FloatArray, cycles: Sequence[Cycle],
-                model: ActivityModel | None) -> tuple[list[str], FloatArray]:
+                model: ActivityModel | None, causal: bool = False) -> tuple[list[str], FloatArray]:
     """Each cycle's activity by ``model`` (default: the model on main) and the cycles' ``BASE_FEATURES``."""
     base = cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles)
-    return (model or load_model()).classify(base, np.array([c.t for c in cycles])), base
+    return (model or load_model()).classify(base, np.array([c.t for c in cycles]), causal), base
 
 
 def classify_waist(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, config: PdrConfig,

@@ -55,9 +55,10 @@ def format_walking_table(result: dict[str, object]) -> str:
     """The bench's tables as text."""
     lines = []
     cols = [*ACTIVITIES, "none"]
-    for key, title in (("confusion", "independent (pendulum) gait by fusegraph's waist classifier"),
+    for key, title in (("confusion", "independent (pendulum) gait by fusegraph's waist classifier, which the walk's graph takes"),
+                       ("confusion_causal", "independent (pendulum) gait by the classifier run causally (the online, EKF and dead reckoning's steps)"),
                        ("confusion_paper_rules", "independent (pendulum) gait by the paper's rules"),
-                       ("confusion_signature_gait", "signature gait (the first generator) by the paper's rules, which the walk's graph takes")):
+                       ("confusion_signature_gait", "signature gait (the first generator) by fusegraph's waist classifier")):
         conf = result.get(key)
         if not isinstance(conf, dict):
             continue
@@ -79,17 +80,17 @@ def format_walking_table(result: dict[str, object]) -> str:
                     lines.append(f"{a + ' ' + source:26s}{int(r['steps']):7d}{100 * r['excursion_m']:14.1f}{r['vertical_rms_m_s2']:16.2f}"
                                  f"{r['vertical_to_horizontal']:14.2f}{r['duration_s']:12.2f}{r['vertical_pitch_corr']:13.2f}")
         lines.append("")
-    for key, title in (("walking", "walking (20% wrong fixes)"), ("walking_no_wrong_fixes", "walking (every fix correct)"),
-                       ("walking_pendulum_gait", "pendulum gait (20% wrong fixes)")):
+    for key, title in (("walking", "walking, pendulum gait (20% wrong fixes)"), ("walking_no_wrong_fixes", "walking, pendulum gait (every fix correct)"),
+                       ("walking_signature_gait", "signature gait (20% wrong fixes)")):
         if key not in result:
             continue
         table = result[key]
         assert isinstance(table, dict)
         lines.append("")
-        lines.append(f"{title:34s}{'rmse_m':>10s}{'final_m':>10s}{'seconds':>10s}")
+        lines.append(f"{title:44s}{'rmse_m':>10s}{'final_m':>10s}{'seconds':>10s}")
         for name in METHODS:
             r = table[name]
-            lines.append(f"{name:34s}{r['rmse_m']:10.2f}{r['final_error_m']:10.2f}{r['seconds']:10.2f}")
+            lines.append(f"{name:44s}{r['rmse_m']:10.2f}{r['final_error_m']:10.2f}{r['seconds']:10.2f}")
     walking, clean = result["walking"], result["walking_no_wrong_fixes"]
     assert isinstance(walking, dict) and isinstance(clean, dict)
     lines.append(f"batch rmse with wrong fixes / without: {walking['batch']['rmse_m'] / clean['batch']['rmse_m']:.2f}")

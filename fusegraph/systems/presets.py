@@ -270,7 +270,7 @@ def _walking_run(session: Session, solver: str) -> Result:
                            "recording) is counted with --solver steps; the trajectory solvers need the waist gyro (or wheel_odometry)")
     else:
         walk, speed = walking.from_session(session)
-        cycles, rides, events = walking.analyse(walk, speed)
+        cycles, rides, events = walking.analyse(walk, speed, causal=solver != "batch")  # the causal solvers classify causally
     if solver == "dead_reckoning":
         run = walking.run_dead_reckoning(walk, events)
     else:

@@ -1,11 +1,11 @@
 """Pedestrian positioning over floors: PDR steps as odometry, image fixes, elevator map constraints.
 
-Front end (``frontends.pdr``) -> one odometry factor per detected step (stride in the direction of
-travel, gyro heading change, a riser up or down for a stair step) and one per elevator ride (the
-floors it moved, from the double-integrated vertical acceleration), image-match fixes as robust
-pose priors, and the map constraint that a ride ends in the elevator. Methods on the same
-measurements: dead reckoning (steps and rides only), the paper's Kalman framework (EKF on
-x, y, z, heading; fixes gated by their innovation), iSAM2 online (causal) and batch.
+Front end (``frontends.pdr``; each step's activity by the waist classifier, ``frontends.activity``) -> one odometry
+factor per detected step (stride in the direction of travel, gyro heading change, a riser up or down for a stair step)
+and one per elevator ride (the floors it moved, from the double-integrated vertical acceleration), image-match fixes as
+robust pose priors, and the map constraint that a ride ends in the elevator. Methods on the same measurements: dead
+reckoning (steps and rides only), the paper's Kalman framework (EKF on x, y, z, heading; fixes gated by their
+innovation), iSAM2 online (causal: the steps classified causally too) and batch.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from scipy.stats import chi2
 
 from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose, odometry_sigmas
 from ..factors.ranging import BeaconRanges, beacon_ranges_from
+from ..frontends.activity import with_activity
 from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, gravity_filter
 from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule, start_from_ranges
@@ -47,11 +48,11 @@ ELEVATOR_SIGMAS_M = np.array([0.7, 0.7, 50.0])
 START_SIGMAS = np.array([1e-3, 1e-3, math.radians(2.0), 0.2, 0.2, 0.05])
 """The start pose is known (the entrance)."""
 ONLINE = OnlineConfig(window_s=30.0, reanchor_every=100, relinearize_threshold=0.05, covariance=False)
+"""iSAM2 keeps the last 30 s as variables (a wrong fix can still be outvoted), re-anchors every 100 steps."""
 VEHICLE_ONLINE = OnlineConfig(window_s=5.0, reanchor_every=50, relinearize_threshold=0.05, covariance=False)
 """A session driven by wheel odometry (a state every 0.1-0.2 s, Plaza): iSAM2 keeps the last 5 s as variables and
 re-anchors every 50 states (5-10 s): iSAM2 hands every Python range factor a copy of all its variables, so a small
 window is what keeps it fast (the 30 s step window: Plaza2 42x real time against 123x)."""
-"""iSAM2 keeps the last 30 s as variables (a wrong fix can still be outvoted), re-anchors every 100 steps."""
 WAIST = PdrConfig()
 """Front-end settings for the waist IMU."""
 METHODS = ("dead_reckoning", "ekf", "online", "batch")
@@ -253,11 +254,13 @@ def score_xyz(run: WalkRun, truth_t: FloatArray, truth_xyz_m: FloatArray) -> dic
     return {"rmse_m": float(np.sqrt(np.mean(err**2))), "final_error_m": end_error}
 
 
-def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIST) -> tuple[list[Cycle], list[Ride], list[Event]]:
-    # the gravity filter is a per-sample loop: run once for both detectors
+def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIST, causal: bool = False) -> tuple[list[Cycle], list[Ride], list[Event]]:
+    """Steps, rides, their odometry; each step's activity by the waist classifier (``frontends.activity``; ``causal``: from the
+    steps up to it), so a floor change comes from detected stairs. One gravity filter (a per-sample loop) serves all."""
     gravity = gravity_filter(session.t, session.accel_m_s2, session.gyro_rad_s, config)
-    cycles = detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config, gravity)
-    rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, cycles, config, gravity)
+    found = detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config, gravity)
+    rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, found, config, gravity)
+    cycles = with_activity(session.t, session.accel_m_s2, session.gyro_rad_s, gravity, found, causal=causal)
     return cycles, rides, events_from(cycles, rides, speed, session.building)
 
 
@@ -344,10 +347,8 @@ def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
     return walk, speed
 
 
-def run_all(session: WalkingSession, events: list[Event], fixes: FloatArray) -> dict[str, WalkRun]:
-    return {
-        "dead_reckoning": run_dead_reckoning(session, events),
-        "ekf": run_ekf(session, events, fixes),
-        "online": run_online(session, events, fixes),
-        "batch": run_batch(session, events, fixes),
-    }
+def run_all(session: WalkingSession, events: list[Event], fixes: FloatArray, live: list[Event] | None = None) -> dict[str, WalkRun]:
+    """Every method; ``live``: the steps as a causal estimate classifies them (``analyse(causal=True)``), for all but batch."""
+    live = events if live is None else live
+    return {"dead_reckoning": run_dead_reckoning(session, live), "ekf": run_ekf(session, live, fixes), "online": run_online(session, live, fixes),
+            "batch": run_batch(session, events, fixes)}
