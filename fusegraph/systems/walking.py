@@ -39,7 +39,7 @@ RIDE_NOISE = OdometryNoise(floor_m=0.2, yaw_rad=math.radians(1.0), vertical_m=0.
 FIX_NOISE = FixNoise(position_m=0.5, heading_rad=math.radians(5.0), height_m=0.3, kernel="cauchy", kernel_width=float(value("walking_fixes", "kernel_width")))
 """An image-match fix, Cauchy-robust (a fifth of them are wrong by metres). The kernel is wide (after 20 s of steps a
 correct fix is often 3 m from the prediction, and a 1-sigma kernel threw those away too): its width is chosen with the
-rejection threshold by ``fusegraph tune walking_fixes`` on tuning seeds (``tuned.toml``)."""
+rejection threshold by ``fusegraph tune walking_fixes`` on the pendulum gait's tuning seeds (``tuned.toml``)."""
 REJECT_SIGMAS = float(value("walking_fixes", "reject_sigmas"))
 """Batch: a fix further than this many position sigmas from the robust solution is dropped and the graph solved
 again (the same study)."""
