@@ -55,6 +55,15 @@ def test_a_causal_classification_does_not_read_the_future() -> None:
     assert not all(offline)  # a guard that the check above can fail
 
 
+def test_the_expanding_median_is_numpys_median_of_each_prefix() -> None:
+    """``expanding_median`` (the causal reference, kept sorted as cycles arrive) equals numpy's median of rows 0..k, odd
+    and even counts, ties included (exactly: the same floats are picked or averaged)."""
+    from fusegraph.frontends.activity import expanding_median
+
+    x = np.round(np.random.default_rng(5).normal(size=(101, 4)), 1)  # rounded: many ties
+    np.testing.assert_array_equal(expanding_median(x), np.array([np.median(x[: k + 1], axis=0) for k in range(len(x))]))
+
+
 def test_scoring_counts_each_cycle_against_its_segment() -> None:
     """Constructed labels: 4 flat cycles (3 called right), 2 up (1), 1 down (1), 1 cycle while sitting over 30 s."""
     labels = np.array([1, 1, 1, 1, 2, 2, 3, 4])

@@ -19,6 +19,7 @@ the log-probabilities over ``context_cycles`` cycles either side within its bout
 
 from __future__ import annotations
 
+import bisect
 import functools
 import json
 import math
@@ -128,12 +129,21 @@ def with_reference(base: FloatArray, causal: bool = False) -> FloatArray:
     median (the person's own reference; offline: it needs the whole recording). ``causal``: from the median of the
     cycles so far instead (what a live estimate can know)."""
     base = np.nan_to_num(np.asarray(base, dtype=float))
-    median: FloatArray
-    if causal:
-        median = np.array([np.median(base[: k + 1], axis=0) for k in range(len(base))]).reshape(base.shape)
-    else:
-        median = np.median(base, axis=0) if len(base) else np.zeros(base.shape[1])
+    median: FloatArray = expanding_median(base) if causal else (np.median(base, axis=0) if len(base) else np.zeros(base.shape[1]))
     return np.hstack([base, base - median])
+
+
+def expanding_median(x: FloatArray) -> FloatArray:
+    """Row k: the column-wise median of rows 0..k (each column kept sorted as rows arrive: O(n) per row, not a sort)."""
+    out = np.empty_like(x, dtype=float)
+    columns: list[list[float]] = [[] for _ in range(x.shape[1])]
+    for k, row in enumerate(np.asarray(x, dtype=float)):
+        half = k // 2
+        for j, value in enumerate(row):
+            bisect.insort(columns[j], float(value))
+            column = columns[j]
+            out[k, j] = column[half] if k % 2 == 0 else 0.5 * (column[half] + column[half + 1])
+    return out
 
 
 def bouts(cycle_t: FloatArray) -> np.ndarray:
