@@ -8,12 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from ..datasets import steps_oxford
-from ..frontends.activity import with_activity
-from ..frontends.pdr import Cycle, Ride, SpeedModel, detect_cycles, detect_rides, fit_speed_model, gravity_filter
+from ..frontends.pdr import Cycle, Ride, SpeedModel, detect_cycles, fit_speed_model, gravity_filter
 from ..records import ACTIVITIES, WalkingSession
 from ..report.walking import plot_gait_statistics, plot_walk
 from ..scenarios.walking import WalkingScenarioConfig, simulate_calibration_walk, simulate_walking
-from ..systems.walking import WAIST, analyse, events_from, run_all, score
+from ..systems.walking import WAIST, analyse, run_all, score
 from .activity import STEP_STATISTICS
 from .runner import report_sessions
 
@@ -24,6 +23,12 @@ def calibrated_speed_model(seed: int, config: WalkingScenarioConfig | None = Non
     return fit_speed_model(detect_cycles(calibration.t, calibration.accel_m_s2, calibration.gyro_rad_s, WAIST), calibration.bouts)
 
 
+def _front_end(walk: WalkingSession) -> tuple[np.ndarray, list[Cycle]]:
+    """The walking preset's gravity filter and its cycles (``walking.analyse``'s ``front``)."""
+    gravity = gravity_filter(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST)
+    return gravity, detect_cycles(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST, gravity)
+
+
 def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None,
                   hapt_dir: Path | None = None) -> dict[str, object]:
     """Everything ``fusegraph bench walking`` prints, in the issue's JSON shape (``gait_statistics``: the pendulum gait's
@@ -32,20 +37,17 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
 
     # the pendulum gait (checked against real waists): the activity confusion of fusegraph's waist classifier (trained on
     # real waists, frontends.activity), which the walking graph takes (offline for batch, causal for the other methods),
-    # with the paper's rules beside; the positioning runs on it are the headline, the first generator's beside them
-    # (the detectors and the classifier share one run of the gravity filter, a per-sample loop)
+    # with the paper's rules beside; the positioning runs on it are the headline, the first generator's beside them.
+    # One front end per walk (the gravity filter is a per-sample loop) serves both classifications and the statistics.
     independent = simulate_walking(seed, WalkingScenarioConfig(gait="pendulum"))
-    t, accel, gyro = independent.t, independent.accel_m_s2, independent.gyro_rad_s
-    gravity = gravity_filter(t, accel, gyro, WAIST)
-    independent_cycles = detect_cycles(t, accel, gyro, WAIST, gravity)
-    independent_rides = detect_rides(t, accel, gyro, independent_cycles, WAIST, gravity)
-    classified, live = (with_activity(t, accel, gyro, gravity, independent_cycles, causal=c) for c in (False, True))
     pendulum_speed = calibrated_speed_model(seed, WalkingScenarioConfig(gait="pendulum"))
-    events, live_events = (events_from(c, independent_rides, pendulum_speed, independent.building) for c in (classified, live))
+    gravity, independent_cycles = front = _front_end(independent)
+    (classified, independent_rides, events), (live, _, live_events) = (analyse(independent, pendulum_speed, causal=c, front=front)
+                                                                        for c in (False, True))
     session = simulate_walking(seed)
     speed = calibrated_speed_model(seed)
-    cycles, rides, signature_events = analyse(session, speed)
-    signature_live = analyse(session, speed, causal=True)[2]
+    signature_front = _front_end(session)
+    (cycles, rides, signature_events), (_, _, signature_live) = (analyse(session, speed, causal=c, front=signature_front) for c in (False, True))
     out: dict[str, object] = {"confusion": confusion(independent, classified, independent_rides),
                               "confusion_causal": confusion(independent, live, independent_rides),
                               "confusion_paper_rules": confusion(independent, independent_cycles, independent_rides),

@@ -171,12 +171,11 @@ class UwbTracker:
         n_anchor = len(self.anchors)
         F, W = _state_motion(dt, cfg.accel_psd, cfg.turn_psd, cfg.bias_walk_m_sqrt_s, n_anchor * self._bias_tags)
         pred = F @ self.x
-        labels = np.full(ranges.shape, -1)
-        sigma_assoc = cfg.assoc_sigma_m or 2 * cfg.range_sigma_m
-        predicted = self._scale.T * self._predicted_ranges(self.tag_xy(pred)) + pred[6:].reshape(n_anchor, self._bias_tags).T  # (T, A)
+        labels, sigma_assoc = np.full(ranges.shape, -1), cfg.assoc_sigma_m or 2 * cfg.range_sigma_m
         if labelled:
             labels[np.isfinite(ranges)] = np.broadcast_to(np.arange(self.tags), ranges.shape)[np.isfinite(ranges)]
-        else:
+        else:  # the ranges the prediction expects per tag and anchor (T, A): the assignment's and the soft pairs'
+            predicted = self._scale.T * self._predicted_ranges(self.tag_xy(pred)) + pred[6:].reshape(n_anchor, self._bias_tags).T
             for a in range(n_anchor):
                 heard = np.isfinite(ranges[a])
                 labels[a, np.nonzero(heard)[0]] = assign_ranges(ranges[a][heard], predicted[:, a], np.full(self.tags, sigma_assoc), cfg.gate_chi2)

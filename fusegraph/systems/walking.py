@@ -254,11 +254,12 @@ def score_xyz(run: WalkRun, truth_t: FloatArray, truth_xyz_m: FloatArray) -> dic
     return {"rmse_m": float(np.sqrt(np.mean(err**2))), "final_error_m": end_error}
 
 
-def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIST, causal: bool = False) -> tuple[list[Cycle], list[Ride], list[Event]]:
-    """Steps, rides, their odometry; each step's activity by the waist classifier (``frontends.activity``; ``causal``: from the
-    steps up to it), so a floor change comes from detected stairs. One gravity filter (a per-sample loop) serves all."""
-    gravity = gravity_filter(session.t, session.accel_m_s2, session.gyro_rad_s, config)
-    found = detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config, gravity)
+def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIST, causal: bool = False,
+            front: tuple[FloatArray, list[Cycle]] | None = None) -> tuple[list[Cycle], list[Ride], list[Event]]:
+    """Steps (activity by the waist classifier, ``frontends.activity``; ``causal``: from the steps up to it), rides, their
+    odometry. ``front``: the gravity filter's output (a per-sample loop) and its ``detect_cycles`` when the caller has them."""
+    gravity = front[0] if front else gravity_filter(session.t, session.accel_m_s2, session.gyro_rad_s, config)
+    found = front[1] if front else detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config, gravity)
     rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, found, config, gravity)
     cycles = with_activity(session.t, session.accel_m_s2, session.gyro_rad_s, gravity, found, causal=causal)
     return cycles, rides, events_from(cycles, rides, speed, session.building)
