@@ -56,6 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "attitude9 gyro,accel[,mag][,tracker] "
                      "(default gyro,accel,mag); gaze gyro,accel,mag,gaze[,tracker] (tracker = a head attitude tracker); "
                      "walking gyro,accel[,fixes][,beacons] (default gyro,accel,fixes; beacons = UWB ranges to known beacons)")
+    sim.add_argument("--gait", choices=["signature", "pendulum"], help="walking: the gait model (default signature; pendulum: the "
+                     "inverted-pendulum walker checked against real waists, the one bench walking scores)")
     sim.add_argument("--tracker-gap", metavar="START:END", help="head: no tracker samples from START to END seconds, e.g. 30:90")
     sim.add_argument("--transmitters", type=int, metavar="N", help="ultrasonic: transmitters emitting at once (default 3)")
     sim.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency, seconds (default 0.1)")
@@ -385,10 +387,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     given = {
         "tracker_latency_s": args.latency_true, "tracker_latency_assumed_s": args.latency_assumed,
         "sensors": tuple(x.strip() for x in args.sensors.split(",")) if args.sensors else None,
-        "tracker_gap_s": _gap_arg(args.tracker_gap) if args.tracker_gap else None, "transmitters": args.transmitters,
+        "tracker_gap_s": _gap_arg(args.tracker_gap) if args.tracker_gap else None, "transmitters": args.transmitters, "gait": args.gait,
     }
     flags = {"tracker_latency_s": "--latency-true", "tracker_latency_assumed_s": "--latency-assumed", "sensors": "--sensors",
-             "tracker_gap_s": "--tracker-gap", "transmitters": "--transmitters"}
+             "tracker_gap_s": "--tracker-gap", "transmitters": "--transmitters", "gait": "--gait"}
     for name, value in given.items():
         if value is None:
             continue

@@ -240,13 +240,13 @@ def test_pendulum_gait_moves_like_a_pelvis() -> None:
 def test_bench_confusion_is_scored_on_the_independent_gait() -> None:
     """The detector meets the pendulum gait's walk (its own walker's calibration) and every true activity
     gets a row; how well it does is the bench's figure, not asserted here."""
-    from fusegraph.evaluation.walking import calibrated_speed_model, confusion
-    from fusegraph.scenarios.walking import WalkingScenarioConfig
+    from fusegraph.evaluation.walking import confusion
+    from fusegraph.scenarios.walking import WalkingScenarioConfig, calibrated_speed
     from fusegraph.systems.walking import analyse
 
     config = WalkingScenarioConfig(gait="pendulum")
     walk = simulate_walking(1, config)
-    cycles, rides, _ = analyse(walk, calibrated_speed_model(1, config))
+    cycles, rides, _ = analyse(walk, calibrated_speed(1, config))
     table = confusion(walk, cycles, rides)
     assert set(table) == {"flat", "stairs_up", "stairs_down", "elevator"}
     assert sum(table["flat"].values()) == sum(a == "flat" for a in walk.step_activity)
@@ -257,14 +257,14 @@ def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
     cycles the detector finds (it misses ~1 % of the flat steps), seeds 0 / 1 / 2 measure flat 91 / 92 / 94 % of all flat steps (the
     misses are fast walking, above 1.4 m/s, called stairs down), stairs up 100 %, down 100 %: the
     floors guard against a regression; the paper's rules call flat walking stairs (under 1 % flat)."""
-    from fusegraph.evaluation.walking import calibrated_speed_model, confusion
+    from fusegraph.evaluation.walking import confusion
     from fusegraph.frontends.pdr import detect_cycles
-    from fusegraph.scenarios.walking import WalkingScenarioConfig
+    from fusegraph.scenarios.walking import WalkingScenarioConfig, calibrated_speed
     from fusegraph.systems.walking import WAIST, analyse
 
     config = WalkingScenarioConfig(gait="pendulum")
     walk = simulate_walking(1, config)
-    cycles, rides, _ = analyse(walk, calibrated_speed_model(1, config))  # the walking graph's steps: the classifier's activities
+    cycles, rides, _ = analyse(walk, calibrated_speed(1, config))  # the walking graph's steps: the classifier's activities
     ours = confusion(walk, cycles, rides)
     rules = confusion(walk, detect_cycles(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST), rides)
 
@@ -332,3 +332,21 @@ def test_the_gait_statistics_figure_is_drawn(tmp_path) -> None:  # type: ignore[
     medians = gait_statistics(rows)
     assert medians["hapt"]["flat"]["steps"] == 20
     assert medians["hapt"]["flat"]["excursion_m"] == pytest.approx(float(np.median(rows["hapt"]["flat"][:, 0])))
+
+
+def test_the_bench_walk_is_the_session_simulate_writes_and_correct_fixes_differ_only_where_wrong():
+    """bench walking solves the sessions ``simulate walking --gait pendulum`` writes (the user's path); its clean twin
+    (what wrong fixes cost) changes the fixes that were wrong matches and nothing else."""
+    from fusegraph.scenarios.walking import WalkingScenarioConfig, calibrated_speed, session_of_walk, simulate_walking, walking_session
+
+    config = WalkingScenarioConfig(gait="pendulum")
+    walk = simulate_walking(3, config)
+    ours = session_of_walk(walk, calibrated_speed(3, config), 3)
+    written = walking_session(3, gait="pendulum")
+    for name in ("gyro", "accel", "fixes"):
+        np.testing.assert_array_equal(ours.stream(name).values, written.stream(name).values)
+    assert ours.meta["speed_model"] == written.meta["speed_model"]
+    clean = session_of_walk(walk, calibrated_speed(3, config), 3, correct_fixes=True)
+    moved = np.any(clean.stream("fixes").values != ours.stream("fixes").values, axis=1)
+    assert walk.fixes.wrong.any()
+    np.testing.assert_array_equal(moved, walk.fixes.wrong)

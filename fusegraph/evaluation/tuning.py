@@ -343,13 +343,12 @@ def _simulated(scenario: str, seed: int) -> Any:
         from ..scenarios.head import simulate_head
 
         return simulate_head(seed, duration_s=10.0)
-    from ..scenarios.walking import WalkingScenarioConfig, simulate_walking
+    from ..scenarios.walking import WalkingScenarioConfig, calibrated_speed, simulate_walking
     from ..systems import walking
-    from .walking import calibrated_speed_model
 
     config = WalkingScenarioConfig(gait="pendulum")  # the gait checked against real waists, as bench walking scores
     walk = simulate_walking(seed, config)
-    return walk, walking.analyse(walk, calibrated_speed_model(seed, config))[2]
+    return walk, walking.analyse(walk, calibrated_speed(seed, config))[2]
 
 
 def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:

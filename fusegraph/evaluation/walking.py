@@ -8,25 +8,35 @@ from pathlib import Path
 import numpy as np
 
 from ..datasets import steps_oxford
-from ..frontends.pdr import Cycle, Ride, SpeedModel, detect_cycles, fit_speed_model, gravity_filter
+from ..estimate import PointEstimate
+from ..frontends.pdr import Cycle, Ride, detect_cycles, gravity_filter
 from ..records import ACTIVITIES, WalkingSession
 from ..report.walking import plot_gait_statistics, plot_walk
-from ..scenarios.walking import WalkingScenarioConfig, simulate_calibration_walk, simulate_walking
-from ..systems.walking import WAIST, analyse, run_all, score
+from ..scenarios.walking import WalkingScenarioConfig, calibrated_speed, session_of_walk, simulate_walking
+from ..session import Session
+from ..systems.walking import METHODS, WAIST, WalkRun, analyse
 from .activity import STEP_STATISTICS
-from .runner import report_sessions
-
-
-def calibrated_speed_model(seed: int, config: WalkingScenarioConfig | None = None) -> SpeedModel:
-    """The speed regression fitted on the seed's calibration walk (its own walker, as a user calibrates)."""
-    calibration = simulate_calibration_walk(seed, config=config)
-    return fit_speed_model(detect_cycles(calibration.t, calibration.accel_m_s2, calibration.gyro_rad_s, WAIST), calibration.bouts)
+from .runner import report_sessions, solve_session
 
 
 def _front_end(walk: WalkingSession) -> tuple[np.ndarray, list[Cycle]]:
     """The walking preset's gravity filter and its cycles (``walking.analyse``'s ``front``)."""
     gravity = gravity_filter(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST)
     return gravity, detect_cycles(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST, gravity)
+
+
+def positioning(session: Session) -> tuple[dict[str, dict[str, float]], dict[str, WalkRun]]:
+    """Every positioning solver of the walking preset on the session, each through ``solve_session`` as ``fusegraph
+    run`` runs it (the steps classified inside the solve, causally for all but batch): per solver its metrics and
+    seconds, and its trajectory for the picture."""
+    rows, runs = {}, {}
+    for solver in METHODS:
+        outcome = solve_session(session, solver)
+        estimate = outcome.estimate
+        assert isinstance(estimate, PointEstimate) and outcome.metrics is not None
+        runs[solver] = WalkRun(solver, estimate.t, estimate.points[:, 0, :], estimate.runtime_s)
+        rows[solver] = {**outcome.metrics, "seconds": estimate.runtime_s}
+    return rows, runs
 
 
 def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_DIR, plaza: bool = True, plot: Path | None = None,
@@ -37,29 +47,26 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
 
     # the pendulum gait (checked against real waists): the activity confusion of fusegraph's waist classifier (trained on
     # real waists, frontends.activity), which the walking graph takes (offline for batch, causal for the other methods),
-    # with the paper's rules beside; the positioning runs on it are the headline, the first generator's beside them.
-    # One front end per walk (the gravity filter is a per-sample loop) serves both classifications and the statistics.
-    independent = simulate_walking(seed, WalkingScenarioConfig(gait="pendulum"))
-    pendulum_speed = calibrated_speed_model(seed, WalkingScenarioConfig(gait="pendulum"))
-    gravity, independent_cycles = front = _front_end(independent)
-    (classified, independent_rides, events), (live, _, live_events) = (analyse(independent, pendulum_speed, causal=c, front=front)
-                                                                        for c in (False, True))
+    # with the paper's rules beside; the positioning runs on it (as `simulate walking --gait pendulum` writes the walk and
+    # `run` solves it) are the headline, the first generator's beside them.
+    pendulum = WalkingScenarioConfig(gait="pendulum")
+    independent = simulate_walking(seed, pendulum)
+    pendulum_speed = calibrated_speed(seed, pendulum)
+    gravity, independent_cycles = front = _front_end(independent)  # one front end serves both classifications and the statistics
+    (classified, independent_rides, _), (live, _, _) = (analyse(independent, pendulum_speed, causal=c, front=front) for c in (False, True))
     session = simulate_walking(seed)
-    speed = calibrated_speed_model(seed)
-    signature_front = _front_end(session)
-    (cycles, rides, signature_events), (_, _, signature_live) = (analyse(session, speed, causal=c, front=signature_front) for c in (False, True))
+    speed = calibrated_speed(seed)
+    cycles, rides, _ = analyse(session, speed, front=_front_end(session))
     out: dict[str, object] = {"confusion": confusion(independent, classified, independent_rides),
                               "confusion_causal": confusion(independent, live, independent_rides),
                               "confusion_paper_rules": confusion(independent, independent_cycles, independent_rides),
                               "confusion_signature_gait": confusion(session, cycles, rides),
                               "speed_model": {"intercept_m_s": pendulum_speed.intercept_m_s, "slope_s": pendulum_speed.slope_s}}
-    for key, fixes in (("walking", independent.fixes.pose), ("walking_no_wrong_fixes", independent.fixes.correct_pose)):
-        runs = run_all(independent, events, fixes, live_events)
-        out[key] = {name: {**score(run, independent), "seconds": run.seconds} for name, run in runs.items()}
+    for key, correct in (("walking", False), ("walking_no_wrong_fixes", True)):
+        out[key], runs = positioning(session_of_walk(independent, pendulum_speed, seed, correct_fixes=correct))
         if plot is not None and key == "walking":
             plot_walk(independent, runs, plot)
-    out["walking_signature_gait"] = {name: {**score(run, session), "seconds": run.seconds}
-                                     for name, run in run_all(session, signature_events, session.fixes.pose, signature_live).items()}
+    out["walking_signature_gait"], _ = positioning(session_of_walk(session, speed, seed))
     out["walking_info"] = {"duration_s": float(independent.t[-1]), "steps_true": len(independent.step_t), "cycles_detected": len(classified),
                            "rides_true": len(independent.rides), "rides_detected": len(independent_rides), "fixes": len(independent.fixes.t),
                            "wrong_fixes": int(independent.fixes.wrong.sum())}

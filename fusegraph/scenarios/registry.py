@@ -87,7 +87,7 @@ SIMULATORS: dict[str, Simulator] = {
     "attitude9": Simulator(_attitude9_simulate, 10.0, options=("profile", "sensors"), profiles=("realistic", "noise_free")),
     "gaze": Simulator(_gaze_simulate, 40.0, 5.0, options=("sensors",)),
     "bicycle": Simulator(_bicycle_simulate, 40.0, 10.0),
-    "walking": Simulator(_walking_simulate, float("nan"), 20.0, options=("sensors",)),
+    "walking": Simulator(_walking_simulate, float("nan"), 20.0, options=("sensors", "gait")),
     "ultrasonic": Simulator(_ultrasonic_simulate, 10.0, options=("transmitters",)),
 }
 """Every system's simulator by name."""

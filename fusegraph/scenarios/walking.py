@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
@@ -34,6 +35,9 @@ from ..geometry import FloatArray
 from ..records import Building, Fixes, WalkingScenarioConfig, WalkingSession
 from ..session import KIND_COLUMNS, Session, Stream
 from .gait import PendulumGait, Walker, turn_progress
+
+if TYPE_CHECKING:
+    from ..frontends.pdr import SpeedModel
 
 
 class _Tour:
@@ -384,35 +388,51 @@ def beacon_ranges(seed: int, t: FloatArray, truth_xyz_m: FloatArray, building: B
     return beacons_m, np.array(times), np.array(which), np.array(ranges)
 
 
-def walking_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None, sensors: tuple[str, ...] | None = None) -> Session:
+def walking_session(seed: int = 0, profile: str | None = None, duration_s: float | None = None, sensors: tuple[str, ...] | None = None,
+                    gait: str = "signature") -> Session:
     """The walk as a session (``fusegraph simulate walking``): waist ``gyro`` and ``accel``, the image
     ``fixes`` (kind ``pose``: x, y, z, yaw in radians), the building and the start in the metadata,
     the waist position as truth. The per-person speed model is fitted on the scenario's calibration
     walk (as a user would on theirs) and stored in ``[speed_model]``. With ``beacons`` among ``sensors``,
-    ranges to UWB beacons (``beacons``, kind beacon_ranges; see ``beacon_ranges``) are written too."""
-    sensors = check_sensors("walking", sensors or ("gyro", "accel", "fixes"), ("gyro", "accel"), ("fixes", "beacons"))
-    from ..frontends.pdr import detect_cycles, fit_speed_model
-
+    ranges to UWB beacons (``beacons``, kind beacon_ranges; see ``beacon_ranges``) are written too. ``gait``: the
+    scenario's gait model (``signature`` or ``pendulum``, ``WalkingScenarioConfig.gait``)."""
     if profile not in (None, "realistic"):
         raise ValueError(f"--profile {profile} does not apply to walking (its noise is the realistic one)")
     if duration_s is not None:
         raise ValueError("--duration does not apply to walking: the tour decides its length (about 12 minutes)")
-    w = simulate_walking(seed)
-    cal = simulate_calibration_walk(seed)
-    speed = fit_speed_model(detect_cycles(cal.t, cal.accel_m_s2, cal.gyro_rad_s), cal.bouts)
+    if gait not in ("signature", "pendulum"):
+        raise ValueError(f"--gait {gait}: walking's gait models are signature and pendulum")
+    config = WalkingScenarioConfig(gait=gait)
+    return session_of_walk(simulate_walking(seed, config), calibrated_speed(seed, config), seed, sensors)
+
+
+def calibrated_speed(seed: int, config: WalkingScenarioConfig | None = None) -> SpeedModel:
+    """The speed regression fitted on the seed's calibration walk (its own walker, as a user calibrates on theirs)."""
+    from ..frontends.pdr import detect_cycles, fit_speed_model
+
+    cal = simulate_calibration_walk(seed, config=config)
+    return fit_speed_model(detect_cycles(cal.t, cal.accel_m_s2, cal.gyro_rad_s), cal.bouts)
+
+
+def session_of_walk(w: WalkingSession, speed: SpeedModel, seed: int, sensors: tuple[str, ...] | None = None,
+                    correct_fixes: bool = False) -> Session:
+    """A simulated walk as the session ``walking_session`` writes (``speed``: the person's calibrated model);
+    ``correct_fixes``: the fixes a correct match gives at the same times (no wrong match), for what wrong fixes cost."""
+    sensors = check_sensors("walking", sensors or ("gyro", "accel", "fixes"), ("gyro", "accel"), ("fixes", "beacons"))
     streams = {
         "gyro": Stream("gyro", "gyro", w.t, w.gyro_rad_s, KIND_COLUMNS["gyro"]),
         "accel": Stream("accel", "accel", w.t, w.accel_m_s2, KIND_COLUMNS["accel"]),
     }
     if "fixes" in sensors:
-        streams["fixes"] = Stream("fixes", "pose", w.fixes.t, w.fixes.pose, KIND_COLUMNS["pose"])
+        streams["fixes"] = Stream("fixes", "pose", w.fixes.t, w.fixes.correct_pose if correct_fixes else w.fixes.pose, KIND_COLUMNS["pose"])
     if "beacons" in sensors:
         beacons_m, bt, which, ranges = beacon_ranges(seed, w.t, w.truth_xyz_m, w.building)
         streams["beacons"] = Stream("beacons", "beacon_ranges", bt, np.column_stack([which, ranges]), KIND_COLUMNS["beacon_ranges"],
                                     meta={"beacons_m": beacons_m.tolist(), "sigma_m": 0.15, "bias_sigma_m": 0.3})
     b = w.building
+    fixes = "image fixes, none wrong" if correct_fixes else "image fixes (some wrong)"
     meta = {
-        "session": {"description": f"walking scenario, seed {seed}: a 3-floor building tour, waist IMU, image fixes (some wrong)",
+        "session": {"description": f"walking scenario, seed {seed}: a 3-floor building tour, waist IMU, {fixes}",
                     "world_frame": "ENU", "start_pose": [float(v) for v in w.start_pose]},
         "building": {"floor_height_m": b.floor_height_m, "floors": b.floors, "elevator_xy_m": list(b.elevator_xy_m),
                      "stairs_foot_xy_m": list(b.stairs_foot_xy_m), "riser_m": b.riser_m, "tread_m": b.tread_m},

@@ -346,10 +346,3 @@ def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
                           truth_yaw_rad=np.full(len(gyro), np.nan), step_t=np.zeros(0), step_activity=(), rides=np.zeros((0, 3)),
                           building=building, start_pose=np.asarray(header["start_pose"], dtype=float), beacons=beacons)
     return walk, speed
-
-
-def run_all(session: WalkingSession, events: list[Event], fixes: FloatArray, live: list[Event] | None = None) -> dict[str, WalkRun]:
-    """Every method; ``live``: the steps as a causal estimate classifies them (``analyse(causal=True)``), for all but batch."""
-    live = events if live is None else live
-    return {"dead_reckoning": run_dead_reckoning(session, live), "ekf": run_ekf(session, live, fixes), "online": run_online(session, live, fixes),
-            "batch": run_batch(session, events, fixes)}
