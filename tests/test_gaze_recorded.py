@@ -153,3 +153,20 @@ def test_pupil_invisible_export_loads_in_head_axes_and_its_bench_is_the_report(t
     assert any("clipped" in line and "'accel'" in line for line in check_streams(session.streams))
     bench = _bench_is_the_report("pupil", DEFAULT_DIR, tmp_path, capsys)
     assert bench["export"] == "pupil" and bench["fixation_source"] == "device" and bench["dispersion_deg"]["device"] is None
+
+
+def test_counter_rotation_gain_tells_a_world_still_gaze_from_one_that_moves_with_the_head() -> None:
+    """The reflex's gain in the scored fixations: about 1 when the eye holds the target still in the world, about 0 when
+    the gaze stays put in the head (the same fixations, the eye no longer counter-rotating)."""
+    from dataclasses import replace
+
+    from fusegraph.frontends.gaze_timing import counter_rotation_gain
+
+    session, _ = _vor_session(0.0)
+    found, _ = eye_velocity_fixations(session)
+    # the gyro's noise (0.002 rad/s) and the smoothed ray's rate leave a few percent
+    assert counter_rotation_gain(session, found) == pytest.approx(1.0, abs=0.1)
+    rng = np.random.default_rng(1)
+    still_in_head = replace(session, gaze_px=np.tile(session.gaze_px[0], (len(session.gaze_px), 1)) + rng.normal(0, 2.0, session.gaze_px.shape))
+    assert abs(counter_rotation_gain(still_in_head, found)) < 0.1
+    assert counter_rotation_gain(session, []) is None

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..estimate import PointEstimate
-from ..frontends.gaze_timing import Fixation, _ray_and_rate, dispersions_deg, fixation_angles, saccade_threshold_deg_s, scoring_fixations
+from ..frontends.gaze_timing import Fixation, _ray_and_rate, counter_rotation_gain, dispersions_deg, fixation_angles, saccade_threshold_deg_s, scoring_fixations
 from ..records import GazeSession
 from ..session import Session
 from .runner import solve_session
@@ -114,6 +114,7 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
         "fixation_eye_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
         # the key earlier versions printed: the head's turn, now read as the eye's counter-rotation (no gyro)
         "fixation_head_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
+        "fixation_counter_rotation_gain": counter_rotation_gain(data, found),
         "gaze_samples": len(data.tracker_t),
         "gaze_untracked": int(header.get("gaze_untracked", 0)),
         "duration_s": duration,
@@ -148,6 +149,7 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         f"{result['fixations']} fixations from {'the device' if result['fixation_source'] == 'device' else 'eye-in-head velocity (no IMU)'} "
         f"({result['fixation_samples']} samples, {100 * result['fixation_fraction']:.0f} % of the gaze; eye turn in the head median "
         f"{result['fixation_eye_turn_deg']['median'] or float('nan'):.1f} deg, max {result['fixation_eye_turn_deg']['max'] or float('nan'):.1f} deg)",
+        _counter_rotation_text(result.get("fixation_counter_rotation_gain")),
         f"{'method':<36} {'dispersion [deg]: median':>26} {'mean':>8} {'x real time':>12}",
     ]
     for name, value in d.items():
@@ -160,6 +162,14 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         lines.append(f"{name}: x{d[name] / d['ekf']:.2f} the EKF's dispersion, x{d[name] / d['gyro']:.2f} the integrated gyro's, "
                  f"x{d[name] / d['head_frame']:.2f} the head-frame gaze's")
     return "\n".join(lines)
+
+
+def _counter_rotation_text(gain: float | None) -> str:
+    if gain is None:
+        return "the head did not turn in the fixations: their dispersion does not test a head attitude"
+    return (f"in the fixations the eye counter-rotated {100 * gain:.0f} % of the head's rotation (gyro; 100 % = the gaze held still in "
+            "the world)" + ("" if gain > 0.7 else "; well below: the gaze moved with the head (pursuit, or the head translating "
+                                                   "towards a near target), and the head frame can be the stiller gaze whatever the attitude"))
 
 
 def plot_gaze_recorded(run: RecordedGaze, path: str | Path) -> Path:

@@ -212,6 +212,26 @@ def device_fixations(session: GazeSession, fixation_id: FloatArray) -> list[Fixa
     return out
 
 
+def counter_rotation_gain(session: GazeSession, found: list[Fixation]) -> float | None:
+    """How much of the head's rotation the eye counter-rotated in the scored fixations: the least-squares slope of the
+    gaze ray's rate in the head on ``d x omega`` (the rate that holds the gaze still in the world while the head turns at
+    the gyro's ``omega``), over fixation samples with the head turning faster than ``HEAD_MIN_DEG_S``. About 1: the gaze
+    stood still in the world, and a fixation's dispersion tests the head attitude; well below 1: the gaze moved with the
+    head (pursuit, or a head translating towards a near target), and the gaze in the head frame can be the stiller one
+    whatever the attitude. A description of the recording that reads the gyro: it selects and scores nothing. None
+    without such samples."""
+    if not found:
+        return None
+    rays, rate, ok = _ray_and_rate(session.tracker_t, session.config.camera.ray(session.gaze_px))
+    rows = np.concatenate([f.rows for f in found])
+    omega = _gyro_at(session, session.tracker_t[rows])
+    use = ok[rows] & (np.rad2deg(np.linalg.norm(omega, axis=1)) > HEAD_MIN_DEG_S)
+    holding = np.cross(rays[rows][use], omega[use])
+    if not use.any() or not np.any(holding):
+        return None
+    return float(np.sum(rate[rows][use] * holding) / np.sum(holding * holding))
+
+
 def fixation_angles(world_R_head: FloatArray | None, rays: FloatArray, fixation: Fixation) -> FloatArray:
     """Angles (rad) of a fixation's world-frame gaze directions to their mean direction; NaN where the method has no
     attitude. ``world_R_head`` (quaternions at the gaze samples) None: the head frame (no attitude at all)."""
