@@ -413,3 +413,11 @@ def gait_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "step_precision": tp / (tp + fp) if tp + fp else None, "step_recall": tp / (tp + fn) if tp + fn else None,
             "stride_length_mae_m": float(np.mean(lengths)) if lengths else None, "walking_speed_mae_m_s": float(np.mean(speeds)) if speeds else None,
             "bouts_scored": len(lengths), "bouts": sum(r["bouts"] for r in counts)}
+
+
+def track_errors(t: FloatArray, xyz: FloatArray, truth_t: FloatArray, truth_xyz_m: FloatArray) -> dict[str, float]:
+    """A trajectory's 3D position RMSE over its states (the truth interpolated to their times) and its error at the end
+    (its last state against the truth's last sample), metres."""
+    truth = np.stack([np.interp(t, truth_t, truth_xyz_m[:, j]) for j in range(3)], axis=1)
+    err = np.linalg.norm(xyz - truth, axis=1)
+    return {"rmse_m": float(np.sqrt(np.mean(err**2))), "final_error_m": float(np.linalg.norm(xyz[-1] - truth_xyz_m[-1]))}

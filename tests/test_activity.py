@@ -134,3 +134,20 @@ def test_leave_one_user_out_stays_above_a_floor() -> None:
                 calls[n] = model.classify(rec.base, rec.cycle_t)
     correct = score(recordings, calls)["correct"]
     assert correct["flat"] > 0.85 and correct["stairs_up"] > 0.7 and correct["stairs_down"] > 0.75, correct
+
+
+def test_the_features_skewness_is_scipys() -> None:
+    """``frontends.activity._skewness`` is ``scipy.stats.skew``'s default (biased, NaN for a constant signal), written
+    without its argument handling; 1e-12: rounding."""
+    import warnings
+
+    from scipy.stats import skew
+
+    from fusegraph.frontends.activity import _skewness
+
+    rng = np.random.default_rng(0)
+    for x in (rng.normal(size=300), rng.exponential(size=150) ** 2, rng.uniform(-1, 1, 40)):
+        assert _skewness(x) == pytest.approx(float(skew(x)), abs=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # scipy warns about the constant signal it returns NaN for
+        assert np.isnan(_skewness(np.full(50, 3.0))) and np.isnan(float(skew(np.full(50, 3.0))))

@@ -382,3 +382,21 @@ def test_gravity_filter_equals_its_matrix_form(with_gyro: bool) -> None:
     rows = slice(20_000, 26_000)  # stairs, turns and flat walking
     t, accel, gyro = walk.t[rows], walk.accel_m_s2[rows], walk.gyro_rad_s[rows] if with_gyro else None
     np.testing.assert_allclose(pdr.gravity_filter(t, accel, gyro), _gravity_filter_matrix_form(t, accel, gyro, pdr.PdrConfig()), atol=1e-9)
+
+
+def test_a_waist_recording_without_a_start_walks_from_the_origin_and_says_so() -> None:
+    """A user's own waist recording (no fixes, no beacons, no start_pose) gets a trajectory relative to where the walk
+    began, with a warning; with fixes (a map frame) the start stays required, the error naming the key."""
+    from fusegraph.evaluation.runner import solve_session
+    from fusegraph.scenarios.walking import walking_session
+    from fusegraph.session import Session, SessionError
+
+    simulated = walking_session(0)
+    header = {k: v for k, v in simulated.meta["session"].items() if k != "start_pose"}
+    bare = Session("walking", {k: simulated.streams[k] for k in ("gyro", "accel")}, None, {**simulated.meta, "session": header})
+    with pytest.warns(UserWarning, match="no \\[session\\] start_pose"):
+        outcome = solve_session(bare, "dead_reckoning")
+    np.testing.assert_array_equal(outcome.estimate.points[0, 0], [0.0, 0.0, 0.0])
+    assert outcome.metrics is None
+    with pytest.raises(SessionError, match="start_pose"):
+        solve_session(dataclasses.replace(bare, streams={**bare.streams, "fixes": simulated.streams["fixes"]}), "batch")

@@ -28,14 +28,15 @@ def _front_end(walk: WalkingSession) -> tuple[np.ndarray, list[Cycle]]:
 def positioning(session: Session) -> tuple[dict[str, dict[str, float]], dict[str, WalkRun]]:
     """Every positioning solver of the walking preset on the session, each through ``solve_session`` as ``fusegraph
     run`` runs it (the steps classified inside the solve, causally for all but batch): per solver its metrics and
-    seconds, and its trajectory for the picture."""
+    seconds (the whole solve, its front end included; ``solver_seconds`` the graph or filter alone), and its trajectory for
+    the picture."""
     rows, runs = {}, {}
     for solver in METHODS:
         outcome = solve_session(session, solver)
         estimate = outcome.estimate
         assert isinstance(estimate, PointEstimate) and outcome.metrics is not None
         runs[solver] = WalkRun(solver, estimate.t, estimate.points[:, 0, :], estimate.runtime_s)
-        rows[solver] = {**outcome.metrics, "seconds": estimate.runtime_s}
+        rows[solver] = {**outcome.metrics, "seconds": estimate.runtime_s, "solver_seconds": float(estimate.extras["solver_s"])}
     return rows, runs
 
 

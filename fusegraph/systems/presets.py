@@ -261,6 +261,7 @@ def _walking_run(session: Session, solver: str) -> Result:
         return _count_steps(session)
     if solver in ("activity", "gait"):
         return _waist_analysis(session, solver)
+    start = time.perf_counter()  # the solve's time includes its front end (steps, their activities, rides): what `run` takes
     if session.streams_of_kind("wheel_odometry") and "gyro" not in session.streams:
         walk, events = walking.vehicle_from_session(session)  # a vehicle: wheel odometry instead of steps
         cycles: list[Any] = []
@@ -282,7 +283,8 @@ def _walking_run(session: Session, solver: str) -> Result:
         else:
             run = walking.run_ekf(walk, events, walk.fixes.pose)
     activity = {a: sum(c.activity == a for c in cycles) for a in ("flat", "stairs_up", "stairs_down")}
-    return PointEstimate(solver, run.t, run.xyz[:, None, :], ("x", "y", "z"), run.seconds, {"steps": len(cycles), "activity": activity, "rides": len(rides)})
+    return PointEstimate(solver, run.t, run.xyz[:, None, :], ("x", "y", "z"), time.perf_counter() - start,
+                         {"steps": len(cycles), "activity": activity, "rides": len(rides), "solver_s": run.seconds})
 
 
 def _count_steps(session: Session) -> PointEstimate:
@@ -339,6 +341,7 @@ def _waist_score(session: Session, estimate: PointEstimate) -> dict[str, Any] | 
 
 
 def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
+    from ..metrics import track_errors
     from . import walking
 
     if isinstance(estimate, PointEstimate) and estimate.method in ("activity", "gait"):
@@ -346,8 +349,7 @@ def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     if session.streams_of_kind("wheel_odometry") and "gyro" not in session.streams and isinstance(estimate, PointEstimate):
         if session.truth is None:
             return None
-        run = walking.WalkRun(estimate.method, estimate.t, estimate.points[:, 0, :], estimate.runtime_s)
-        return walking.score_xyz(run, session.truth.t, session.truth.values)
+        return track_errors(estimate.t, estimate.points[:, 0, :], session.truth.t, session.truth.values)
     if estimate.method == "steps":
         true = session.meta.get("truth_extra", {}).get("steps")
         if not isinstance(estimate, PointEstimate) or true is None:
@@ -355,8 +357,10 @@ def _walking_score(session: Session, estimate: Result) -> dict[str, Any] | None:
         counted = len(estimate.t)
         return {"steps": counted, "steps_true": int(true), "step_error_frac": abs(counted - int(true)) / max(int(true), 1)}
 
+    if session.truth is None or session.truth.kind != "position" or not isinstance(estimate, PointEstimate):
+        return None  # nothing to score (and the session's warnings were said by the solve)
     walk, _ = walking.from_session(session)
-    if not np.isfinite(walk.truth_xyz_m).all() or not isinstance(estimate, PointEstimate):
+    if not np.isfinite(walk.truth_xyz_m).all():
         return None
     return walking.score(walking.WalkRun(estimate.method, estimate.t, estimate.points[:, 0, :], estimate.runtime_s), walk)
 
@@ -503,7 +507,7 @@ PRESETS: dict[str, Preset] = {
         name="walking",
         summary="a walker's 3D trajectory over floors from a waist IMU (PDR steps, stairs, elevator) and image-match fixes (some wrong)",
         streams="gyro, accel sampled together (waist IMU); optional fixes (kind pose); optional ranges to known UWB beacons (kind beacon_ranges)",
-        session_keys=(KeySpec("start_pose", None, "[x, y, z, yaw] of the known start (required)"),
+        session_keys=(KeySpec("start_pose", None, "[x, y, z, yaw] of the known start (required with fixes or beacons; else 0: relative to the start)"),
                       KeySpec("building.floor_height_m", 3.5, "m"), KeySpec("building.floors", 3, "count"),
                       KeySpec("building.elevator_xy_m", None, "[x, y] of the elevator, m"), KeySpec("building.stairs_foot_xy_m", None, "[x, y], m"),
                       KeySpec("building.riser_m", 0.175, "stair riser, m"), KeySpec("building.tread_m", 0.28, "stair tread, m"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -26,6 +27,7 @@ from ..frontends.activity import with_activity
 from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, gravity_filter
 from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule, start_from_ranges
+from ..metrics import track_errors
 from ..records import Building, Fixes, WalkingSession
 from ..session import Session, SessionError
 from ..solvers.batch import solve_python_loop
@@ -242,16 +244,8 @@ def run_ekf(session: WalkingSession, events: list[Event], fixes: FloatArray, gat
 
 
 def score(run: WalkRun, session: WalkingSession) -> dict[str, float]:
-    """3D position RMSE over the run's states and the error at the end."""
-    return score_xyz(run, session.t, session.truth_xyz_m)
-
-
-def score_xyz(run: WalkRun, truth_t: FloatArray, truth_xyz_m: FloatArray) -> dict[str, float]:
-    """3D position RMSE over the run's states (truth interpolated to them) and the error at the end."""
-    truth = np.stack([np.interp(run.t, truth_t, truth_xyz_m[:, j]) for j in range(3)], axis=1)
-    err = np.linalg.norm(run.xyz - truth, axis=1)
-    end_error = float(np.linalg.norm(run.xyz[-1] - truth_xyz_m[-1]))
-    return {"rmse_m": float(np.sqrt(np.mean(err**2))), "final_error_m": end_error}
+    """3D position RMSE over the run's states and the error at the end (``metrics.track_errors``)."""
+    return track_errors(run.t, run.xyz, session.t, session.truth_xyz_m)
 
 
 def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIST, causal: bool = False,
@@ -318,12 +312,19 @@ def vehicle_from_session(session: Session) -> tuple[WalkingSession, list[Event]]
 def from_session(session: Session) -> tuple[WalkingSession, SpeedModel]:
     """A walking session directory's content: waist ``gyro`` and ``accel`` sampled together, optional
     ``fixes`` (kind ``pose``), ``[building]`` (the map), ``start_pose`` in ``[session]``, the person's
-    ``[speed_model]``; the truth (waist position) is optional."""
+    ``[speed_model]``; the truth (waist position) is optional. Without a ``start_pose`` and without fixes or beacons (a
+    waist recording alone: UCI HAPT, a user's own) the walk starts at x, y, z, yaw = 0, said in a warning: the
+    trajectory is then relative to where it began; fixes or beacons are in a map frame, which needs the start in it."""
     where = session.where
     gyro, accel = session.synchronous("gyro", "accel")
     header, table = session.meta.get("session", {}), session.meta.get("building", {})
     if "start_pose" not in header:
-        raise SessionError(f"{where}: [session] needs start_pose = [x, y, z, yaw] (the known start)")
+        if "fixes" in session.streams or session.streams_of_kind("beacon_ranges"):
+            raise SessionError(f"{where}: [session] needs start_pose = [x, y, z, yaw] (the known start, in the frame of its fixes "
+                               "or beacons)")
+        warnings.warn(f"{where}: no [session] start_pose: the walk starts at x, y, z, yaw = 0 (a trajectory relative to where it "
+                      "began; declare start_pose for a map frame)", stacklevel=2)
+        header = {**header, "start_pose": [0.0, 0.0, 0.0, 0.0]}
     try:
         fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items()}
         building = Building(**fields)
