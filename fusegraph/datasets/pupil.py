@@ -13,11 +13,17 @@ What becomes of each file (columns found by their header names, any order; ``../
   ray is projected into a distortion-free pinhole camera (stream ``gaze``, kind ``pixel``: u right, v up from the
   centre, ``u = f tan(az)``, ``v = f tan(el) / cos(az)``) whose focal length follows from the datasheet's 82 x 82 deg
   field of view over 1088 x 1080 pixels (544 / tan 41 deg = 626 px): the pinhole the gaze system models is then exact.
+  An export without the azimuth and elevation columns (older Pupil Cloud exports) gives its rays from ``gaze x/y [px]``:
+  through the camera's own intrinsics and distortion (OpenCV's model) when the folder holds the export's
+  ``scene_camera.json``, else through the datasheet's pinhole centred on the image, said in a warning (a few degrees off
+  towards the edges, the same in every method, so a fixation's spread barely changes).
   The scene camera (left temple) is taken as looking along the IMU's z axis: the glasses hold both, and no
   calibration between them is in the export. Rows inside a blink (``blink id``) or with ``worn`` = 0 carry no gaze:
   dropped and counted (``[session] gaze_untracked``).
 * ``fixation id`` (Pupil Cloud's own fixation detector, which reads the gaze) -> stream ``fixation`` (kind ``flag``,
-  0 outside a fixation): the fixations that score every method (JSON ``fixation_source: "device"``).
+  0 outside a fixation): the fixations that score every method (JSON ``fixation_source: "device"``). ``worn``,
+  ``fixation id`` and ``blink id`` may be missing (an export without the cloud's detectors): every sample is then taken
+  as worn and outside a blink, and without fixation ids the bench scores fixations of the eye-in-head speed.
 * ``blinks.csv`` is not needed: the gaze rows carry their blink id.
 
 No ground truth: ``bench gaze-recorded`` scores the dispersion of the world gaze ray in the device's fixations.
@@ -51,11 +57,16 @@ HEAD_FROM_IMU = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 IMU_COLUMNS = ("timestamp [ns]", "gyro x [deg/s]", "gyro y [deg/s]", "gyro z [deg/s]",
                "acceleration x [g]", "acceleration y [g]", "acceleration z [g]")
-GAZE_COLUMNS = ("timestamp [ns]", "azimuth [deg]", "elevation [deg]", "worn", "fixation id", "blink id")
+GAZE_COLUMNS = ("timestamp [ns]",)
+GAZE_RAYS = ("azimuth [deg]", "elevation [deg]")
+"""The export's own rays (preferred); else ``GAZE_PIXELS``."""
+GAZE_PIXELS = ("gaze x [px]", "gaze y [px]")
+GAZE_OPTIONAL = ("worn", "fixation id", "blink id")
 
 
-def _table(path: Path, needed: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """The named columns of a CSV export as float arrays (empty cells NaN); an error names the file and what is missing."""
+def _table(path: Path, needed: tuple[str, ...], optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The named columns of a CSV export as float arrays (empty cells NaN), the ``optional`` ones where the header has
+    them; an error names the file and what is missing."""
     if not path.is_file():
         raise SessionError(f"{path}: not found (a Pupil Invisible export folder has imu.csv and gaze.csv)")
     with path.open(newline="", encoding="utf-8") as handle:
@@ -67,17 +78,62 @@ def _table(path: Path, needed: tuple[str, ...]) -> dict[str, np.ndarray]:
         if missing:
             raise SessionError(f"{path}: no column {', '.join(repr(c) for c in missing)} (found {', '.join(header)}); "
                                "a Pupil Cloud export of a Pupil Invisible recording has them")
-        index = [header.index(c) for c in needed]
+        names = [*needed, *(c for c in optional if c in header)]
+        index = [header.index(c) for c in names]
         rows = []
         for number, row in enumerate(reader, start=2):
             try:
                 rows.append([float(row[i]) if row[i].strip() else np.nan for i in index])
             except (ValueError, IndexError):
-                raise SessionError(f"{path}: line {number} is not a row of numbers in {', '.join(needed)}") from None
+                raise SessionError(f"{path}: line {number} is not a row of numbers in {', '.join(names)}") from None
     if not rows:
         raise SessionError(f"{path}: no rows")
     values = np.asarray(rows)
-    return {c: values[:, j] for j, c in enumerate(needed)}
+    return {c: values[:, j] for j, c in enumerate(names)}
+
+
+def _header(path: Path) -> list[str]:
+    if not path.is_file():
+        raise SessionError(f"{path}: not found (a Pupil Invisible export folder has imu.csv and gaze.csv)")
+    with path.open(newline="", encoding="utf-8") as handle:
+        return next(csv.reader(handle), [])
+
+
+def undistorted_rays(x_px: np.ndarray, y_px: np.ndarray, camera_matrix: np.ndarray, dist_coefs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Scene-camera pixels (x right, y down) as (azimuth to the right, elevation up) in degrees, through the camera's
+    intrinsics and OpenCV's distortion model (k1, k2, p1, p2[, k3[, k4, k5, k6]]), inverted by fixed-point iteration."""
+    k = np.zeros(8)
+    k[: min(8, len(dist_coefs))] = np.asarray(dist_coefs, dtype=float).ravel()[:8]
+    k1, k2, p1, p2, k3, k4, k5, k6 = k
+    xd = (x_px - camera_matrix[0, 2]) / camera_matrix[0, 0]
+    yd = (y_px - camera_matrix[1, 2]) / camera_matrix[1, 1]
+    x, y = xd.copy(), yd.copy()
+    for _ in range(50):  # converges to 1e-12 within ~20 iterations over a wide-angle lens's field
+        r2 = x * x + y * y
+        radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        x = (xd - (2 * p1 * x * y + p2 * (r2 + 2 * x * x))) / radial
+        y = (yd - (p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)) / radial
+    return np.rad2deg(np.arctan(x)), np.rad2deg(np.arctan2(-y, np.sqrt(1 + x * x)))
+
+
+def _rays_from_pixels(directory: Path, gaze: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(azimuth, elevation) in degrees from ``gaze x/y [px]``: the export's ``scene_camera.json`` if the folder has it,
+    else the datasheet's pinhole centred on the image (with a warning)."""
+    import json
+    import warnings
+
+    x, y = gaze["gaze x [px]"], gaze["gaze y [px]"]
+    intrinsics = directory / "scene_camera.json"
+    if intrinsics.is_file():
+        try:
+            camera = json.loads(intrinsics.read_text())
+            return undistorted_rays(x, y, np.asarray(camera["camera_matrix"], dtype=float), np.asarray(camera["dist_coefs"], dtype=float))
+        except (ValueError, KeyError, IndexError, TypeError) as err:
+            raise SessionError(f"{intrinsics}: not a Pupil scene camera file (camera_matrix 3 x 3, dist_coefs): {err}") from None
+    warnings.warn(f"{directory / 'gaze.csv'}: no azimuth/elevation columns and no scene_camera.json: the gaze rays come from the "
+                  f"pixels through the datasheet's pinhole ({FOCAL_PX:.0f} px, centred; no lens distortion), a few degrees off "
+                  "towards the image's edges", stacklevel=3)
+    return undistorted_rays(x, y, np.array([[FOCAL_PX, 0, WIDTH_PX / 2], [0, FOCAL_PX, HEIGHT_PX / 2], [0, 0, 1]]), np.zeros(5))
 
 
 def _seconds(path: Path, ns: np.ndarray, t0_ns: float) -> np.ndarray:
@@ -100,7 +156,17 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
     directory = Path(directory)
     imu_path, gaze_path = directory / "imu.csv", directory / "gaze.csv"
     imu = _table(imu_path, IMU_COLUMNS)
-    gaze = _table(gaze_path, GAZE_COLUMNS)
+    header = _header(gaze_path)
+    has_rays = all(c in header for c in GAZE_RAYS)
+    if not has_rays and not all(c in header for c in GAZE_PIXELS):
+        raise SessionError(f"{gaze_path}: neither {' and '.join(map(repr, GAZE_RAYS))} nor {' and '.join(map(repr, GAZE_PIXELS))} "
+                           f"(found {', '.join(header)}); a Pupil Cloud export of a Pupil Invisible recording has them")
+    gaze = _table(gaze_path, GAZE_COLUMNS + (GAZE_RAYS if has_rays else GAZE_PIXELS), GAZE_OPTIONAL)
+    if not has_rays:
+        gaze["azimuth [deg]"], gaze["elevation [deg]"] = _rays_from_pixels(directory, gaze)
+    n = len(gaze["timestamp [ns]"])
+    worn = gaze.get("worn", np.ones(n))
+    blink = gaze.get("blink id", np.zeros(n))
     t0_ns = float(imu["timestamp [ns]"][0])  # the IMU's first sample is t = 0 (int64 ns lose nothing in float64 relative to it)
     t = _seconds(imu_path, imu["timestamp [ns]"], t0_ns)
     gaze_t = _seconds(gaze_path, gaze["timestamp [ns]"], t0_ns)
@@ -110,11 +176,10 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
         bad = np.nonzero(~np.isfinite(values).all(axis=1))[0]
         if bad.size:
             raise SessionError(f"{path}: {name} empty or not a number at row {bad[0] + 2}")
-    tracked = (gaze["worn"] != 0) & ~(gaze["blink id"] > 0) & np.isfinite(gaze["azimuth [deg]"]) & np.isfinite(gaze["elevation [deg]"])
+    tracked = (worn != 0) & ~(blink > 0) & np.isfinite(gaze["azimuth [deg]"]) & np.isfinite(gaze["elevation [deg]"])
     if not tracked.any():
         raise SessionError(f"{gaze_path}: no gaze sample outside blinks with the glasses worn")
     pixels = pinhole_pixels(gaze["azimuth [deg]"][tracked], gaze["elevation [deg]"][tracked])
-    fixation_id = np.nan_to_num(gaze["fixation id"][tracked])
     imu_meta = {"rate_hz": 1.0 / float(np.median(np.diff(t))), "frame": "head (x forward, y left, z up)"}
     streams = {
         "gyro": Stream("gyro", "gyro", t, np.deg2rad(gyro) @ HEAD_FROM_IMU.T, KIND_COLUMNS["gyro"], 0.0, dict(imu_meta)),
@@ -122,9 +187,11 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
         "gaze": Stream("gaze", "pixel", gaze_t[tracked], pixels, KIND_COLUMNS["pixel"], 0.0,
                        {"rate_hz": 1.0 / float(np.median(np.diff(gaze_t[tracked]))), "focal_px": FOCAL_PX, "width_px": WIDTH_PX,
                         "height_px": HEIGHT_PX, "pixel_sigma": PIXEL_SIGMA}),
-        "fixation": Stream("fixation", "flag", gaze_t[tracked].copy(), fixation_id[:, None], KIND_COLUMNS["flag"], 0.0,
-                           {"description": "the device's fixation id per gaze sample (Pupil Cloud's detector), 0 outside a fixation"}),
     }
+    if "fixation id" in gaze:  # the device's detector; without it the bench finds fixations from the eye-in-head speed
+        streams["fixation"] = Stream("fixation", "flag", gaze_t[tracked].copy(), np.nan_to_num(gaze["fixation id"][tracked])[:, None],
+                                     KIND_COLUMNS["flag"], 0.0,
+                                     {"description": "the device's fixation id per gaze sample (Pupil Cloud's detector), 0 outside a fixation"})
     meta = {
         "session": {
             "system": "gaze",
