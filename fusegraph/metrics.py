@@ -378,13 +378,14 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
                 reference: GaitReference) -> dict[str, Any]:
     """One recording's step matches and per-bout errors against a reference system's bouts: the steps inside each bout's
     span (widened by ``GAIT_MATCH_S``) matched one-to-one to its contacts within ``GAIT_MATCH_S`` (least total time
-    difference); stride length and speed: the mean of the strides inside the bout against the bout's mean."""
+    difference); stride length and speed: the mean of the strides inside the bout against the bout's mean
+    (``stride_length_bouts``: the index of the bout each stride-length error belongs to)."""
     from scipy.optimize import linear_sum_assignment
 
     bouts_s, contacts_s = reference.bouts_s, reference.contacts_s
     bout_length_m, bout_speed_m_s = reference.stride_length_m, reference.walking_speed_m_s
     tp = fp = fn = 0
-    length_errors, speed_errors = [], []
+    length_errors, speed_errors, length_bouts = [], [], []
     for n, (start, end) in enumerate(bouts_s):
         truth = contacts_s[(contacts_s >= start - 1e-6) & (contacts_s <= end + 1e-6)]
         found = steps_s[(steps_s >= start - GAIT_MATCH_S) & (steps_s <= end + GAIT_MATCH_S)]
@@ -397,10 +398,11 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
         inside = (stride_t_s >= start) & (stride_t_s <= end)
         if inside.any() and n < len(bout_length_m) and np.isfinite(bout_length_m[n]):
             length_errors.append(abs(float(np.mean(stride_length_m[inside])) - float(bout_length_m[n])))
+            length_bouts.append(n)
         if inside.any() and n < len(bout_speed_m_s) and np.isfinite(bout_speed_m_s[n]):
             speed_errors.append(abs(float(np.mean(walking_speed_m_s[inside])) - float(bout_speed_m_s[n])))
     return {"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": length_errors, "walking_speed_errors_m_s": speed_errors,
-            "bouts": len(bouts_s)}
+            "stride_length_bouts": length_bouts, "bouts": len(bouts_s)}
 
 
 def gait_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:

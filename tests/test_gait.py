@@ -39,6 +39,7 @@ def test_steps_match_one_to_one_within_the_tolerance() -> None:
     row = score_recording(estimate, reference)
     assert (row["tp"], row["fp"], row["fn"]) == (4, 2, 2)  # 10.1, 11.05, 13.0, 14.2 match; 11.5 and 12.3 do not
     assert row["stride_length_errors_m"] == [pytest.approx(0.1)] and row["walking_speed_errors_m_s"] == [pytest.approx(0.1)]
+    assert row["stride_length_bouts"] == [0]
 
 
 @requires_shared_data("mobgap")
@@ -59,6 +60,8 @@ def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: py
     ours = found["methods"]["fusegraph"]
     # floors a regression would break (the bench: F1 0.80, stride length 0.18 m leave-one-participant-out)
     assert ours["step_f1"] > 0.75 and ours["stride_length_mae_m"] < 0.25
+    # over the bouts every row scored (paper_speed scores all 11, fusegraph 10): a subset of fusegraph's own
+    assert ours["bouts_common"] == min(m["bouts_scored"] for m in found["methods"].values()) and ours["stride_length_mae_common_m"] is not None
     # a held-out participant's row is run --solver gait on its session declaring the setting chosen without it
     from fusegraph.evaluation.gait import declare
     from fusegraph.frontends.gait import PendulumConfig

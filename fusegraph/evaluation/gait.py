@@ -167,6 +167,14 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
         for method, row in rows.items():
             per[method][name] = row
     methods = {m: gait_scores(list(rows.values())) for m, rows in per.items() if rows}
+    # each method's stride-length MAE over the bouts EVERY method scored: a method that leaves a hard bout without
+    # strides is not scored on it, so the headline MAEs can be over different bouts
+    errors = {m: {(name, b): e for name, row in rows.items() for b, e in zip(row["stride_length_bouts"], row["stride_length_errors_m"], strict=True)}
+              for m, rows in per.items() if rows}
+    common = set.intersection(*(set(e) for e in errors.values())) if errors else set()
+    for m, e in errors.items():
+        methods[m]["stride_length_mae_common_m"] = float(np.mean([e[k] for k in common])) if common else None
+        methods[m]["bouts_common"] = len(common)
     if cross_validated:
         methods["fusegraph"]["stride_length_mae_m_in_sample"] = mae(in_sample, list(scored))
     return {"methods": methods, "recordings": recordings, "match_s": GAIT_MATCH_S, "cross_validated": cross_validated,
@@ -191,6 +199,10 @@ def format_gait(result: dict[str, Any]) -> str:
     for name, m in result["methods"].items():
         lines.append(f"{name:<12} {cell(m['step_f1'], '8.3f')} {cell(m['step_precision'], '7.3f')} {cell(m['step_recall'], '7.3f')} "
                      f"{cell(m['stride_length_mae_m'], '13.3f')} {cell(m['walking_speed_mae_m_s'], '14.3f')} {m['bouts_scored']:>4}/{m['bouts']:<4}")
+    common = {name: m.get("stride_length_mae_common_m") for name, m in result["methods"].items()}
+    if all(v is not None for v in common.values()):
+        lines.append(f"stride MAE over the {next(iter(result['methods'].values()))['bouts_common']} bouts every method scored: "
+                     + ", ".join(f"{name} {v:.3f} m" for name, v in common.items()))
     for name, rec in result["recordings"].items():
         if not rec["scored"]:
             lines.append(f"{name}: not scored ({rec['reason']})")
