@@ -120,6 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--latency-assumed", type=float, metavar="S",
                      help="latency the user believes; adds rows method2_wrong_d (Method II with it) and isam2_td/batch_td "
                      "(fusegraph estimating the latency from it as a prior); method2/isam2/batch get the true one")
+    rep.add_argument("--gait", choices=["signature", "pendulum"], default=None,
+                     help="walking seeds: the gait model simulated (default signature; pendulum: the one bench walking scores)")
     rep.add_argument("--json", action="store_true", help="print JSON instead of the table")
     rep.add_argument("--plot", type=Path, help="write a figure to this PNG (sessions: the headline metric per session and solver; "
                      "seeds: like the paper's Fig. 3/4, first seed)")
@@ -545,6 +547,8 @@ def _seeds_block(seeds: Any, system: str) -> dict[str, Any]:
 
 def _cmd_report(args: argparse.Namespace) -> int:
     solvers = [x.strip() for x in args.solvers.split(",") if x.strip()] if args.solvers else None
+    if args.gait is not None and (args.system != "walking" or args.sessions):
+        raise ValueError("--gait chooses the gait of simulated walking seeds (report walking --seeds ...); recorded sessions have their own")
     if args.sessions:
         return _report_sessions(args, solvers)
     if args.seeds is None:
@@ -573,7 +577,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         if args.latency_true is not None or args.latency_assumed is not None or args.profile != "realistic":
             raise ValueError(f"report {args.system}: --latency-true/--latency-assumed/--profile apply to head only")
         chosen = args.seeds
-        found = generic_report(args.system, chosen, args.duration, solvers)
+        options = {} if args.gait is None else {"gait": args.gait}
+        found = generic_report(args.system, chosen, args.duration, solvers, **options)
         found.pop("per_seed")
         found.update(_seeds_block(chosen, args.system))
         print(_dump(found) if args.json else format_generic_report(found))
@@ -582,7 +587,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
             from .report.pictures import PICTURES
             from .scenarios import SIMULATORS
 
-            session = SIMULATORS[args.system].simulate(chosen[0], args.duration)
+            session = SIMULATORS[args.system].simulate(chosen[0], args.duration, **options)
             estimates = [solve_session(session, m).estimate for m in ("online", "batch")]
             written = PICTURES[args.system](session, estimates, args.plot.parent)
             written[0].replace(args.plot)

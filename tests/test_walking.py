@@ -400,3 +400,20 @@ def test_a_waist_recording_without_a_start_walks_from_the_origin_and_says_so() -
     assert outcome.metrics is None
     with pytest.raises(SessionError, match="start_pose"):
         solve_session(dataclasses.replace(bare, streams={**bare.streams, "fixes": simulated.streams["fixes"]}), "batch")
+
+
+def test_report_walking_simulates_the_gait_it_is_asked_for(capsys: pytest.CaptureFixture[str]) -> None:
+    """`report walking --seeds 0 --gait pendulum` solves the session `simulate walking --gait pendulum` writes (the gait
+    bench walking scores), not the default signature gait; --gait on recorded sessions is an error that says so."""
+    import json
+
+    from fusegraph.cli import main
+    from fusegraph.evaluation.runner import solve_session
+    from fusegraph.scenarios.walking import walking_session
+
+    assert main(["report", "walking", "--seeds", "0", "--gait", "pendulum", "--solvers", "dead_reckoning", "--json"]) == 0
+    found = json.loads(capsys.readouterr().out)["methods"]["dead_reckoning"]["metrics"]["rmse_m"]
+    assert found == pytest.approx(solve_session(walking_session(0, gait="pendulum"), "dead_reckoning").metrics["rmse_m"], rel=1e-12)
+    assert found != pytest.approx(solve_session(walking_session(0), "dead_reckoning").metrics["rmse_m"], rel=0.01)
+    assert main(["report", "walking", "some/sessions", "--gait", "pendulum"]) == 2
+    assert "--gait chooses the gait of simulated walking seeds" in capsys.readouterr().err
