@@ -92,13 +92,6 @@ def _table(path: Path, needed: tuple[str, ...], optional: tuple[str, ...] = ()) 
     return {c: values[:, j] for j, c in enumerate(names)}
 
 
-def _header(path: Path) -> list[str]:
-    if not path.is_file():
-        raise SessionError(f"{path}: not found (a Pupil Invisible export folder has imu.csv and gaze.csv)")
-    with path.open(newline="", encoding="utf-8") as handle:
-        return next(csv.reader(handle), [])
-
-
 def undistorted_rays(x_px: np.ndarray, y_px: np.ndarray, camera_matrix: np.ndarray, dist_coefs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Scene-camera pixels (x right, y down) as (azimuth to the right, elevation up) in degrees, through the camera's
     intrinsics and OpenCV's distortion model (k1, k2, p1, p2[, k3[, k4, k5, k6]]), inverted by fixed-point iteration."""
@@ -156,12 +149,11 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
     directory = Path(directory)
     imu_path, gaze_path = directory / "imu.csv", directory / "gaze.csv"
     imu = _table(imu_path, IMU_COLUMNS)
-    header = _header(gaze_path)
-    has_rays = all(c in header for c in GAZE_RAYS)
-    if not has_rays and not all(c in header for c in GAZE_PIXELS):
+    gaze = _table(gaze_path, GAZE_COLUMNS, GAZE_RAYS + GAZE_PIXELS + GAZE_OPTIONAL)
+    has_rays = all(c in gaze for c in GAZE_RAYS)
+    if not has_rays and not all(c in gaze for c in GAZE_PIXELS):
         raise SessionError(f"{gaze_path}: neither {' and '.join(map(repr, GAZE_RAYS))} nor {' and '.join(map(repr, GAZE_PIXELS))} "
-                           f"(found {', '.join(header)}); a Pupil Cloud export of a Pupil Invisible recording has them")
-    gaze = _table(gaze_path, GAZE_COLUMNS + (GAZE_RAYS if has_rays else GAZE_PIXELS), GAZE_OPTIONAL)
+                           "columns; a Pupil Cloud export of a Pupil Invisible recording has one pair")
     if not has_rays:
         gaze["azimuth [deg]"], gaze["elevation [deg]"] = _rays_from_pixels(directory, gaze)
     n = len(gaze["timestamp [ns]"])
