@@ -316,7 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("--methods", default=None, help="broad: comma list of vqf,vqf_offline,ekf,online,batch (default all)")
     ben.add_argument("--trials", default=None, help="broad, head-recorded: comma list of file-name prefixes, e.g. 01,32 (default all)")
     ben.add_argument("--plot", type=Path, help="broad: also write a PNG of the errors per trial and method; walking: the trajectories; "
-                     "ultrasonic: the tracks, errors and rest probability of the largest N, first seed")
+                     "ultrasonic: the tracks, errors and rest probability of the largest N, first seed; gait: each method's stride length and speed "
+                     "per bout against the reference's; activity: each method's confusion")
     ben.add_argument("--seeds", type=_seeds_arg, default=None, help="ultrasonic: seeds per N (default 0-2); walking: the first is the walk's seed (default 0)")
     ben.add_argument("--transmitters", default="3,6,12", help="ultrasonic: comma list of N (default 3,6,12)")
     ben.add_argument("--estimate-first", action="store_true", help="live: the live process and the replay publish before the update "
@@ -689,12 +690,22 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         found = bench_gait(args.directory, progress=lambda line: print(line, file=sys.stderr))
         print(_dump(found) if args.json else format_gait(found))
+        if args.plot:
+            from .evaluation.gait import plot_gait
+
+            print(f"wrote {plot_gait(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
         return 0
     if args.system == "activity":
         from .evaluation.activity import bench_activity, format_activity
 
         found = bench_activity(args.directory, progress=lambda line: print(line, file=sys.stderr))
         print(_dump(found) if args.json else format_activity(found))
+        if args.plot:
+            from .report.gait import plot_confusions
+
+            rule = "fusegraph leave-one-user-out (nested)" if found["cross_validated"] else "fusegraph's model on main, unchanged"
+            title = f"activity per detected cycle, {len(found['users'])} users: {rule}"
+            print(f"wrote {plot_confusions(found['methods'], args.plot, title)}", file=sys.stderr if args.json else sys.stdout)
         return 0
     if args.system == "gaze-recorded":
         from .evaluation import gaze_recorded

@@ -379,13 +379,15 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
     """One recording's step matches and per-bout errors against a reference system's bouts: the steps inside each bout's
     span (widened by ``GAIT_MATCH_S``) matched one-to-one to its contacts within ``GAIT_MATCH_S`` (least total time
     difference); stride length and speed: the mean of the strides inside the bout against the bout's mean
-    (``stride_length_bouts``: the index of the bout each stride-length error belongs to)."""
+    (``stride_length_bouts`` / ``walking_speed_bouts``: the index of the bout each error belongs to; ``stride_length_m`` /
+    ``walking_speed_m_s``: the method's mean in those bouts)."""
     from scipy.optimize import linear_sum_assignment
 
     bouts_s, contacts_s = reference.bouts_s, reference.contacts_s
     bout_length_m, bout_speed_m_s = reference.stride_length_m, reference.walking_speed_m_s
     tp = fp = fn = 0
-    length_errors, speed_errors, length_bouts = [], [], []
+    length_errors, speed_errors, length_bouts, speed_bouts = [], [], [], []
+    length_values, speed_values = [], []
     for n, (start, end) in enumerate(bouts_s):
         truth = contacts_s[(contacts_s >= start - 1e-6) & (contacts_s <= end + 1e-6)]
         found = steps_s[(steps_s >= start - GAIT_MATCH_S) & (steps_s <= end + GAIT_MATCH_S)]
@@ -397,12 +399,16 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
         tp, fp, fn = tp + matched, fp + len(found) - matched, fn + len(truth) - matched
         inside = (stride_t_s >= start) & (stride_t_s <= end)
         if inside.any() and n < len(bout_length_m) and np.isfinite(bout_length_m[n]):
-            length_errors.append(abs(float(np.mean(stride_length_m[inside])) - float(bout_length_m[n])))
+            length_values.append(float(np.mean(stride_length_m[inside])))
+            length_errors.append(abs(length_values[-1] - float(bout_length_m[n])))
             length_bouts.append(n)
         if inside.any() and n < len(bout_speed_m_s) and np.isfinite(bout_speed_m_s[n]):
-            speed_errors.append(abs(float(np.mean(walking_speed_m_s[inside])) - float(bout_speed_m_s[n])))
+            speed_values.append(float(np.mean(walking_speed_m_s[inside])))
+            speed_errors.append(abs(speed_values[-1] - float(bout_speed_m_s[n])))
+            speed_bouts.append(n)
     return {"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": length_errors, "walking_speed_errors_m_s": speed_errors,
-            "stride_length_bouts": length_bouts, "bouts": len(bouts_s)}
+            "stride_length_bouts": length_bouts, "walking_speed_bouts": speed_bouts, "stride_length_m": length_values,
+            "walking_speed_m_s": speed_values, "bouts": len(bouts_s)}
 
 
 def gait_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:

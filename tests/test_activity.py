@@ -102,9 +102,9 @@ def test_import_hapt_gives_walking_sessions_in_si_units_with_the_labels(tmp_path
     assert set(np.unique(labels)) >= {0, 1, 2, 3, 4, 5} and np.mean(labels == 1) > 0.05
     capsys.readouterr()
     # one user: not a leave-one-user-out fold, so the model on main scores it (in-sample here: user 1 fitted it)
-    assert main(["bench", "activity", str(tmp_path / "s"), "--json"]) == 0
+    assert main(["bench", "activity", str(tmp_path / "s"), "--json", "--plot", str(tmp_path / "confusion.png")]) == 0
     found = json.loads(capsys.readouterr().out)
-    assert found["cross_validated"] is False and found["users"] == ["user01"]
+    assert found["cross_validated"] is False and found["users"] == ["user01"] and (tmp_path / "confusion.png").stat().st_size > 10_000
     for method in ("fusegraph", "paper_rules"):
         assert set(found["methods"][method]) >= {"correct", "confusion", "cycles_per_s", "static_cycles_per_min"}
     assert found["methods"]["fusegraph"]["correct"]["flat"] > found["methods"]["paper_rules"]["correct"]["flat"]

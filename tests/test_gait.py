@@ -53,8 +53,13 @@ def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: py
     assert session.meta["person"]["sensor_height_m"] == pytest.approx(0.964)
     assert len(session.meta["truth_extra"]["bouts_s"]) == 6 and np.median(np.linalg.norm(session.stream("accel").values, axis=1)) == pytest.approx(9.8, abs=0.3)
     capsys.readouterr()
-    assert main(["bench", "gait", str(tmp_path / "s"), "--json"]) == 0
+    assert main(["bench", "gait", str(tmp_path / "s"), "--json", "--plot", str(tmp_path / "gait.png")]) == 0
     found = json.loads(capsys.readouterr().out)
+    assert (tmp_path / "gait.png").stat().st_size > 10_000
+    # the picture's per-bout values are the ones the MAE is made of
+    pairs = [(b["reference"]["stride_length_m"], b["fusegraph"]["stride_length_m"]) for rec in found["recordings"].values() if rec["scored"]
+             for b in rec["per_bout"] if b["fusegraph"]["stride_length_m"] is not None]
+    assert np.mean([abs(e - r) for r, e in pairs]) == pytest.approx(found["methods"]["fusegraph"]["stride_length_mae_m"], rel=1e-12)
     assert set(found["methods"]) == {"fusegraph", "paper_speed"}  # mobgap's row needs the raw files
     assert found["cross_validated"] is True and not found["recordings"]["HA_002_Test5_Trial1"]["scored"]
     ours = found["methods"]["fusegraph"]

@@ -163,7 +163,8 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
                 "paper_speed": score_recording(paper_speed(session), reference),
                 **({"mobgap": score_recording(peer[name], reference)} if name in peer else {})}
         recordings[name] = {"scored": True, "bouts": len(reference.bouts_s), "reference_contacts": len(reference.contacts_s),
-                            "methods": {m: gait_scores([row]) for m, row in rows.items()}}
+                            "methods": {m: gait_scores([row]) for m, row in rows.items()},
+                            "per_bout": _per_bout(reference, rows)}
         for method, row in rows.items():
             per[method][name] = row
     methods = {m: gait_scores(list(rows.values())) for m, rows in per.items() if rows}
@@ -182,6 +183,29 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
                          "on_main": _config_text(PendulumConfig())},
             "notes": {"paper_speed": "uncalibrated: the default regression (no calibration walk outside the reference)",
                       "mobgap": "MobilisedPipelineHealthy on mobgap's own reading of the files" if peer else "not run (needs the raw folder)"}}
+
+
+def _per_bout(reference: GaitReference, rows: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each reference bout's mean stride length and speed beside each method's (None where it gave no stride)."""
+    out = []
+    for n in range(len(reference.bouts_s)):
+        bout: dict[str, Any] = {"reference": {"stride_length_m": float(reference.stride_length_m[n]) if n < len(reference.stride_length_m) else None,
+                                              "walking_speed_m_s": float(reference.walking_speed_m_s[n]) if n < len(reference.walking_speed_m_s) else None}}
+        for m, row in rows.items():
+            lengths = dict(zip(row["stride_length_bouts"], row["stride_length_m"], strict=True))
+            speeds = dict(zip(row["walking_speed_bouts"], row["walking_speed_m_s"], strict=True))
+            bout[m] = {"stride_length_m": lengths.get(n), "walking_speed_m_s": speeds.get(n)}
+        out.append(bout)
+    return out
+
+
+def plot_gait(result: dict[str, Any], path: str | Path) -> Path:
+    """``bench gait --plot``: per reference bout, each method's mean stride length and walking speed against the
+    reference's (the diagonal: agreement), the methods' MAE in the legend. PNG."""
+    from ..report.gait import plot_per_bout
+
+    bouts = [b for rec in result["recordings"].values() if rec["scored"] for b in rec["per_bout"]]
+    return plot_per_bout(bouts, {m: (v["stride_length_mae_m"], v["walking_speed_mae_m_s"]) for m, v in result["methods"].items()}, path)
 
 
 def _config_text(config: PendulumConfig) -> str:
