@@ -79,3 +79,15 @@ def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: py
     metrics = json.loads(capsys.readouterr().out)["sessions"]["declared"]["gait"]["metrics"]
     bench = found["recordings"]["HA_002_Test11_Trial1"]["methods"]["fusegraph"]
     assert (metrics["step_f1"], metrics["stride_length_mae_m"]) == (bench["step_f1"], bench["stride_length_mae_m"])
+
+
+@requires_shared_data("mobgap")
+def test_the_peer_is_the_pipeline_mobgap_recommends_for_the_cohort() -> None:
+    """mobgap's row runs its universal pipeline, which picks the healthy one for the healthy adults (HA) shared here
+    (and its impaired one for PD, MS, PFF): every shared trial says which ran, and its strides are mobgap's."""
+    from fusegraph.datasets.mobgap_lab import DEFAULT_DIR
+    from fusegraph.evaluation.gait import mobgap_estimates
+
+    estimates, used = mobgap_estimates(DEFAULT_DIR)
+    assert set(used) == set(estimates) and len(used) == 6 and set(used.values()) == {"healthy"}
+    assert sum(len(e.stride_length_m) for e in estimates.values()) > 20

@@ -21,8 +21,10 @@ Rows:
 * ``paper_speed``: the walking paper's speed regression on the vertical peak-to-peak acceleration (``pdr.SpeedModel``)
   UNCALIBRATED: its per-person fit needs a calibration walk at known speeds, and these recordings have none outside the
   reference (which never calibrates); the model's default figures serve, stride length = speed x stride time.
-* ``mobgap``: ``mobgap.pipeline.MobilisedPipelineHealthy`` run on mobgap's own reading of the same files (its documented
-  use): its raw initial contacts and its per-stride lengths and speeds.
+* ``mobgap``: ``mobgap.pipeline.MobilisedPipelineUniversal`` run on mobgap's own reading of the same files (its documented
+  use): the package's own choice of its healthy pipeline (cohorts HA, COPD, CHF) or its impaired one (PD, MS, PFF) from the
+  participant's cohort; its raw initial contacts and its per-stride lengths and speeds. The pipeline used per trial is
+  printed (JSON ``mobgap_pipeline``).
 """
 
 from __future__ import annotations
@@ -92,18 +94,20 @@ def fusegraph_counts(session: Session) -> dict[str, Any]:
     return dict(outcome.metrics["counts"])
 
 
-def mobgap_estimates(directory: str | Path) -> dict[str, GaitEstimate]:
-    """mobgap's healthy pipeline on every trial of the folder, through mobgap's own reader, by trial name."""
+def mobgap_estimates(directory: str | Path) -> tuple[dict[str, GaitEstimate], dict[str, str]]:
+    """mobgap's universal pipeline (its healthy or impaired one by the participant's cohort) on every trial of the folder,
+    through mobgap's own reader: the estimates and the pipeline used, by trial name."""
     from ..datasets.mobgap_lab import mobgap_dataset, trial_name
 
-    out = {}
+    out, used = {}, {}
     with warnings.catch_warnings():  # mobgap warns about its pickled models and its cache
         warnings.simplefilter("ignore")
-        from mobgap.pipeline import MobilisedPipelineHealthy
+        from mobgap.pipeline import MobilisedPipelineUniversal
 
         for datapoint in mobgap_dataset(directory):
             fs = float(datapoint.sampling_rate_hz)
-            run = MobilisedPipelineHealthy().safe_run(datapoint)
+            universal = MobilisedPipelineUniversal().safe_run(datapoint)
+            run, used[trial_name(datapoint)] = universal.pipeline_, str(universal.pipeline_name_)
             ics = run.raw_ic_list_["ic"].to_numpy(dtype=float) / fs if len(run.raw_ic_list_) else np.zeros(0)
             strides = run.per_stride_parameters_
             if len(strides):
@@ -112,7 +116,7 @@ def mobgap_estimates(directory: str | Path) -> dict[str, GaitEstimate]:
                                                           strides["walking_speed_mps"].to_numpy(dtype=float))
             else:
                 out[trial_name(datapoint)] = GaitEstimate(np.sort(ics), np.zeros(0), np.zeros(0), np.zeros(0))
-    return out
+    return out, used
 
 
 def score_recording(estimate: GaitEstimate, reference: GaitReference) -> dict[str, Any]:
@@ -129,7 +133,7 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
     folder = Path(directory or DEFAULT_DIR)
     raw = bool(list(folder.rglob("data.mat")))
     sessions = mobgap_sessions(folder) if raw else load_sessions([folder])
-    peer = mobgap_estimates(folder) if raw and with_mobgap else {}
+    peer, pipelines = mobgap_estimates(folder) if raw and with_mobgap else ({}, {})
     per: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in METHODS}
     recordings: dict[str, Any] = {}
     scored: dict[str, tuple[str, Session, GaitReference]] = {}
@@ -182,7 +186,17 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
             "pendulum": {"chosen_per_participant": {s: _config_text(c) for s, c in chosen.items()}, "in_sample": _config_text(in_sample),
                          "on_main": _config_text(PendulumConfig())},
             "notes": {"paper_speed": "uncalibrated: the default regression (no calibration walk outside the reference)",
-                      "mobgap": "MobilisedPipelineHealthy on mobgap's own reading of the files" if peer else "not run (needs the raw folder)"}}
+                      "mobgap": (f"MobilisedPipelineUniversal on mobgap's own reading of the files ({_pipelines_text(pipelines)})"
+                                 if peer else "not run (needs the raw folder)")},
+            "mobgap_pipeline": pipelines}
+
+
+def _pipelines_text(used: dict[str, str]) -> str:
+    """Which of mobgap's pipelines ran on how many trials, e.g. ``healthy on 6 trials``."""
+    counts: dict[str, int] = {}
+    for name in used.values():
+        counts[name] = counts.get(name, 0) + 1
+    return ", ".join(f"{name} on {n} trial{'s' if n != 1 else ''}" for name, n in sorted(counts.items()))
 
 
 def _per_bout(reference: GaitReference, rows: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
