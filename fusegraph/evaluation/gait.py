@@ -193,10 +193,9 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
 
 def _pipelines_text(used: dict[str, str]) -> str:
     """Which of mobgap's pipelines ran on how many trials, e.g. ``healthy on 6 trials``."""
-    counts: dict[str, int] = {}
-    for name in used.values():
-        counts[name] = counts.get(name, 0) + 1
-    return ", ".join(f"{name} on {n} trial{'s' if n != 1 else ''}" for name, n in sorted(counts.items()))
+    from collections import Counter
+
+    return ", ".join(f"{name} on {n} trial{'s' if n != 1 else ''}" for name, n in sorted(Counter(used.values()).items()))
 
 
 def _per_bout(reference: GaitReference, rows: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
