@@ -326,7 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("--oxford", default="default", metavar="DIR", help="walking: Oxford step recordings (default ../shared/data/steps_oxford; 'none' skips)")
     ben.add_argument("--no-plaza", action="store_true", help="walking: skip the Plaza runs")
     ben.add_argument("--use-mag", action="store_true", help="gaze-recorded: use the magnetometer as recorded (default: not; it cannot be calibrated)")
-    ben.add_argument("--workers", type=int, default=2, help="head-recorded: trials run side by side in processes (default 2)")
+    ben.add_argument("--workers", type=int, default=2,
+                     help="head-recorded: trials run side by side in processes; activity: leave-one-user-out folds (default 2)")
     ben.add_argument("--json", action="store_true", help="print JSON")
     return parser
 
@@ -698,7 +699,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "activity":
         from .evaluation.activity import bench_activity, format_activity
 
-        found = bench_activity(args.directory, progress=lambda line: print(line, file=sys.stderr))
+        found = bench_activity(args.directory, progress=lambda line: print(line, file=sys.stderr), workers=args.workers)
         print(_dump(found) if args.json else format_activity(found))
         if args.plot:
             from .report.gait import plot_confusions

@@ -151,3 +151,26 @@ def test_the_features_skewness_is_scipys() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # scipy warns about the constant signal it returns NaN for
         assert np.isnan(_skewness(np.full(50, 3.0))) and np.isnan(float(skew(np.full(50, 3.0))))
+
+
+def test_folds_in_processes_give_the_same_calls_as_in_one() -> None:
+    """bench activity's leave-one-user-out folds fitted in worker processes call every cycle as in this process (the
+    fits are seeded); three users of synthetic recordings keep it quick."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from fusegraph.evaluation.activity import _held_out_fold, _InProcess
+    from fusegraph.frontends.activity import BASE_FEATURES
+
+    rng = np.random.default_rng(0)
+    recordings = []
+    for user in ("u1", "u2", "u3"):  # 60 cycles each, the three walking classes apart in every feature
+        label = np.repeat([1, 2, 3], 20)
+        base = rng.normal(0.0, 1.0, (60, len(BASE_FEATURES))) + label[:, None]
+        recordings.append(Recording(user, user, np.arange(60.0) * 0.55, base, label, ("flat",) * 60, np.repeat([1, 2, 3], 20), 0.55))
+    subjects = sorted({r.subject for r in recordings})
+
+    with _InProcess() as pool:
+        here = list(pool.map(_held_out_fold, [recordings] * len(subjects), subjects))
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        there = list(pool.map(_held_out_fold, [recordings] * len(subjects), subjects))
+    assert here == there and all(calls for _, calls in here)

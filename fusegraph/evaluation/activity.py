@@ -175,11 +175,20 @@ def _load(directory: str | Path | None, sessions: Sequence[str | Path]) -> list[
     return load_sessions([folder])
 
 
+def _held_out_fold(recordings: Sequence[Recording], subject: str) -> tuple[dict[str, Any], dict[int, list[str]]]:
+    """One leave-one-user-out fold: the model fitted (settings chosen) without ``subject``, its choices and its calls on
+    each of the subject's recordings (by index)."""
+    fitted = fit_model([r for r in recordings if r.subject != subject])
+    calls = {i: fitted.classify(rec.base, rec.cycle_t) for i, rec in enumerate(recordings) if rec.subject == subject}
+    return {"stages": fitted.provenance["stages"], "context_cycles": fitted.context_cycles}, calls
+
+
 def bench_activity(directory: str | Path | None = None, sessions: Sequence[str | Path] = (),
-                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                   progress: Callable[[str], None] | None = None, workers: int = 1) -> dict[str, Any]:
     """The JSON of ``fusegraph bench activity`` (see the module docstring): ``directory`` is HAPT's raw folder or a folder
     of imported sessions (``sessions``: session directories instead). The model on main scores through ``run --solver
-    activity`` (``runner.solve_session``): its figures are ``report walking DIR --solvers activity``'s counts pooled."""
+    activity`` (``runner.solve_session``): its figures are ``report walking DIR --solvers activity``'s counts pooled.
+    ``workers``: leave-one-user-out folds fitted side by side in processes (the same figures: the fits are seeded)."""
     model = load_model()
     loaded = _load(directory, sessions)
     recordings = []
@@ -193,17 +202,18 @@ def bench_activity(directory: str | Path | None = None, sessions: Sequence[str |
     result: dict[str, Any] = {"users": subjects, "recordings": [r.name for r in recordings], "cross_validated": cross_validated,
                               "model": {k: model.provenance.get(k) for k in ("dataset", "subjects", "stages", "context_cycles", "rule")}}
     if cross_validated:
+        from concurrent.futures import ProcessPoolExecutor
+
         held_out: list[list[str]] = [[] for _ in recordings]
         choices = {}
-        for n, subject in enumerate(subjects):
-            train = [r for r in recordings if r.subject != subject]
-            fitted = fit_model(train)
-            choices[subject] = {"stages": fitted.provenance["stages"], "context_cycles": fitted.context_cycles}
-            for i, rec in enumerate(recordings):
-                if rec.subject == subject:
-                    held_out[i] = fitted.classify(rec.base, rec.cycle_t)
-            if progress is not None:
-                progress(f"held out {subject} ({n + 1}/{len(subjects)})")
+        with ProcessPoolExecutor(max_workers=workers) if workers > 1 else _InProcess() as pool:
+            folds = pool.map(_held_out_fold, [recordings] * len(subjects), subjects)
+            for n, (subject, (chosen, calls)) in enumerate(zip(subjects, folds, strict=True)):
+                choices[subject] = chosen
+                for i, called in calls.items():
+                    held_out[i] = called
+                if progress is not None:
+                    progress(f"held out {subject} ({n + 1}/{len(subjects)})")
         fusegraph = score(recordings, held_out)
         fusegraph["correct_in_sample"] = score(recordings, on_main)["correct"]
         result["chosen_per_user"] = choices
@@ -211,6 +221,19 @@ def bench_activity(directory: str | Path | None = None, sessions: Sequence[str |
         fusegraph = score(recordings, on_main)
     result["methods"] = {"fusegraph": fusegraph, "paper_rules": score(recordings, [list(r.paper) for r in recordings])}
     return result
+
+
+class _InProcess:
+    """``map`` in this process, for one worker (a pool's interface: a context manager with ``map``)."""
+
+    def __enter__(self) -> _InProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def map(self, fn: Callable[..., Any], *iterables: Any) -> Any:
+        return map(fn, *iterables)
 
 
 def format_activity(result: dict[str, Any]) -> str:
