@@ -156,9 +156,8 @@ def test_the_features_skewness_is_scipys() -> None:
 def test_folds_in_processes_give_the_same_calls_as_in_one() -> None:
     """bench activity's leave-one-user-out folds fitted in worker processes call every cycle as in this process (the
     fits are seeded); three users of synthetic recordings keep it quick."""
-    from concurrent.futures import ProcessPoolExecutor
-
-    from fusegraph.evaluation.activity import _held_out_fold, _InProcess
+    from fusegraph.evaluation.activity import _held_out_fold
+    from fusegraph.evaluation.cluster import in_order
     from fusegraph.frontends.activity import BASE_FEATURES
 
     rng = np.random.default_rng(0)
@@ -169,8 +168,6 @@ def test_folds_in_processes_give_the_same_calls_as_in_one() -> None:
         recordings.append(Recording(user, user, np.arange(60.0) * 0.55, base, label, ("flat",) * 60, np.repeat([1, 2, 3], 20), 0.55))
     subjects = sorted({r.subject for r in recordings})
 
-    with _InProcess() as pool:
-        here = list(pool.map(_held_out_fold, [recordings] * len(subjects), subjects))
-    with ProcessPoolExecutor(max_workers=2) as pool:
-        there = list(pool.map(_held_out_fold, [recordings] * len(subjects), subjects))
+    jobs = [(recordings, subject) for subject in subjects]
+    here, there = in_order(_held_out_fold, jobs, 1), in_order(_held_out_fold, jobs, 2)
     assert here == there and all(calls for _, calls in here)

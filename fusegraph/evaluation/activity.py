@@ -175,9 +175,10 @@ def _load(directory: str | Path | None, sessions: Sequence[str | Path]) -> list[
     return load_sessions([folder])
 
 
-def _held_out_fold(recordings: Sequence[Recording], subject: str) -> tuple[dict[str, Any], dict[int, list[str]]]:
-    """One leave-one-user-out fold: the model fitted (settings chosen) without ``subject``, its choices and its calls on
-    each of the subject's recordings (by index)."""
+def _held_out_fold(job: tuple[Sequence[Recording], str]) -> tuple[dict[str, Any], dict[int, list[str]]]:
+    """One leave-one-user-out fold (the recordings, the subject held out): the model fitted (settings chosen) without the
+    subject, its choices and its calls on each of the subject's recordings (by index)."""
+    recordings, subject = job
     fitted = fit_model([r for r in recordings if r.subject != subject])
     calls = {i: fitted.classify(rec.base, rec.cycle_t) for i, rec in enumerate(recordings) if rec.subject == subject}
     return {"stages": fitted.provenance["stages"], "context_cycles": fitted.context_cycles}, calls
@@ -202,18 +203,18 @@ def bench_activity(directory: str | Path | None = None, sessions: Sequence[str |
     result: dict[str, Any] = {"users": subjects, "recordings": [r.name for r in recordings], "cross_validated": cross_validated,
                               "model": {k: model.provenance.get(k) for k in ("dataset", "subjects", "stages", "context_cycles", "rule")}}
     if cross_validated:
-        from concurrent.futures import ProcessPoolExecutor
+        from .cluster import completed
 
         held_out: list[list[str]] = [[] for _ in recordings]
         choices = {}
-        with ProcessPoolExecutor(max_workers=workers) if workers > 1 else _InProcess() as pool:
-            folds = pool.map(_held_out_fold, [recordings] * len(subjects), subjects)
-            for n, (subject, (chosen, calls)) in enumerate(zip(subjects, folds, strict=True)):
-                choices[subject] = chosen
-                for i, called in calls.items():
-                    held_out[i] = called
-                if progress is not None:
-                    progress(f"held out {subject} ({n + 1}/{len(subjects)})")
+        jobs = [(recordings, subject) for subject in subjects]
+        for n, ((_, subject), future) in enumerate(completed(_held_out_fold, jobs, workers, None)):
+            choices[subject], calls = future.result()
+            for i, called in calls.items():
+                held_out[i] = called
+            if progress is not None:
+                progress(f"held out {subject} ({n + 1}/{len(subjects)})")
+        choices = {subject: choices[subject] for subject in subjects}  # in the users' order, whatever order the folds ended in
         fusegraph = score(recordings, held_out)
         fusegraph["correct_in_sample"] = score(recordings, on_main)["correct"]
         result["chosen_per_user"] = choices
@@ -221,19 +222,6 @@ def bench_activity(directory: str | Path | None = None, sessions: Sequence[str |
         fusegraph = score(recordings, on_main)
     result["methods"] = {"fusegraph": fusegraph, "paper_rules": score(recordings, [list(r.paper) for r in recordings])}
     return result
-
-
-class _InProcess:
-    """``map`` in this process, for one worker (a pool's interface: a context manager with ``map``)."""
-
-    def __enter__(self) -> _InProcess:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        return None
-
-    def map(self, fn: Callable[..., Any], *iterables: Any) -> Any:
-        return map(fn, *iterables)
 
 
 def format_activity(result: dict[str, Any]) -> str:
@@ -273,14 +261,11 @@ def step_statistics(t: np.ndarray, accel_m_s2: np.ndarray, gyro_rad_s: np.ndarra
     gravity filter is a per-sample loop). The same code reads a real recording and a simulated one, so the two are
     compared like for like."""
     from ..frontends.gait import pelvis_excursion
-    from ..frontends.pdr import detect_cycles, gravity_filter, vertical_horizontal
+    from ..frontends.pdr import front_end, vertical_horizontal
     from ..systems.walking import WAIST
 
     fs = 1.0 / float(np.median(np.diff(t)))
-    if analysed is None:
-        gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, WAIST)
-        analysed = gravity, detect_cycles(t, accel_m_s2, gyro_rad_s, WAIST, gravity)
-    gravity, cycles = analysed
+    gravity, cycles = analysed or front_end(t, accel_m_s2, gyro_rad_s, WAIST)
     cycle_t = np.array([c.t for c in cycles])
     pitch_corr = cycle_features(t, accel_m_s2, gyro_rad_s, gravity, cycles)[:, BASE_FEATURES.index("corr_vertical_pitch_rate")]
     vertical, horizontal = vertical_horizontal(accel_m_s2, gravity)

@@ -73,3 +73,12 @@ def completed(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, sche
         pending = {pool.submit(fn, item): item for item in items}
         for future in as_completed(pending):
             yield pending[future], future
+
+
+def in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int) -> list[Any]:
+    """``fn`` over ``items`` through ``completed`` (here, or a local process pool), the results in item order."""
+    position = {id(item): i for i, item in enumerate(items)}  # completed() hands back the very item objects
+    results: list[Any] = [None] * len(items)
+    for item, future in completed(fn, items, workers, None):
+        results[position[id(item)]] = future.result()
+    return results

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..tuned import write_tuned
+from .cluster import in_order
 
 TUNING_SEEDS: tuple[int, ...] = tuple(range(100, 120))
 """Seeds every free setting is chosen on."""
@@ -41,17 +42,6 @@ class Study:
     """Unit of the score, for the table."""
 
 
-def _in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int) -> list[Any]:
-    """``fn`` over ``items`` through the project's executor (``cluster.completed``: here, or a process pool), in item order."""
-    from .cluster import completed
-
-    position = {id(item): i for i, item in enumerate(items)}  # completed() hands back the very item objects
-    results: list[Any] = [None] * len(items)
-    for item, future in completed(fn, items, workers, None):
-        results[position[id(item)]] = future.result()
-    return results
-
-
 def _score_job(job: tuple[str, dict[str, Any], int]) -> float:
     """One study's score of one setting on one seed, the study looked up by name (a pool worker gets names, not lambdas)."""
     name, setting, seed = job
@@ -66,7 +56,7 @@ def run_study(study: Study, seeds: Sequence[int] = TUNING_SEEDS, workers: int = 
     settings = [dict(zip(names, values, strict=True)) for values in itertools.product(*(study.grid[n] for n in names))]
     jobs = [(study.name, setting, seed) for setting in settings for seed in seeds]
     if workers > 1 and STUDIES.get(study.name) is study:
-        scores = _in_order(_score_job, jobs, workers)
+        scores = in_order(_score_job, jobs, workers)
     else:  # a study not in STUDIES cannot be looked up by a worker
         scores = [study.score(setting, seed) for _, setting, seed in jobs]
     per_setting = np.reshape(scores, (len(settings), len(seeds)))
@@ -252,7 +242,7 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     checks) chosen by leave-one-trial-out on the BROAD trials for ``solver`` (online or batch), the other study's settings
     as tuned (``sessions``: imported session directories instead of the trial files): total RMSE, degrees."""
     paths = [str(p) for p in recordings(directory, sessions)]
-    per_trial = _in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers)
+    per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers)
     scores: dict[str, dict[str, float]] = {name: {} for name in grid_settings(BROAD_GRIDS[study])}
     for path, trial in zip(paths, per_trial, strict=True):
         for name, score in trial.items():
@@ -307,7 +297,7 @@ def uwb_calibrated_logo(sessions: Sequence[str | Path] = (), workers: int = 1) -
         jobs = [(p.name, str(p), True) for p in session_dirs(sessions)]
     else:
         jobs = [(d.name, str(d), False) for d in sorted(DEFAULT_DIR.parent.glob("uwb_lias*")) if (d / "calibration.csv").is_file()]
-    per_run = _in_order(_uwb_run_scores, jobs, workers)
+    per_run = in_order(_uwb_run_scores, jobs, workers)
     scores = {name: {job[0]: run[name] for job, run in zip(jobs, per_run, strict=True)} for name in grid_settings(UWB_CALIBRATED_GRID)}
     return leave_one_group_out(scores)
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..datasets import steps_oxford
 from ..estimate import PointEstimate
-from ..frontends.pdr import Cycle, Ride, detect_cycles, gravity_filter
+from ..frontends.pdr import Cycle, Ride, front_end
 from ..records import ACTIVITIES, WalkingSession
 from ..report.walking import plot_gait_statistics, plot_walk
 from ..scenarios.walking import WalkingScenarioConfig, calibrated_speed, session_of_walk, simulate_walking
@@ -17,12 +17,6 @@ from ..session import Session
 from ..systems.walking import METHODS, WAIST, WalkRun, analyse
 from .activity import STEP_STATISTICS
 from .runner import report_sessions, solve_session
-
-
-def _front_end(walk: WalkingSession) -> tuple[np.ndarray, list[Cycle]]:
-    """The walking preset's gravity filter and its cycles (``walking.analyse``'s ``front``)."""
-    gravity = gravity_filter(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST)
-    return gravity, detect_cycles(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST, gravity)
 
 
 def positioning(session: Session) -> tuple[dict[str, dict[str, float]], dict[str, WalkRun]]:
@@ -53,11 +47,12 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
     pendulum = WalkingScenarioConfig(gait="pendulum")
     independent = simulate_walking(seed, pendulum)
     pendulum_speed = calibrated_speed(seed, pendulum)
-    gravity, independent_cycles = front = _front_end(independent)  # one front end serves both classifications and the statistics
+    # one front end serves both classifications and the statistics
+    gravity, independent_cycles = front = front_end(independent.t, independent.accel_m_s2, independent.gyro_rad_s, WAIST)
     (classified, independent_rides, _), (live, _, _) = (analyse(independent, pendulum_speed, causal=c, front=front) for c in (False, True))
     session = simulate_walking(seed)
     speed = calibrated_speed(seed)
-    cycles, rides, _ = analyse(session, speed, front=_front_end(session))
+    cycles, rides, _ = analyse(session, speed)
     out: dict[str, object] = {"confusion": confusion(independent, classified, independent_rides),
                               "confusion_causal": confusion(independent, live, independent_rides),
                               "confusion_paper_rules": confusion(independent, independent_cycles, independent_rides),

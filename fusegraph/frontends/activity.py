@@ -33,7 +33,7 @@ from scipy.signal import butter, filtfilt
 
 from ..geometry import FloatArray
 from .gait import pelvis_excursion
-from .pdr import Cycle, PdrConfig, detect_cycles, gravity_filter, vertical_horizontal
+from .pdr import Cycle, PdrConfig, front_end, vertical_horizontal
 
 ACTIVITIES = ("flat", "stairs_up", "stairs_down")
 """The classes, in the model's order."""
@@ -295,6 +295,5 @@ def classify_waist(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray
                    model: ActivityModel | None = None) -> tuple[list[Cycle], list[str], FloatArray]:
     """The walking cycles of one waist recording (``pdr.detect_cycles`` with ``config``), each one's activity by
     ``model`` (default: the model on main), and their ``BASE_FEATURES`` (what a model is fitted on)."""
-    gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, config)
-    cycles = detect_cycles(t, accel_m_s2, gyro_rad_s, config, gravity=gravity)
+    gravity, cycles = front_end(t, accel_m_s2, gyro_rad_s, config)
     return cycles, *_classified(t, accel_m_s2, gyro_rad_s, gravity, cycles, model)

@@ -17,7 +17,8 @@ import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from ..geometry import FloatArray
-from .pdr import PdrConfig, detect_cycles, gravity_filter, vertical_horizontal
+from .pdr import PdrConfig, vertical_horizontal
+from .pdr import front_end as walking_front_end
 
 CORRECTION = 1.25
 """Zijlstra & Hof (2003)'s correction of the pendulum's step length (their Results: the model underestimated by ~20 %)."""
@@ -91,7 +92,7 @@ def waist_gait(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, le
                config: PendulumConfig = PendulumConfig()) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Steps and strides of one lower-back recording: the walking cycles (``pdr.detect_cycles`` with ``front_end``) as
     steps, the pendulum's step lengths, two steps a stride. Returns (step times, stride times, stride lengths, speeds)."""
-    gravity = gravity_filter(t, accel_m_s2, gyro_rad_s, front_end)
-    steps = np.array([c.t for c in detect_cycles(t, accel_m_s2, gyro_rad_s, front_end, gravity=gravity)])
+    gravity, cycles = walking_front_end(t, accel_m_s2, gyro_rad_s, front_end)
+    steps = np.array([c.t for c in cycles])
     vertical, _ = vertical_horizontal(accel_m_s2, gravity)
     return (steps, *strides(steps, step_lengths(t, vertical, steps, leg_m, config)))

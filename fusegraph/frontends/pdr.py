@@ -212,6 +212,13 @@ def _dominant_period(x: FloatArray, fs: float, lo_s: float, hi_s: float) -> floa
     return math.nan
 
 
+def front_end(t: FloatArray, accel: FloatArray, gyro: FloatArray | None, config: PdrConfig = PdrConfig()) -> tuple[FloatArray, list[Cycle]]:
+    """The walking front end of one recording: ``gravity_filter``'s gravity and the ``detect_cycles`` found with it (the
+    filter runs once for everything after it that needs gravity)."""
+    gravity = gravity_filter(t, accel, gyro, config)
+    return gravity, detect_cycles(t, accel, gyro, config, gravity)
+
+
 def detect_cycles(t: FloatArray, accel: FloatArray, gyro: FloatArray | None = None, config: PdrConfig = PdrConfig(),
                   gravity: FloatArray | None = None) -> list[Cycle]:
     """Walking cycles with their heading of travel, amplitudes, heading change and activity

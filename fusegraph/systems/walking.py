@@ -24,7 +24,7 @@ from scipy.stats import chi2
 from ..factors.odometry import FixNoise, OdometryNoise, PlanarMotion, dead_reckon, level_pose, odometry_sigmas
 from ..factors.ranging import BeaconRanges, beacon_ranges_from
 from ..frontends.activity import with_activity
-from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_cycles, detect_rides, gravity_filter
+from ..frontends.pdr import Cycle, PdrConfig, Ride, SpeedModel, detect_rides, front_end
 from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule, start_from_ranges
 from ..metrics import track_errors
@@ -252,8 +252,7 @@ def analyse(session: WalkingSession, speed: SpeedModel, config: PdrConfig = WAIS
             front: tuple[FloatArray, list[Cycle]] | None = None) -> tuple[list[Cycle], list[Ride], list[Event]]:
     """Steps (activity by the waist classifier, ``frontends.activity``; ``causal``: from the steps up to it), rides, their
     odometry. ``front``: the gravity filter's output (a per-sample loop) and its ``detect_cycles`` when the caller has them."""
-    gravity = front[0] if front else gravity_filter(session.t, session.accel_m_s2, session.gyro_rad_s, config)
-    found = front[1] if front else detect_cycles(session.t, session.accel_m_s2, session.gyro_rad_s, config, gravity)
+    gravity, found = front or front_end(session.t, session.accel_m_s2, session.gyro_rad_s, config)
     rides = detect_rides(session.t, session.accel_m_s2, session.gyro_rad_s, found, config, gravity)
     cycles = with_activity(session.t, session.accel_m_s2, session.gyro_rad_s, gravity, found, causal=causal)
     return cycles, rides, events_from(cycles, rides, speed, session.building)
