@@ -11,12 +11,12 @@ got a value (their number beside). Trials without reference bouts are listed, no
 
 Rows:
 
-* ``fusegraph``: ``run --solver gait`` (the walking preset: a step per walking cycle of ``pdr.detect_cycles``; step
-  length from the inverted pendulum, ``frontends.gait``, with the person's sensor height as the leg; a stride as two
-  consecutive steps, speed = stride length / stride time) on each session. The pendulum's drift removal
-  and correction are chosen from ``frontends.gait.PENDULUM_GRID`` by leave-one-participant-out (the held-out
-  participant's rows are its sessions DECLARING the settings chosen on the others, ``[gait]``; the in-sample choice
-  printed beside); a folder of one
+* ``fusegraph``: ``run --solver gait`` (the walking preset: a step per walking cycle of ``pdr.detect_cycles``, the
+  contacts it missed inside a bout inferred, ``frontends.gait.with_missed_steps``; step length from the inverted
+  pendulum, ``frontends.gait``, with the person's sensor height as the leg; a stride as two consecutive steps, speed =
+  stride length / stride time) on each session. The pendulum's drift removal and correction are chosen from
+  ``frontends.gait.PENDULUM_GRID`` by leave-one-participant-out (the held-out participant's rows are its sessions
+  DECLARING the settings chosen on the others, ``[gait]``; the in-sample choice printed beside); a folder of one
   participant is scored with the settings on main (``PendulumConfig()``).
 * ``paper_speed``: the walking paper's speed regression on the vertical peak-to-peak acceleration (``pdr.SpeedModel``)
   UNCALIBRATED: its per-person fit needs a calibration walk at known speeds, and these recordings have none outside the

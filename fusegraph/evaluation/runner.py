@@ -52,6 +52,13 @@ def run_session(path: str | Path, solver: str, out: str | Path | None = None, pl
         raise SessionError(f"--out {target}: is a folder; give a file name (e.g. {target / (outcome.preset.estimate_name + '_' + solver + '.csv')})")
     target.parent.mkdir(parents=True, exist_ok=True)
     outcome.files.append(outcome.estimate.save_csv(target))
+    steps = outcome.estimate.extras.get("steps_s")
+    if steps is not None:  # --solver gait: its steps beside the strides, the inferred contacts said as such
+        inferred = outcome.estimate.extras.get("steps_inferred", np.zeros(len(steps), dtype=bool))
+        steps_path = target.with_name(f"{target.stem}_steps.csv")
+        np.savetxt(steps_path, np.column_stack([steps, np.asarray(inferred, dtype=int)]), fmt=["%.4f", "%d"], delimiter=",",
+                   header="t_s,inferred", comments="")
+        outcome.files.append(steps_path)
     if plot is not None:
         from ..report.pictures import PICTURES
 

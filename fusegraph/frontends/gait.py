@@ -7,6 +7,12 @@ the paper). The paper's model underestimated the measured step length; it multip
 on its own subjects (``CORRECTION``: a literature constant, not fitted to any recording here). ``h`` comes from the
 vertical acceleration (gravity removed, levelled frame) integrated twice, the drift taken out by high-passes
 (``PendulumConfig``).
+
+A contact the cycle detector misses leaves an interval of two or more steps between detections; its excursion is one
+step's, so a stride made of it reads one step short, and the bout's mean comes from its easy strides alone.
+``with_missed_steps`` splits such an interval into the whole number of steps of the bout's step period it spans
+(inferred contacts, said as such), as mobgap's Zijlstra implementation interpolates its step lengths over gaps of up to
+``MAX_GAP_S``.
 """
 
 from __future__ import annotations
@@ -22,13 +28,21 @@ from .pdr import front_end as walking_front_end
 
 CORRECTION = 1.25
 """Zijlstra & Hof (2003)'s correction of the pendulum's step length (their Results: the model underestimated by ~20 %)."""
+MS_PROJECT_CORRECTION = 4.587 / 4
+"""The correction Mobilise-D fitted on its MS Project data (mobgap's ``SlZijlstra``, ``step_length_scaling_factor_ms_ms``,
+its default): a literature constant, fitted on none of the recordings here."""
+MAX_GAP_S = 3.0
+"""Longest interval between detected contacts that is walking with contacts missed, s; a longer one is a pause (mobgap's
+``SlZijlstra.max_interpolation_gap_s`` default, the gap it interpolates step lengths over)."""
+MAX_STEP_S = 1.2
+"""Longest single step, s: a longer interval between contacts is not one step."""
 
 
 @dataclass(frozen=True)
 class PendulumConfig:
     """How the vertical excursion is integrated and scaled. ``bench gait`` chooses among ``PENDULUM_GRID`` by
     leave-one-participant-out; the defaults are its in-sample choice on the two Mobilise-D participants in
-    ../shared/data/mobgap (stride-length MAE 0.156 m in-sample, 0.181 m leave-one-participant-out)."""
+    ../shared/data/mobgap (stride-length MAE 0.089 m in-sample, 0.147 m leave-one-participant-out)."""
 
     accel_highpass_hz: float | None = 0.1
     """High-pass of the vertical acceleration before the first integral, Hz (None: none)."""
@@ -36,13 +50,39 @@ class PendulumConfig:
     """High-pass after each integral (drift removal), Hz."""
     order: int = 4
     """Butterworth order of those high-passes (applied forward and backward: zero phase)."""
-    correction: float = 1.0
-    """Scale of the pendulum's step length (1: the pendulum as it is; Zijlstra & Hof's ``CORRECTION`` is the grid's other)."""
+    correction: float = MS_PROJECT_CORRECTION
+    """Scale of the pendulum's step length (1: the pendulum as it is; Mobilise-D's ``MS_PROJECT_CORRECTION`` and Zijlstra &
+    Hof's ``CORRECTION`` are the grid's others)."""
 
 
-PENDULUM_GRID = tuple(PendulumConfig(0.1, hp, 4, k) for hp in (0.5, 0.7, 1.0, 1.2) for k in (1.0, CORRECTION))
+PENDULUM_GRID = tuple(PendulumConfig(0.1, hp, 4, k) for hp in (0.5, 0.7, 1.0, 1.2) for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
 """The drift-removal corner (mobgap's reimplementation of Zijlstra's method: 0.1 Hz on the acceleration, 1 Hz after the
-integral, 4th order) and the correction (none, or Zijlstra & Hof's)."""
+integral, 4th order) and the correction (none, Mobilise-D's, or Zijlstra & Hof's): literature values, no fitted one."""
+
+
+def with_missed_steps(steps_s: FloatArray) -> tuple[FloatArray, np.ndarray]:
+    """The detected contacts with the ones the detector missed inferred: within a bout (detections no more than
+    ``MAX_GAP_S`` apart), an interval of ``k >= 2`` of the bout's step periods (the median of its intervals up to
+    ``MAX_STEP_S``) is split into ``k`` equal steps. Returns (contacts in time order, True where inferred)."""
+    steps_s = np.asarray(steps_s, dtype=float)
+    if len(steps_s) < 2:
+        return steps_s, np.zeros(len(steps_s), dtype=bool)
+    gaps = np.diff(steps_s)
+    edges = [0, *(np.nonzero(gaps > MAX_GAP_S)[0] + 1).tolist(), len(steps_s)]
+    times, inferred = [steps_s[:1]], [np.zeros(1, dtype=bool)]
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        single = gaps[a : b - 1][gaps[a : b - 1] <= MAX_STEP_S]
+        period = float(np.median(single)) if len(single) else np.nan
+        for n in range(a, b):
+            if n > a:  # inside the bout: the interval before contact n
+                k = int(round(gaps[n - 1] / period)) if np.isfinite(period) else 1
+                if k >= 2:
+                    times.append(steps_s[n - 1] + gaps[n - 1] * np.arange(1, k) / k)
+                    inferred.append(np.ones(k - 1, dtype=bool))
+            if n > 0:
+                times.append(steps_s[n : n + 1])
+                inferred.append(np.zeros(1, dtype=bool))
+    return np.concatenate(times), np.concatenate(inferred)
 
 
 def pelvis_excursion(vertical_m_s2: FloatArray, fs: float, highpass_hz: float = 0.5, accel_highpass_hz: float | None = None,
@@ -58,7 +98,7 @@ def pelvis_excursion(vertical_m_s2: FloatArray, fs: float, highpass_hz: float = 
 
 def step_lengths(t: FloatArray, vertical_m_s2: FloatArray, steps_s: FloatArray, leg_m: float, config: PendulumConfig = PendulumConfig()) -> FloatArray:
     """Length of each step, m: the step from one contact to the next (the last contact takes its predecessor's length;
-    NaN for a step longer than 1.2 s, a pause, and where the excursion exceeds the leg)."""
+    NaN for a step longer than ``MAX_STEP_S``, a pause, and where the excursion exceeds the leg)."""
     steps_s = np.asarray(steps_s, dtype=float)
     out = np.full(len(steps_s), np.nan)
     if len(steps_s) < 2:
@@ -67,7 +107,7 @@ def step_lengths(t: FloatArray, vertical_m_s2: FloatArray, steps_s: FloatArray, 
     height = pelvis_excursion(vertical_m_s2, fs, config.highpass_hz, config.accel_highpass_hz, config.order)
     index = np.clip(np.searchsorted(t, steps_s), 0, len(t) - 1)
     for n in range(len(steps_s) - 1):
-        if steps_s[n + 1] - steps_s[n] > 1.2:
+        if steps_s[n + 1] - steps_s[n] > MAX_STEP_S:
             continue
         h = float(np.ptp(height[index[n] : index[n + 1] + 1]))
         if 0.0 < h < leg_m:
@@ -89,10 +129,11 @@ def strides(steps_s: FloatArray, step_m: FloatArray) -> tuple[FloatArray, FloatA
 
 
 def waist_gait(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, leg_m: float, front_end: PdrConfig,
-               config: PendulumConfig = PendulumConfig()) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+               config: PendulumConfig = PendulumConfig()) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray, FloatArray]:
     """Steps and strides of one lower-back recording: the walking cycles (``pdr.detect_cycles`` with ``front_end``) as
-    steps, the pendulum's step lengths, two steps a stride. Returns (step times, stride times, stride lengths, speeds)."""
+    steps, with the contacts it missed inferred (``with_missed_steps``), the pendulum's step lengths, two steps a stride.
+    Returns (step times, True where inferred, stride times, stride lengths, speeds)."""
     gravity, cycles = walking_front_end(t, accel_m_s2, gyro_rad_s, front_end)
-    steps = np.array([c.t for c in cycles])
+    steps, inferred = with_missed_steps(np.array([c.t for c in cycles]))
     vertical, _ = vertical_horizontal(accel_m_s2, gravity)
-    return (steps, *strides(steps, step_lengths(t, vertical, steps, leg_m, config)))
+    return (steps, inferred, *strides(steps, step_lengths(t, vertical, steps, leg_m, config)))

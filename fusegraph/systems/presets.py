@@ -317,9 +317,9 @@ def _waist_analysis(session: Session, solver: str) -> PointEstimate:
     if leg is None:
         raise SessionError(f"{session.where}: --solver gait needs [person] sensor_height_m (the waist sensor's height: the pendulum's leg)")
     declared: dict[str, Any] = {k: float(v) for k, v in session.meta.get("gait", {}).items()}
-    steps, stride_t, length, speed = waist_gait(accel.t, accel.values, gyro.values, float(leg), WAIST, replace(PendulumConfig(), **declared))
+    steps, inferred, stride_t, length, speed = waist_gait(accel.t, accel.values, gyro.values, float(leg), WAIST, replace(PendulumConfig(), **declared))
     return PointEstimate("gait", stride_t, np.stack([length, speed], axis=1)[:, None, :], ("stride_length_m", "walking_speed_m_s"),
-                         time.perf_counter() - start, {"steps_s": steps})
+                         time.perf_counter() - start, {"steps_s": steps, "steps_inferred": inferred})
 
 
 def _waist_score(session: Session, estimate: PointEstimate) -> dict[str, Any] | None:
