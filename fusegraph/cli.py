@@ -224,8 +224,9 @@ def build_parser() -> argparse.ArgumentParser:
                          f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag, broad_motion, broad_bias, broad_online "
                          "(BROAD trials; broad_mag, broad_motion, broad_bias per --solver, written as broad_mag / broad_mag_batch ...; "
                          "broad_online: the online solver's relinearisation checks); activity (the waist activity classifier on "
-                         "../shared/data/hapt or --sessions: boosting stages and context by grouped cross-validation over the subjects; "
-                         "--write makes it the model on main, fusegraph/models/activity_waist.json).",
+                         "../shared/data/hapt or --sessions: feature set, boosting stages and context by grouped cross-validation over the "
+                         "subjects, checked on the pendulum gait's simulated walks of seeds 100-119 (a pace change must not pass for "
+                         "stairs); --write makes it the model on main, fusegraph/models/activity_waist.json).",
                          epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune head_ekf --write --workers 2\n"
                          "  fusegraph tune broad_mag --solver batch --write\n  fusegraph tune broad_motion --workers 2\n"
                          "  fusegraph tune activity --write",

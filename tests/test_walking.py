@@ -253,10 +253,12 @@ def test_bench_confusion_is_scored_on_the_independent_gait() -> None:
 
 
 def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
-    """The classifier trained on real waists (HAPT) meets the simulated pendulum gait, which was not built for it. Of the
-    cycles the detector finds (it misses ~1 % of the flat steps), seeds 0 / 1 / 2 measure flat 91 / 92 / 94 % of all flat steps (the
-    misses are fast walking, above 1.4 m/s, called stairs down), stairs up 100 %, down 100 %: the
-    floors guard against a regression; the paper's rules call flat walking stairs (under 1 % flat)."""
+    """The classifier trained on real waists (HAPT) meets the simulated pendulum gait, which was not built for it (the
+    fit checked its feature set on the gait's tuning seeds 100-119; these are test seeds). Of the cycles the detector
+    finds (it misses ~1 % of the flat steps), seeds 0 / 1 / 2 measure flat 98.1 / 99.1 / 98.7 %, stairs up 100 %, down
+    100 % (flat was 91 / 92 / 94 % while the model read acceleration amplitudes against the person's median: fast walking
+    passed for stairs down): the floors guard against a regression; the paper's rules call flat walking stairs (under 1 %
+    flat)."""
     from fusegraph.evaluation.walking import confusion
     from fusegraph.frontends.pdr import detect_cycles
     from fusegraph.scenarios.walking import WalkingScenarioConfig, calibrated_speed
@@ -272,7 +274,7 @@ def test_the_waist_classifier_tells_the_pendulum_gaits_stairs() -> None:
         return table[activity].get(activity, 0) / (sum(table[activity].values()) - table[activity].get("none", 0))
 
     assert sum(ours["flat"].values()) - ours["flat"].get("none", 0) > 0.95 * sum(ours["flat"].values())
-    assert correct(ours, "flat") > 0.88 and correct(ours, "stairs_up") > 0.9 and correct(ours, "stairs_down") > 0.95
+    assert correct(ours, "flat") > 0.95 and correct(ours, "stairs_up") > 0.9 and correct(ours, "stairs_down") > 0.95
     assert correct(rules, "flat") < 0.2
 
 

@@ -491,17 +491,19 @@ def _main_activity(args: argparse.Namespace) -> int:
     leave-one-user-out ones); ``--write`` makes it the model on main."""
     from ..datasets.hapt import DEFAULT_DIR, hapt_sessions
     from ..frontends.activity import MODEL_PATH
-    from .activity import fit_model, recording, score
+    from .activity import fit_model, recording, score, simulated_cycles
     from .runner import load_sessions
 
     loaded = load_sessions(args.sessions) if args.sessions else hapt_sessions(DEFAULT_DIR)
     recordings = [recording(name, session) for name, session in loaded]
     dataset = str(loaded[0][1].meta.get("session", {}).get("dataset", "")) if loaded else ""
-    model = fit_model(recordings, dataset)
-    for setting, value in sorted(model.provenance["grid_scores"].items(), key=lambda row: -row[1]):
-        print(f"{setting:<28} cross-validated mean fraction correct {value:.4f}")
+    model = fit_model(recordings, dataset, simulated_cycles())
+    for setting, value in sorted(model.provenance["grid_scores"].items(), key=lambda row: -row[1])[:15]:
+        print(f"{setting:<66} cross-validated {value:.4f}")
+    print(f"({len(model.provenance['grid_scores'])} points; each: {model.provenance['rule']})")
     in_sample = score(recordings, [model.classify(r.base, r.cycle_t) for r in recordings])["correct"]
-    print(f"chosen: stages={model.provenance['stages']} context={model.context_cycles} on {', '.join(model.provenance['subjects'])}; "
+    print(f"chosen: features={model.provenance['feature_set']} stages={model.provenance['stages']} context={model.context_cycles} on "
+          f"{', '.join(model.provenance['subjects'])}; "
           "in-sample correct " + ", ".join(f"{k} {v:.3f}" for k, v in in_sample.items()) + " (leave-one-user-out: fusegraph bench activity)")
     if args.write:
         print(f"wrote {model.save(MODEL_PATH)}")

@@ -8,7 +8,10 @@ acceleration's strength (RMS 2.0 / 2.4 / 3.4 m/s^2 in 3 s around the step) and i
 recording's own median), the step time (0.54 / 0.60 / 0.54 s), and the phase of the sagittal rotation against the
 vertical acceleration. Differences between people dominate: each feature also enters as its difference from the
 recording's median over its cycles (a per-person reference), which makes the classifier OFFLINE: it needs the whole
-recording (a live caller would use the median of the cycles so far).
+recording (a live caller would use the median of the cycles so far). The fit chooses which of them the model reads
+(``evaluation.activity.FEATURE_SETS``): HAPT's users each walk at one pace, so an acceleration amplitude above the person's
+median there means stairs, but on level ground it also means a faster pace; the model on main reads the amplitudes
+absolutely only (``ActivityModel.features``; its provenance says what chose that).
 
 The classifier is a gradient-boosted tree ensemble (scikit-learn's ``GradientBoostingClassifier`` when fitted, in
 ``evaluation.activity``), exported to plain arrays (``ActivityModel``) and evaluated here in numpy, so the front end
@@ -211,7 +214,7 @@ class ActivityModel:
     classes: tuple[str, ...]
     """The classes in output order (``ACTIVITIES``)."""
     features: tuple[str, ...]
-    """The inputs in order (must be ``FEATURES``)."""
+    """The inputs in order: ``FEATURES`` or the subset of them the fit chose (``evaluation.activity.FEATURE_SETS``)."""
     init_raw: FloatArray
     """The ensemble's starting score per class."""
     learning_rate: float
@@ -224,7 +227,9 @@ class ActivityModel:
     """What it was fitted on and how its settings were chosen (dataset, subjects, rule, scores)."""
 
     def log_proba(self, x: FloatArray) -> FloatArray:
-        """Log-probability of each class per row of ``x`` (rows of ``FEATURES``)."""
+        """Log-probability of each class per row of ``x`` (rows of ``FEATURES``; the model reads its ``features``)."""
+        if self.features != FEATURES:
+            x = x[:, [FEATURES.index(name) for name in self.features]]
         raw = np.tile(self.init_raw, (len(x), 1))
         for stage in self.trees:
             for k, tree in enumerate(stage):
@@ -264,8 +269,9 @@ def load_model(path: str | Path = MODEL_PATH) -> ActivityModel:
 @functools.lru_cache(maxsize=4)
 def _read_model(path: Path, mtime_ns: int) -> ActivityModel:
     data = json.loads(path.read_text())
-    if tuple(data["features"]) != FEATURES:
-        raise ValueError(f"{path}: fitted on other features than this version computes: refit it (fusegraph tune activity --write)")
+    unknown = [name for name in data["features"] if name not in FEATURES]
+    if unknown:
+        raise ValueError(f"{path}: fitted on features this version does not compute ({', '.join(unknown)}): refit it (fusegraph tune activity --write)")
     trees = tuple(tuple(Tree(np.array(t["left"], dtype=int), np.array(t["right"], dtype=int), np.array(t["feature"], dtype=int),
                              np.array(t["threshold"], dtype=float), np.array(t["value"], dtype=float)) for t in stage)
                   for stage in data["trees"])
