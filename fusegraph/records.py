@@ -238,6 +238,14 @@ class WalkingSession:
     start_sigmas: FloatArray | None = None
     """Prior sigmas of the start (roll, pitch, yaw rad, x, y, z m); None: the walker's known entrance."""
 
+    def activity_at(self, t: float, within_s: float = 0.25) -> str | None:
+        """The activity of the true step nearest ``t`` when one is within ``within_s`` (a detected cycle's truth), else None."""
+        step_t = np.asarray(self.step_t)
+        if not len(step_t):
+            return None
+        j = int(np.argmin(np.abs(step_t - t)))
+        return str(self.step_activity[j]) if abs(step_t[j] - t) < within_s else None
+
 
 @dataclass(frozen=True)
 class RangeEpochs:

@@ -93,12 +93,7 @@ def simulated_cycles(seeds: Sequence[int] = SIMULATED_SEEDS) -> list[SimulatedCy
         walk = simulate_walking(seed, WalkingScenarioConfig(gait="pendulum"))
         gravity, cycles = front_end(walk.t, walk.accel_m_s2, walk.gyro_rad_s, WAIST)
         cycle_t = np.array([c.t for c in cycles])
-        step_t = np.asarray(walk.step_t)
-        label = np.zeros(len(cycle_t), dtype=int)
-        for n, t in enumerate(cycle_t):
-            j = int(np.argmin(np.abs(step_t - t)))
-            if abs(step_t[j] - t) < 0.25:
-                label[n] = ids.get(str(walk.step_activity[j]), 0)
+        label = np.array([ids.get(walk.activity_at(t) or "", 0) for t in cycle_t], dtype=int)
         out.append(SimulatedCycles(cycle_t, cycle_features(walk.t, walk.accel_m_s2, walk.gyro_rad_s, gravity, cycles), label))
     return out
 

@@ -113,13 +113,7 @@ def simulated_step_statistics(walk: WalkingSession, analysed: tuple[np.ndarray, 
     step's class is that of the true step within a quarter second of its first cycle."""
     from .activity import step_statistics
 
-    step_t = np.asarray(walk.step_t)
-
-    def activity_of(start: float, end: float) -> str | None:
-        j = int(np.argmin(np.abs(step_t - start)))
-        return str(walk.step_activity[j]) if abs(step_t[j] - start) < 0.25 else None
-
-    return step_statistics(walk.t, walk.accel_m_s2, walk.gyro_rad_s, activity_of, analysed)
+    return step_statistics(walk.t, walk.accel_m_s2, walk.gyro_rad_s, lambda start, end: walk.activity_at(start), analysed)
 
 
 def step_rows(seeds: tuple[int, ...] = (0, 1, 2), hapt_dir: Path | None = None,
