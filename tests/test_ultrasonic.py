@@ -177,6 +177,21 @@ def test_uwb_figures_do_not_depend_on_where_the_run_starts() -> None:
 
 
 @requires_shared_data("uwb_lias")
+def test_uwb_clock_offset_is_found_beyond_the_first_search_range() -> None:
+    """Another run's clocks may differ by seconds: the UWB stamps moved 2.7 s back, the search widens past its first
+    +-1 s and finds the run's own offset (5 ms) plus the shift, to one fine grid step."""
+    import dataclasses
+
+    from fusegraph.datasets.uwb_lias import clock_offset_from_ranges, load_uwb_lias
+
+    rec = load_uwb_lias().between(0.0, 60.0)
+    own = clock_offset_from_ranges(rec)
+    shifted = clock_offset_from_ranges(dataclasses.replace(rec, t=rec.t - 2.7))
+    assert abs(own - 0.005) <= 0.0051, own  # the fast run's offset (README), one grid step
+    assert abs(shifted - (own + 2.7)) <= 0.0051, (own, shifted)
+
+
+@requires_shared_data("uwb_lias")
 def test_uwb_import_and_run_online_give_the_bench_figures(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """The user's path: ``import uwb`` then ``run --solver online --json`` tracks the unlabelled tags of the fast run
     (targets: every estimate within 0.09 m RMS, association >= 0.75, under 5 % lost; measured with the folder's range

@@ -125,29 +125,44 @@ def load_uwb_lias(directory: str | Path = DEFAULT_DIR) -> UwbRecording:
     )
 
 
-def clock_offset_from_ranges(rec: UwbRecording, search_s: float = 1.0, step_s: float = 0.005) -> float:
+def clock_offset_from_ranges(rec: UwbRecording, search_s: float = 1.0, step_s: float = 0.005, widest_s: float = 16.0) -> float:
     """Motion-capture time minus UWB time, from the raw data alone: the offset at which the measured ranges
     best match the ranges the motion capture's tag positions give (a constant bias per anchor and tag
     removed; median absolute residual). No estimate enters, so the offset cannot favour any method.
-    Searched over +-``search_s`` (a few ms on the fast run, about 0.3 s on the slow one) in 20 ms steps, then on
-    the ``step_s`` grid within 30 ms of the best."""
+    Searched over +-``search_s`` (a few ms on the fast run, about 0.3 s on the slow one) in 20 ms steps on every
+    fourth epoch, the range doubled while the best lies at its edge (another run's clocks may differ by more; up to
+    +-``widest_s``, else an error: the two files do not overlap), then on the ``step_s`` grid within 30 ms of the best
+    over every epoch."""
     anchors = rec.anchors[None, :, None, :]
 
-    def cost(offset: float) -> float:
-        t = rec.t + offset
+    def cost(offset: float, every: int = 1) -> float:
+        t = rec.t[::every] + offset
         inside = (t >= rec.mocap_t[0]) & (t <= rec.mocap_t[-1])
-        if inside.sum() < 100:
+        if inside.sum() < 100 // every:
             return np.inf
         tags = rec.tags_truth(t[inside])[:, None, :, :]  # (K, 1, T, 3)
-        residual = rec.ranges[inside] - np.linalg.norm(tags - anchors, axis=3)
+        residual = rec.ranges[::every][inside] - np.linalg.norm(tags - anchors, axis=3)
         residual = residual - np.nanmedian(residual, axis=0, keepdims=True)
         return float(np.nanmedian(np.abs(residual)))
 
-    coarse = np.arange(-search_s, search_s + 1e-9, 0.02)
-    centre = float(coarse[int(np.argmin([cost(float(o)) for o in coarse]))])
+    span, costs = search_s, {}
+    while True:
+        coarse = 0.02 * np.round(np.arange(-span, span + 1e-9, 0.02) / 0.02)
+        for o in coarse:
+            if float(o) not in costs:
+                costs[float(o)] = cost(float(o), every=4)
+        centre = min(costs, key=lambda o: costs[o])
+        if abs(centre) < span - 0.1 or not np.isfinite(costs[centre]):
+            break
+        if span >= widest_s:
+            raise SessionError(f"UWB clock offset: the best match lies at +-{span:g} s, the edge of the search (do the UWB and "
+                               "motion-capture files cover the same run?)")
+        span = min(2.0 * span, widest_s)
+    if not np.isfinite(costs[centre]):
+        raise SessionError("UWB clock offset: the UWB and motion-capture times do not overlap at any offset searched")
     fine = step_s * np.round(np.arange(centre - 0.03, centre + 0.03 + 1e-9, step_s) / step_s)
-    costs = [cost(float(o)) for o in fine]
-    return float(fine[int(np.argmin(costs))])
+    fine_costs = [cost(float(o)) for o in fine]
+    return float(fine[int(np.argmin(fine_costs))])
 
 
 def read_calibration(path: str | Path, anchors: int, tags: int) -> tuple[FloatArray, FloatArray, FloatArray]:
