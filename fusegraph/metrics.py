@@ -380,7 +380,7 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
     span (widened by ``GAIT_MATCH_S``) matched one-to-one to its contacts within ``GAIT_MATCH_S`` (least total time
     difference); stride length and speed: the mean of the strides inside the bout against the bout's mean
     (``stride_length_bouts`` / ``walking_speed_bouts``: the index of the bout each error belongs to; ``stride_length_m`` /
-    ``walking_speed_m_s``: the method's mean in those bouts)."""
+    ``walking_speed_m_s``: the method's mean in those bouts; strides without a finite value are left out of it)."""
     from scipy.optimize import linear_sum_assignment
 
     bouts_s, contacts_s = reference.bouts_s, reference.contacts_s
@@ -397,13 +397,15 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
             rows, cols = linear_sum_assignment(np.where(cost <= GAIT_MATCH_S, cost, 1e6))
             matched = int(np.sum(cost[rows, cols] <= GAIT_MATCH_S))
         tp, fp, fn = tp + matched, fp + len(found) - matched, fn + len(truth) - matched
+        # a stride without a value (a peer's NaN) is not one of the bout's values: it neither counts nor poisons the mean
         inside = (stride_t_s >= start) & (stride_t_s <= end)
-        if inside.any() and n < len(bout_length_m) and np.isfinite(bout_length_m[n]):
-            length_values.append(float(np.mean(stride_length_m[inside])))
+        has_length, has_speed = inside & np.isfinite(stride_length_m), inside & np.isfinite(walking_speed_m_s)
+        if has_length.any() and n < len(bout_length_m) and np.isfinite(bout_length_m[n]):
+            length_values.append(float(np.mean(stride_length_m[has_length])))
             length_errors.append(abs(length_values[-1] - float(bout_length_m[n])))
             length_bouts.append(n)
-        if inside.any() and n < len(bout_speed_m_s) and np.isfinite(bout_speed_m_s[n]):
-            speed_values.append(float(np.mean(walking_speed_m_s[inside])))
+        if has_speed.any() and n < len(bout_speed_m_s) and np.isfinite(bout_speed_m_s[n]):
+            speed_values.append(float(np.mean(walking_speed_m_s[has_speed])))
             speed_errors.append(abs(speed_values[-1] - float(bout_speed_m_s[n])))
             speed_bouts.append(n)
     return {"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": length_errors, "walking_speed_errors_m_s": speed_errors,

@@ -54,6 +54,17 @@ def test_steps_match_one_to_one_within_the_tolerance() -> None:
     assert row["stride_length_bouts"] == [0]
 
 
+def test_a_stride_without_a_value_is_left_out_of_the_bout_mean() -> None:
+    """A peer may give a stride no length (mobgap's NaN at a bout's edge): the bout's mean comes from the strides that
+    have one, and a bout whose strides all lack one is not scored, rather than the whole figure turning NaN."""
+    reference = Reference(np.array([[10.0, 15.0], [20.0, 25.0]]), np.array([1.2, 1.0]), np.array([1.1, 0.9]), np.array([10.0, 20.0]))
+    estimate = GaitEstimate(np.array([10.0, 20.0]), np.array([11.0, 12.0, 21.0]), np.array([1.0, np.nan, np.nan]),
+                            np.array([np.nan, 1.0, 0.8]))
+    row = score_recording(estimate, reference)
+    assert row["stride_length_errors_m"] == [pytest.approx(0.2)] and row["stride_length_bouts"] == [0]
+    assert row["walking_speed_errors_m_s"] == [pytest.approx(0.1), pytest.approx(0.1)] and row["walking_speed_bouts"] == [0, 1]
+
+
 @requires_shared_data("mobgap")
 def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from fusegraph.cli import main
@@ -108,3 +119,21 @@ def test_the_peer_is_the_pipeline_mobgap_recommends_for_the_cohort() -> None:
     estimates, used = mobgap_estimates(DEFAULT_DIR)
     assert set(used) == set(estimates) and len(used) == 6 and set(used.values()) == {"healthy"}
     assert sum(len(e.stride_length_m) for e in estimates.values()) > 20
+
+
+@requires_shared_data("mobgap")
+def test_a_trial_the_peer_fails_on_is_said_and_left_out(monkeypatch: pytest.MonkeyPatch) -> None:
+    """When mobgap's pipeline raises on a trial (another cohort's recording may do that), the bench keeps going: the
+    trial has no mobgap estimate and its pipeline reads ``failed: ...``, which the bench's note prints."""
+    from mobgap.pipeline import MobilisedPipelineUniversal
+
+    from fusegraph.datasets.mobgap_lab import DEFAULT_DIR
+    from fusegraph.evaluation.gait import _pipelines_text, mobgap_estimates
+
+    def fail(self: object, datapoint: object) -> None:
+        raise ValueError("no lower-back sensor")
+
+    monkeypatch.setattr(MobilisedPipelineUniversal, "safe_run", fail)
+    estimates, used = mobgap_estimates(DEFAULT_DIR)
+    assert not estimates and len(used) == 6 and all(v == "failed: ValueError: no lower-back sensor" for v in used.values())
+    assert "HA_001_Test5_Trial1 failed: ValueError: no lower-back sensor" in _pipelines_text(used)

@@ -96,7 +96,8 @@ def fusegraph_counts(session: Session) -> dict[str, Any]:
 
 def mobgap_estimates(directory: str | Path) -> tuple[dict[str, GaitEstimate], dict[str, str]]:
     """mobgap's universal pipeline (its healthy or impaired one by the participant's cohort) on every trial of the folder,
-    through mobgap's own reader: the estimates and the pipeline used, by trial name."""
+    through mobgap's own reader: the estimates and the pipeline used, by trial name. A trial the pipeline fails on has
+    no estimate (its row leaves the trial out) and ``failed: <the error>`` as its pipeline, which the bench prints."""
     from ..datasets.mobgap_lab import mobgap_dataset, trial_name
 
     out, used = {}, {}
@@ -106,9 +107,14 @@ def mobgap_estimates(directory: str | Path) -> tuple[dict[str, GaitEstimate], di
 
         for datapoint in mobgap_dataset(directory):
             fs = float(datapoint.sampling_rate_hz)
-            universal = MobilisedPipelineUniversal().safe_run(datapoint)
+            try:
+                universal = MobilisedPipelineUniversal().safe_run(datapoint)
+            except Exception as error:  # the peer's own failure on one trial: said, not fatal to the bench
+                used[trial_name(datapoint)] = f"failed: {type(error).__name__}: {error}"
+                continue
             run, used[trial_name(datapoint)] = universal.pipeline_, str(universal.pipeline_name_)
             ics = run.raw_ic_list_["ic"].to_numpy(dtype=float) / fs if len(run.raw_ic_list_) else np.zeros(0)
+            ics = ics[np.isfinite(ics)]  # a contact without a time is none (the matching's costs must be finite)
             strides = run.per_stride_parameters_
             if len(strides):
                 out[trial_name(datapoint)] = GaitEstimate(np.sort(ics), strides["start"].to_numpy(dtype=float) / fs,
@@ -195,7 +201,9 @@ def _pipelines_text(used: dict[str, str]) -> str:
     """Which of mobgap's pipelines ran on how many trials, e.g. ``healthy on 6 trials``."""
     from collections import Counter
 
-    return ", ".join(f"{name} on {n} trial{'s' if n != 1 else ''}" for name, n in sorted(Counter(used.values()).items()))
+    ran = Counter(v for v in used.values() if not v.startswith("failed"))
+    failed = [f"{trial} {why}" for trial, why in used.items() if why.startswith("failed")]
+    return ", ".join([f"{name} on {n} trial{'s' if n != 1 else ''}" for name, n in sorted(ran.items())] + failed)
 
 
 def _per_bout(reference: GaitReference, rows: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
