@@ -49,12 +49,12 @@ def test_tune_command_refuses_test_seeds_and_unknown_studies(capsys: pytest.Capt
 def test_every_chosen_value_in_tuned_toml_is_a_point_of_its_study_grid() -> None:
     """The values the code reads come from the grid `fusegraph tune` prints (a grid edited without re-running
     the study, or a value typed in by hand, fails here)."""
-    from fusegraph.evaluation.tuning import BROAD_GRIDS, BROAD_PER_SOLVER
+    from fusegraph.evaluation.tuning import BROAD_GRIDS, BROAD_PER_SOLVER, broad_grid
     from fusegraph.tuned import tuned
 
     grids = {name: study.grid for name, study in STUDIES.items()}
     grids.update(BROAD_GRIDS)
-    grids.update({f"{name}_batch": BROAD_GRIDS[name] for name in BROAD_PER_SOLVER})
+    grids.update({f"{name}_batch": broad_grid(name, "batch") for name in BROAD_PER_SOLVER})
     for name, grid in grids.items():
         chosen = tuned(name)
         for setting, candidates in grid.items():
