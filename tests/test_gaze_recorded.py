@@ -216,3 +216,38 @@ def test_a_pupil_export_without_rays_or_detectors_loads_from_its_pixels(tmp_path
     # in azimuth for 95 % of the samples (measured: median 1.0, 95th percentile 2.2 deg)
     export_az = np.array([float(r["azimuth [deg]"]) for r in rows])
     assert np.percentile(np.abs(az - export_az), 95) < 2.5
+
+
+@requires_shared_data("gaze_pupil_invisible")
+def test_a_pupil_export_whose_gaze_rows_lack_their_ids_takes_them_from_the_event_files(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Gaze rows without ``fixation id`` and ``blink id`` beside ``fixations.csv`` and ``blinks.csv`` (start and end of each
+    event): every sample gets the id of the interval it falls in, so the session is the one the rows' own ids give (the
+    same fixation flags, the same blink samples dropped). The fixation file here is made from the rows' own ids."""
+    import csv
+
+    from fusegraph.datasets.pupil import DEFAULT_DIR, load_pupil
+
+    with (DEFAULT_DIR / "gaze.csv").open(newline="") as source:
+        reader = csv.DictReader(source)
+        fields = [f for f in (reader.fieldnames or []) if f not in ("fixation id", "blink id")]
+        rows = list(reader)
+    with (tmp_path / "gaze.csv").open("w", newline="") as target:
+        writer = csv.DictWriter(target, fieldnames=fields)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: row[k] for k in fields})
+    spans: dict[str, list[str]] = {}  # each fixation's first sample and the first sample after it (the files' convention)
+    for row, after in zip(rows, [*rows[1:], rows[-1]], strict=True):
+        if row["fixation id"]:
+            spans.setdefault(row["fixation id"], [row["timestamp [ns]"], ""])[1] = after["timestamp [ns]"]
+    with (tmp_path / "fixations.csv").open("w", newline="") as target:
+        writer = csv.writer(target)
+        writer.writerow(["fixation id", "start timestamp [ns]", "end timestamp [ns]"])
+        for fixation, (start, end) in spans.items():
+            writer.writerow([fixation, start, end])
+    (tmp_path / "blinks.csv").symlink_to(DEFAULT_DIR / "blinks.csv")
+    (tmp_path / "imu.csv").symlink_to(DEFAULT_DIR / "imu.csv")
+    original, rebuilt = load_pupil(DEFAULT_DIR), load_pupil(tmp_path)
+    assert rebuilt.meta["session"]["gaze_untracked"] == original.meta["session"]["gaze_untracked"] > 0
+    np.testing.assert_array_equal(rebuilt.stream("fixation").values, original.stream("fixation").values)
+    np.testing.assert_array_equal(rebuilt.stream("gaze").t, original.stream("gaze").t)

@@ -24,7 +24,10 @@ What becomes of each file (columns found by their header names, any order; ``../
   0 outside a fixation): the fixations that score every method (JSON ``fixation_source: "device"``). ``worn``,
   ``fixation id`` and ``blink id`` may be missing (an export without the cloud's detectors): every sample is then taken
   as worn and outside a blink, and without fixation ids the bench scores fixations of the eye-in-head speed.
-* ``blinks.csv`` is not needed: the gaze rows carry their blink id.
+* ``fixations.csv`` and ``blinks.csv`` (``<kind> id``, ``start timestamp [ns]``, ``end timestamp [ns]``): where the gaze
+  rows lack their ``fixation id`` or ``blink id`` column (exports differ), each gaze sample takes the id of the interval
+  it falls in (start included, end not: the end is the first sample after the event), so the device's fixations still
+  score and blinks still carry no gaze; where the rows have the column, the row's own id is used, the file not read.
 
 No ground truth: ``bench gaze-recorded`` scores the dispersion of the world gaze ray in the device's fixations.
 """
@@ -92,6 +95,20 @@ def _table(path: Path, needed: tuple[str, ...], optional: tuple[str, ...] = ()) 
     return {c: values[:, j] for j, c in enumerate(names)}
 
 
+def _interval_ids(path: Path, id_column: str, t_ns: np.ndarray) -> np.ndarray:
+    """Per sample (``t_ns``), the id of the interval of a Pupil Cloud event file (``fixations.csv``, ``blinks.csv``) it falls
+    in, 0 outside every interval. An interval holds its start and not its end (the end is the first sample after it: so
+    the shared export's blink ids on the gaze rows read)."""
+    events = _table(path, (id_column, "start timestamp [ns]", "end timestamp [ns]"))
+    out = np.zeros(len(t_ns))
+    for number, (event, start, end) in enumerate(zip(events[id_column], events["start timestamp [ns]"], events["end timestamp [ns]"], strict=True),
+                                                 start=2):
+        if not (np.isfinite(start) and np.isfinite(end) and end > start):
+            raise SessionError(f"{path}: line {number}: an interval without a start and an end after it")
+        out[(t_ns >= start) & (t_ns < end)] = event
+    return out
+
+
 def undistorted_rays(x_px: np.ndarray, y_px: np.ndarray, camera_matrix: np.ndarray, dist_coefs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Scene-camera pixels (x right, y down) as (azimuth to the right, elevation up) in degrees, through the camera's
     intrinsics and OpenCV's distortion model (k1, k2, p1, p2[, k3[, k4, k5, k6]]), inverted by fixed-point iteration."""
@@ -157,6 +174,9 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
     if not has_rays:
         gaze["azimuth [deg]"], gaze["elevation [deg]"] = _rays_from_pixels(directory, gaze)
     n = len(gaze["timestamp [ns]"])
+    for kind in ("fixation", "blink"):  # an export whose gaze rows lack the id column: from the event file, where there is one
+        if f"{kind} id" not in gaze and (directory / f"{kind}s.csv").is_file():
+            gaze[f"{kind} id"] = _interval_ids(directory / f"{kind}s.csv", f"{kind} id", gaze["timestamp [ns]"])
     worn = gaze.get("worn", np.ones(n))
     blink = gaze.get("blink id", np.zeros(n))
     t0_ns = float(imu["timestamp [ns]"][0])  # the IMU's first sample is t = 0 (int64 ns lose nothing in float64 relative to it)
