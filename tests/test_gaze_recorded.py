@@ -251,3 +251,23 @@ def test_a_pupil_export_whose_gaze_rows_lack_their_ids_takes_them_from_the_event
     assert rebuilt.meta["session"]["gaze_untracked"] == original.meta["session"]["gaze_untracked"] > 0
     np.testing.assert_array_equal(rebuilt.stream("fixation").values, original.stream("fixation").values)
     np.testing.assert_array_equal(rebuilt.stream("gaze").t, original.stream("gaze").t)
+
+
+@requires_shared_data("gaze_pupil_invisible")
+def test_a_pupil_export_with_repeated_stamps_drops_them_said_and_too_many_is_an_error(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """An IMU row that repeats its predecessor's stamp and one that goes back are dropped with a warning that counts them
+    and names the first; the rest loads as the clean export does. A file with more than 1 % such rows is refused, naming
+    the file and the likely cause."""
+    from fusegraph.datasets.pupil import DEFAULT_DIR, load_pupil
+    from fusegraph.session import SessionError
+
+    lines = (DEFAULT_DIR / "imu.csv").read_text().splitlines()
+    (tmp_path / "gaze.csv").symlink_to(DEFAULT_DIR / "gaze.csv")
+    (tmp_path / "imu.csv").write_text("\n".join([*lines[:101], lines[100], *lines[101:201], lines[150], *lines[201:]]) + "\n")
+    with pytest.warns(UserWarning, match=r"2 rows whose timestamp repeats or goes back, the first at row 102: dropped"):
+        session = load_pupil(tmp_path)
+    clean = load_pupil(DEFAULT_DIR)
+    np.testing.assert_array_equal(session.stream("gyro").values, clean.stream("gyro").values)
+    (tmp_path / "imu.csv").write_text("\n".join([*lines, *lines[1:200]]) + "\n")
+    with pytest.raises(SessionError, match="imu.csv: 199 rows whose timestamp repeats or goes back.*two recordings in one file"):
+        load_pupil(tmp_path)

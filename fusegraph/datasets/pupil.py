@@ -7,7 +7,8 @@ What becomes of each file (columns found by their header names, any order; ``../
   and z to the front (Pupil Labs' data-streams page for Pupil Invisible); fusegraph's head frame is x forward, y left,
   z up, so head = (z, -x, -y) of the IMU (a rotation). No magnetometer: the session declares ``use_mag = false``.
   The export's ``roll``/``pitch`` (the cloud's Madgwick filter) come without a yaw, so they are not a head attitude
-  the fixations could score; they are not imported.
+  the fixations could score; they are not imported. In both files a row whose timestamp repeats or goes back is dropped
+  and said (``MAX_REPEATED_FRACTION`` of them at most; more is an error).
 * ``gaze.csv``: per gaze sample the ray's ``azimuth [deg]`` (to the right) and ``elevation [deg]`` (up) in the scene
   camera, which the export computed from ``gaze x/y [px]`` with the camera's own intrinsics and lens distortion. The
   ray is projected into a distortion-free pinhole camera (stream ``gaze``, kind ``pixel``: u right, v up from the
@@ -146,12 +147,34 @@ def _rays_from_pixels(directory: Path, gaze: dict[str, np.ndarray]) -> tuple[np.
     return undistorted_rays(x, y, np.array([[FOCAL_PX, 0, WIDTH_PX / 2], [0, FOCAL_PX, HEIGHT_PX / 2], [0, 0, 1]]), np.zeros(5))
 
 
-def _seconds(path: Path, ns: np.ndarray, t0_ns: float) -> np.ndarray:
+MAX_REPEATED_FRACTION = 0.01
+"""Rows whose timestamp repeats or goes back that an export may hold and still load (dropped, said); more is an error:
+the file is likely two recordings or out of order."""
+
+
+def _in_time_order(path: Path, table: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The table's rows whose timestamp is later than every row's before it: a row that repeats a stamp or goes back
+    (a phone's clock can) is dropped and said in a warning with its count and first row; more than
+    ``MAX_REPEATED_FRACTION`` of them is an error."""
+    import warnings
+
+    ns = table["timestamp [ns]"]
     if not np.isfinite(ns).all():
-        raise SessionError(f"{path}: a row without a timestamp")
-    back = np.nonzero(np.diff(ns) <= 0)[0]
-    if back.size:
-        raise SessionError(f"{path}: timestamps not increasing at row {back[0] + 2} ({ns[back[0]]:.0f} then {ns[back[0] + 1]:.0f} ns)")
+        raise SessionError(f"{path}: a row without a timestamp (row {int(np.argmin(np.isfinite(ns))) + 2})")
+    keep = np.ones(len(ns), dtype=bool)
+    keep[1:] = ns[1:] > np.maximum.accumulate(ns)[:-1]
+    dropped = np.nonzero(~keep)[0]
+    if not dropped.size:
+        return table
+    where = f"{dropped.size} rows whose timestamp repeats or goes back, the first at row {dropped[0] + 2}"
+    if dropped.size > MAX_REPEATED_FRACTION * len(ns):
+        raise SessionError(f"{path}: {where} (over {100 * MAX_REPEATED_FRACTION:g} % of its rows: two recordings in one file, or not "
+                           "in time order?)")
+    warnings.warn(f"{path}: {where}: dropped", stacklevel=3)
+    return {column: values[keep] for column, values in table.items()}
+
+
+def _seconds(ns: np.ndarray, t0_ns: float) -> np.ndarray:
     return (ns - t0_ns) * 1e-9
 
 
@@ -165,8 +188,8 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
     """The export folder as a gaze Session (see the module docstring)."""
     directory = Path(directory)
     imu_path, gaze_path = directory / "imu.csv", directory / "gaze.csv"
-    imu = _table(imu_path, IMU_COLUMNS)
-    gaze = _table(gaze_path, GAZE_COLUMNS, GAZE_RAYS + GAZE_PIXELS + GAZE_OPTIONAL)
+    imu = _in_time_order(imu_path, _table(imu_path, IMU_COLUMNS))
+    gaze = _in_time_order(gaze_path, _table(gaze_path, GAZE_COLUMNS, GAZE_RAYS + GAZE_PIXELS + GAZE_OPTIONAL))
     has_rays = all(c in gaze for c in GAZE_RAYS)
     if not has_rays and not all(c in gaze for c in GAZE_PIXELS):
         raise SessionError(f"{gaze_path}: neither {' and '.join(map(repr, GAZE_RAYS))} nor {' and '.join(map(repr, GAZE_PIXELS))} "
@@ -180,8 +203,8 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
     worn = gaze.get("worn", np.ones(n))
     blink = gaze.get("blink id", np.zeros(n))
     t0_ns = float(imu["timestamp [ns]"][0])  # the IMU's first sample is t = 0 (int64 ns lose nothing in float64 relative to it)
-    t = _seconds(imu_path, imu["timestamp [ns]"], t0_ns)
-    gaze_t = _seconds(gaze_path, gaze["timestamp [ns]"], t0_ns)
+    t = _seconds(imu["timestamp [ns]"], t0_ns)
+    gaze_t = _seconds(gaze["timestamp [ns]"], t0_ns)
     gyro = np.stack([imu[c] for c in IMU_COLUMNS[1:4]], axis=1)
     accel = np.stack([imu[c] for c in IMU_COLUMNS[4:7]], axis=1)
     for name, values, path in (("gyro", gyro, imu_path), ("acceleration", accel, imu_path)):
