@@ -202,7 +202,7 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
             gaze[f"{kind} id"] = _interval_ids(directory / f"{kind}s.csv", f"{kind} id", gaze["timestamp [ns]"])
     worn = gaze.get("worn", np.ones(n))
     blink = gaze.get("blink id", np.zeros(n))
-    t0_ns = float(imu["timestamp [ns]"][0])  # the IMU's first sample is t = 0 (int64 ns lose nothing in float64 relative to it)
+    t0_ns = float(imu["timestamp [ns]"][0])  # the IMU's first sample is t = 0 (stamps of ~1.6e18 ns read as float64 keep 256 ns: far below a sample)
     t = _seconds(imu["timestamp [ns]"], t0_ns)
     gaze_t = _seconds(gaze["timestamp [ns]"], t0_ns)
     gyro = np.stack([imu[c] for c in IMU_COLUMNS[1:4]], axis=1)
