@@ -27,7 +27,18 @@ from typing import Any
 
 import numpy as np
 
-from ..frontends.activity import ACTIVITIES, BASE_FEATURES, FEATURES, ActivityModel, Tree, cycle_features, in_context, load_model, with_reference
+from ..frontends.activity import (
+    ACTIVITIES,
+    BASE_FEATURES,
+    FEATURES,
+    ActivityModel,
+    Tree,
+    cycle_features,
+    feature_columns,
+    in_context,
+    load_model,
+    with_reference,
+)
 from ..frontends.pdr import Cycle
 from ..metrics import WALKING_LABELS, activity_counts, activity_scores
 from ..session import Session, SessionError
@@ -198,31 +209,35 @@ def choose_settings(recordings: Sequence[Recording], simulated: Sequence[Simulat
     x, y, which, times = _design(recordings)
     subjects = np.array([recordings[i].subject for i in which])
     folds = min(INNER_FOLDS, len(set(subjects)))
-    sim_x = [with_reference(w.base)[w.label > 0] for w in simulated]
-    sim = (np.vstack(sim_x), np.concatenate([w.label[w.label > 0] for w in simulated]), np.concatenate([w.cycle_t[w.label > 0] for w in simulated]),
-           np.concatenate([np.full(len(r), n) for n, r in enumerate(sim_x)])) if simulated else None
+    if simulated:  # the walks' labelled cycles, each walk its own group (its context smoothing stays within it)
+        kept = [w.label > 0 for w in simulated]
+        sim_x = np.vstack([with_reference(w.base)[k] for w, k in zip(simulated, kept, strict=True)])
+        sim_label = np.concatenate([w.label[k] for w, k in zip(simulated, kept, strict=True)])
+        sim_t = np.concatenate([w.cycle_t[k] for w, k in zip(simulated, kept, strict=True)])
+        sim_walk = np.concatenate([np.full(int(k.sum()), n) for n, k in enumerate(kept)])
     points = [(f, s, c) for f in feature_sets for s in STAGES for c in CONTEXTS]
     scores: dict[tuple[str, int, int], list[float]] = {p: [] for p in points}
     on_walks: dict[tuple[str, int, int], list[float]] = {p: [] for p in points}
     for name in feature_sets:
-        cols = [FEATURES.index(f) for f in FEATURE_SETS[name]]
+        cols = feature_columns(FEATURE_SETS[name])
         for train, test in GroupKFold(n_splits=folds).split(x, y, subjects):
             model = _fit(x[train][:, cols], y[train], max(STAGES))
             on_test = model.staged_predict_proba(x[test][:, cols])
-            on_sim = model.staged_predict_proba(sim[0][:, cols]) if sim is not None else repeat(None)
+            on_sim = model.staged_predict_proba(sim_x[:, cols]) if simulated else repeat(None)
             for stage_n, (proba, sim_proba) in enumerate(zip(on_test, on_sim, strict=False), start=1):
                 if stage_n not in STAGES:
                     continue
                 log_p = np.log(np.maximum(proba, 1e-12))
+                sim_log_p = np.log(np.maximum(sim_proba, 1e-12)) if sim_proba is not None else None
                 for context in CONTEXTS:
                     scores[(name, stage_n, context)].append(_balanced_correct(_calls(model, log_p, times[test], which[test], context), y[test]))
-                    if sim is not None and sim_proba is not None:
-                        called = _calls(model, np.log(np.maximum(sim_proba, 1e-12)), sim[2], sim[3], context)
-                        on_walks[(name, stage_n, context)].append(_balanced_correct(called, sim[1]))
+                    if sim_log_p is not None:
+                        called = _calls(model, sim_log_p, sim_t, sim_walk, context)
+                        on_walks[(name, stage_n, context)].append(_balanced_correct(called, sim_label))
 
     def value(point: tuple[str, int, int]) -> float:
         real = float(np.mean(scores[point]))
-        return min(real, float(np.mean(on_walks[point]))) if sim is not None else real
+        return min(real, float(np.mean(on_walks[point]))) if simulated else real
 
     grid = {f"features={f} stages={s} context={c}": value((f, s, c)) for f, s, c in points}
     best = max(points, key=lambda p: (value(p), -feature_sets.index(p[0]), -p[1], -p[2]))  # ties: the earlier set, the smaller model
@@ -234,7 +249,7 @@ def fit_model(recordings: Sequence[Recording], dataset: str = "", simulated: Seq
     """The classifier on these recordings, its features, stages and context chosen by ``choose_settings``."""
     features, stages, context, grid = choose_settings(recordings, simulated, feature_sets)
     x, y, _, _ = _design(recordings)
-    cols = [FEATURES.index(f) for f in FEATURE_SETS[features]]
+    cols = feature_columns(FEATURE_SETS[features])
     rule = (f"features x stages x context chosen by grouped {INNER_FOLDS}-fold cross-validation over the subjects (mean of the "
             "classes' fractions correct" + (f"; the lower of it and the same mean on the simulated walks of seeds "
                                              f"{min(SIMULATED_SEEDS)}-{max(SIMULATED_SEEDS)})" if simulated else ")"))

@@ -58,6 +58,11 @@ BASE_FEATURES = (
 FEATURES = BASE_FEATURES + tuple(f"{name}_vs_median" for name in BASE_FEATURES)
 """The model's inputs, in order."""
 
+
+def feature_columns(names: Sequence[str]) -> list[int]:
+    """The columns of rows of ``FEATURES`` that hold ``names`` (a model's features, in its order)."""
+    return [FEATURES.index(name) for name in names]
+
 MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "activity_waist.json"
 """The model on main (``fusegraph tune activity --sessions DIR --write`` fits and writes it)."""
 
@@ -229,7 +234,7 @@ class ActivityModel:
     def log_proba(self, x: FloatArray) -> FloatArray:
         """Log-probability of each class per row of ``x`` (rows of ``FEATURES``; the model reads its ``features``)."""
         if self.features != FEATURES:
-            x = x[:, [FEATURES.index(name) for name in self.features]]
+            x = x[:, feature_columns(self.features)]
         raw = np.tile(self.init_raw, (len(x), 1))
         for stage in self.trees:
             for k, tree in enumerate(stage):
