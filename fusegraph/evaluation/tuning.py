@@ -205,6 +205,13 @@ chose): its memory (0: no hard-iron state), how well it must explain the reading
 against the reference) and how large the offset must be, as fractions of the reference norm."""
 
 
+BROAD_FIELD_GRID: Mapping[str, Sequence[float]] = {"reference_tau_s": (0.0, 20.0, 60.0), "new_field_s": (0.0, 20.0)}
+"""The undisturbed field's tracking tried by ``broad_field`` (``factors.mag.FieldTracker``; the other studies' settings as
+they chose): how fast the reference norm and dip follow a field that agrees with them (0: the start's field throughout;
+VQF's default 20 s) and how long a steady new field must hold while the sensor turns to become the reference (0: never;
+VQF's default 20 s)."""
+
+
 BROAD_ONLINE_GRID: Mapping[str, Sequence[float]] = {"relinearize_skip": (1.0, 2.0, 5.0, 10.0)}
 """The online solver's own setting tried by ``broad_online`` (the model as the other studies chose): how many iSAM2 updates
 apart it checks which variables to relinearise (gtsam's default 10). Every check relinearised ~21 variables on BROAD (the
@@ -216,7 +223,7 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     """The 9-axis model with one grid point of a BROAD study applied to the solver's tuned model."""
     from dataclasses import replace
 
-    from ..graphs.attitude9 import mag_noise_from, with_hard_iron
+    from ..graphs.attitude9 import mag_noise_from, with_field, with_hard_iron
     from ..systems.attitude9 import broad_model, with_bias, with_motion
 
     base = broad_model(solver)
@@ -226,6 +233,8 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
         return replace(base, mag=mag_noise_from(point, base.mag))
     if study == "broad_hard_iron":
         return replace(base, mag=with_hard_iron(base.mag, point))
+    if study == "broad_field":
+        return replace(base, mag=with_field(base.mag, point))
     return with_bias(base, point) if study == "broad_bias" else with_motion(base, point)
 
 
@@ -318,9 +327,9 @@ def uwb_calibrated_logo(sessions: Sequence[str | Path] = (), workers: int = 1) -
 
 BROAD_GRIDS: dict[str, Mapping[str, Sequence[float]]] = {"broad_ekf": BROAD_EKF_GRID, "broad_mag": BROAD_MAG_GRID, "broad_motion": BROAD_MOTION_GRID,
                                                           "broad_bias": BROAD_BIAS_GRID, "broad_online": BROAD_ONLINE_GRID,
-                                                          "broad_hard_iron": BROAD_HARD_IRON_GRID}
+                                                          "broad_hard_iron": BROAD_HARD_IRON_GRID, "broad_field": BROAD_FIELD_GRID}
 """The BROAD studies' grids by name."""
-BROAD_PER_SOLVER = ("broad_mag", "broad_motion", "broad_bias", "broad_hard_iron")
+BROAD_PER_SOLVER = ("broad_mag", "broad_motion", "broad_bias", "broad_hard_iron", "broad_field")
 """The BROAD studies that tune the online and the batch estimate each (``--solver``; the batch's written as ``<study>_batch``)."""
 BROAD_BATCH_GRIDS: dict[str, Mapping[str, Sequence[float]]] = {"broad_mag": BROAD_MAG_BATCH_GRID}
 """A batch study's own grid where it has one (else ``BROAD_GRIDS``'s)."""
@@ -534,9 +543,11 @@ def _main_activity(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.evaluation.tuning", description=__doc__)
     parser.add_argument("study",
-                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias / broad_online / broad_hard_iron "
+                        help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias / broad_online / "
+                        "broad_hard_iron / broad_field "
                         "(leave-one-trial-out on BROAD)")
-    parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias: which estimate they tune")
+    parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias, broad_hard_iron, broad_field: "
+                        "which estimate they tune")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     parser.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml (what the reports read)")
     parser.add_argument("--workers", type=int, default=1, help="processes scoring the grid (simulated studies)")

@@ -37,7 +37,7 @@ from ..factors.imu import (
     velocity_prior_factor,
 )
 from ..factors.linear import robust
-from ..factors.mag import FieldReference, HardIron, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
+from ..factors.mag import FieldReference, FieldTracker, HardIron, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
 from ..tuned import tuned, tuned_studies
 from .increment import GraphIncrement
@@ -134,16 +134,26 @@ def with_hard_iron(noise: MagNoise, settings: Mapping[str, float]) -> MagNoise:
                    hard_iron_min=float(settings["hard_iron_min"]))
 
 
+def with_field(noise: MagNoise, settings: Mapping[str, float]) -> MagNoise:
+    """``noise`` with a ``broad_field`` setting (a grid point, or the chosen one): how the undisturbed field is followed
+    (``factors.mag.FieldTracker``)."""
+    return replace(noise, reference_tau_s=float(settings["reference_tau_s"]), new_field_s=float(settings["new_field_s"]))
+
+
 def mag_noise_tuned(study: str) -> MagNoise:
     """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``), with the
-    hard-iron model its ``broad_hard_iron`` study chose (``broad_hard_iron_batch``), once that study has run."""
+    hard-iron model its ``broad_hard_iron`` study chose (``broad_hard_iron_batch``) and the field tracking its
+    ``broad_field`` study chose (``broad_field_batch``), once those studies have run."""
     noise = mag_noise_from(tuned(study))
-    hard_iron = HARD_IRON_STUDY.get(study)
-    return with_hard_iron(noise, tuned(hard_iron)) if hard_iron in tuned_studies() else noise
+    hard_iron, field = HARD_IRON_STUDY.get(study), FIELD_STUDY.get(study)
+    noise = with_hard_iron(noise, tuned(hard_iron)) if hard_iron in tuned_studies() else noise
+    return with_field(noise, tuned(field)) if field in tuned_studies() else noise
 
 
 HARD_IRON_STUDY = {"broad_mag": "broad_hard_iron", "broad_mag_batch": "broad_hard_iron_batch"}
 """The hard-iron study that goes with each magnetometer study (the same estimate)."""
+FIELD_STUDY = {"broad_mag": "broad_field", "broad_mag_batch": "broad_field_batch"}
+"""The field-tracking study that goes with each magnetometer study (the same estimate)."""
 
 
 @dataclass(frozen=True)
@@ -239,6 +249,11 @@ class Attitude9Builder:
         self.mag_readings: list[tuple[int, FloatArray]] = []
         """(keyframe, calibrated body-frame field) for every heading factor made or deferred."""
         self.reference: FieldReference | None = None
+        """The undisturbed field now (the start's, then as ``FieldTracker`` follows it)."""
+        self._start_reference: FieldReference | None = None  # the start's: where a batch pass's tracker begins
+        self._field: FieldTracker | None = None
+        self._field_t = np.nan  # time of the reading the tracker took last
+        self._keyframe_rate: list[float] = []  # RMS gyro rate over the interval before each keyframe, rad/s
         self.posterior_quat: list[FloatArray] = []
         """Online: keyframe k's attitude right after the update that added it (causal)."""
         self.posterior_gyro_bias: list[FloatArray] = []
@@ -446,6 +461,7 @@ class Attitude9Builder:
         self._last_t, self._count = t, self._count + 1
         self._keyframe_guess.append(guess.attitude())
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
+        self._keyframe_rate.append(0.0)  # a keyframe after a dropout: no interval before it
         self._nav = guess
         self._restart = _Restart() if self._solved and not at_rest else None  # the batch starts again in ``inertial_initial``
         self._after_keyframe(k, guess.attitude(), mag)
@@ -510,6 +526,7 @@ class Attitude9Builder:
         self.keyframe_index.append(self._count)
         self._keyframe_guess.append(rot)
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
+        self._keyframe_rate.append(0.0)
         self._after_keyframe(0, rot, mag)
         self._last_t = t
         self._count += 1
@@ -541,6 +558,7 @@ class Attitude9Builder:
             interval_accel, interval_gyro, interval_dt = (np.concatenate(blocks) for blocks in zip(*self._interval, strict=True))
         self._interval = []
         pim = self._preintegrate(interval_accel, interval_gyro, interval_dt)
+        self._keyframe_rate.append(float(np.sqrt(np.mean(np.einsum("ij,ij->i", interval_gyro, interval_gyro)))))
         self._keyframe_accel.append(pim.deltaVij() / pim.deltaTij())  # rotated sample by sample: the body may turn a lot in 0.2 s
         predicted = pim.predict(self._nav, self._bias)
         if not self._solved:
@@ -585,15 +603,39 @@ class Attitude9Builder:
         norm, dip = field_norm_dip(world_R_body, mag)
         if self.reference is None or self.keyframe_t[-1] - self.keyframe_t[0] <= self.model.mag.reference_s:
             self._reference_samples.append((norm, dip))
-            self.reference = FieldReference(*np.mean(self._reference_samples, axis=0))
-        elif self._hard_iron is None and self.model.mag.hard_iron_s > 0:  # a carried magnet's offset, from the reference on
-            self._hard_iron = HardIron(self.model.mag, self.reference)
+            self.reference = self._start_reference = FieldReference(*np.mean(self._reference_samples, axis=0))
+        else:
+            if self._hard_iron is None and self.model.mag.hard_iron_s > 0:  # a carried magnet's offset, from the reference on
+                self._hard_iron = HardIron(self.model.mag, self.reference)
+            if self._field is None and not self.deferred_mag:  # a batch follows it in each pass, with that pass's attitudes
+                self._field = self.field_tracker()
+            if self._field is not None:
+                self.reference = self._field.update(self._since_field(k), norm, dip, self._keyframe_rate[k])
+                if self._hard_iron is not None:
+                    self._hard_iron.reference = self.reference
         if not self.deferred_mag:
             self._pending.add(k, self._heading(k, world_R_body, mag, norm, dip, robust=True))
 
-    def _heading(self, k: int, world_R_body: gtsam.Rot3, mag: FloatArray, norm: float, dip: float, robust: bool) -> gtsam.AttitudeFactorPose3:
-        assert self.reference is not None
-        sigma = heading_sigma_rad(self.model.mag, self.reference, norm, dip)
+    def field_tracker(self) -> FieldTracker | None:
+        """A tracker of the undisturbed field from the start's reference, or None when the model keeps that reference
+        (``MagNoise.reference_tau_s`` and ``new_field_s`` both 0)."""
+        mag = self.model.mag
+        if self._start_reference is None or (mag.reference_tau_s <= 0 and mag.new_field_s <= 0):
+            return None
+        return FieldTracker(mag, self._start_reference)
+
+    def _since_field(self, k: int) -> float:
+        """Seconds from the reading the field tracker took last to keyframe k's (one keyframe period at the first)."""
+        t = self.keyframe_t[k]
+        dt = t - self._field_t if math.isfinite(self._field_t) and t > self._field_t else self.model.keyframe_period_s
+        self._field_t = t
+        return dt
+
+    def _heading(self, k: int, world_R_body: gtsam.Rot3, mag: FloatArray, norm: float, dip: float, robust: bool,
+                 reference: FieldReference | None = None) -> gtsam.AttitudeFactorPose3:
+        reference = reference or self.reference
+        assert reference is not None
+        sigma = heading_sigma_rad(self.model.mag, reference, norm, dip)
         return heading_factor(self.X(k), world_R_body, mag, sigma, self.model.mag.cauchy_k if robust else 0.0)
 
     def add_attitude(self, t_s: float, tracker_R_body: gtsam.Rot3, sigma_rad: float) -> bool:
@@ -675,6 +717,7 @@ class Attitude9Builder:
         mean_force = gyro_frame[0].rotate(self._keyframe_accel[0])
         heading_var = np.deg2rad(model.initial_attitude_sigma_deg) ** 2
         drift_var = model.imu.gyro_bias_prior_rad_s**2
+        field, field_t = self.field_tracker(), self.keyframe_t[0]
         for k in range(1, len(self.keyframe_t)):
             if k in self._bridges:  # after a dropout the gyro's frame starts again from gravity and the field, as at the start
                 world_R_gyro = gtsam.Rot3()
@@ -694,7 +737,11 @@ class Attitude9Builder:
             mag = fields.get(k)
             if mag is not None and self.reference is not None:
                 norm, dip = field_norm_dip(attitude, mag)
-                sigma = heading_sigma_rad(model.mag, self.reference, norm, dip)
+                reference = self.reference
+                if field is not None:
+                    reference = field.update(self.keyframe_t[k] - field_t, norm, dip, self._keyframe_rate[k])
+                    field_t = self.keyframe_t[k]
+                sigma = heading_sigma_rad(model.mag, reference, norm, dip)
                 gain = heading_var / (heading_var + sigma * sigma)
                 heading_var *= 1.0 - gain
                 x, y, _ = attitude.rotate(mag).tolist()
@@ -732,9 +779,15 @@ class Attitude9Builder:
     def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""
         out = []
+        field, last_t = self.field_tracker(), None  # the reference followed again with this pass's attitudes
         for k, mag in self.mag_readings:
             norm, dip = field_norm_dip(attitude[k], mag)
-            out.append(self._heading(k, attitude[k], mag, norm, dip, robust))
+            reference = self.reference
+            if field is not None:
+                t = self.keyframe_t[k]
+                reference = field.update(t - last_t if last_t is not None else self.model.keyframe_period_s, norm, dip, self._keyframe_rate[k])
+                last_t = t
+            out.append(self._heading(k, attitude[k], mag, norm, dip, robust, reference))
         return out
 
 
