@@ -57,7 +57,11 @@ class PendulumConfig:
 
 PENDULUM_GRID = tuple(PendulumConfig(0.1, hp, 4, k) for hp in (0.5, 0.7, 1.0, 1.2) for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
 """The drift-removal corner (mobgap's reimplementation of Zijlstra's method: 0.1 Hz on the acceleration, 1 Hz after the
-integral, 4th order) and the correction (none, Mobilise-D's, or Zijlstra & Hof's): literature values, no fitted one."""
+integral, 4th order) and the correction (none, Mobilise-D's, or Zijlstra & Hof's): literature values, no fitted one.
+The in-sample choice's corner, 1.2 Hz, is the grid's upper edge; widened by 1.5 and 2 Hz (2026-11-26) every choice stayed
+(leave-one-participant-out 0.147 m), so the grid stays. A corner proportional to each bout's step frequency (0.4-0.85
+times it, the bout filtered on its own) was measured the same day: 0.262 m leave-one-participant-out, 0.125 in-sample;
+not built."""
 
 
 def with_missed_steps(steps_s: FloatArray) -> tuple[FloatArray, np.ndarray]:
