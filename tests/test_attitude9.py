@@ -520,22 +520,23 @@ def test_the_undisturbed_field_is_followed_and_a_steady_new_one_taken_while_turn
     start = FieldReference(41.6, np.radians(71.3))
     dt, turning, still = 0.2, np.radians(60.0), np.radians(2.0)
     follow = FieldTracker(MagNoise(reference_tau_s=20.0), start)
-    for _ in range(100):  # 20 s at a field 6 % stronger, 2 deg less dip: within VQF's 10 % / 10 deg
-        ref = follow.update(dt, 44.1, np.radians(69.3), turning)
+    for k in range(101):  # 20 s at a field 6 % stronger, 2 deg less dip: within VQF's 10 % / 10 deg
+        ref = follow.update(k * dt, 44.1, np.radians(69.3), turning)
     # the start's field has agreed from the start, so every step pulls: after 20 s, one time constant, 1 - 1/e of the way
+    # (the first reading starts the clock)
     assert ref.norm == pytest.approx(41.6 + 2.5 * (1 - np.exp(-1.0)), abs=1e-9)
     assert ref.dip_rad == pytest.approx(np.radians(71.3) - np.radians(2.0) * (1 - np.exp(-1.0)), abs=1e-9)
     new = FieldTracker(MagNoise(new_field_s=20.0), start)
     for k in range(150):  # 30 s at 55 uT, 60 deg: off the reference (32 %), steady, turning
-        ref = new.update(dt, 55.0 + 0.2 * np.sin(k), np.radians(60.0), turning)
-        if k * dt < 19.0:
+        ref = new.update(k * dt, 55.0 + 0.2 * np.sin(k), np.radians(60.0), turning)
+        if k * dt < 20.0 - 1e-9:
             assert ref == start, k
     assert ref.norm == pytest.approx(55.0, abs=0.1) and ref.dip_rad == pytest.approx(np.radians(60.0))
     held = FieldTracker(MagNoise(new_field_s=20.0), start)
-    for _ in range(150):  # the same field read by a still sensor: a magnet's reads as steadily
-        assert held.update(dt, 55.0, np.radians(60.0), still) == start
+    for k in range(150):  # the same field read by a still sensor: a magnet's reads as steadily
+        assert held.update(k * dt, 55.0, np.radians(60.0), still) == start
     wandering = FieldTracker(MagNoise(new_field_s=20.0), start)
     for k in range(300):  # a magnet near the path: the field jumps by 20 % as the sensor moves about
-        assert wandering.update(dt, 55.0 + 11.0 * (k % 2), np.radians(60.0), turning) == start
+        assert wandering.update(k * dt, 55.0 + 11.0 * (k % 2), np.radians(60.0), turning) == start
     unchanged = FieldTracker(MagNoise(), start)  # both settings 0: the start's reference throughout
-    assert unchanged.update(dt, 44.1, np.radians(69.3), turning) == start
+    assert unchanged.update(0.0, 44.1, np.radians(69.3), turning) == start

@@ -148,13 +148,17 @@ class FieldTracker:
         self._candidate = (reference.norm, reference.dip_rad)
         self._candidate_n = 0
         self._candidate_s = 0.0
+        self._t: float | None = None  # the time of the reading taken last
 
     @staticmethod
     def _agrees(norm: float, dip_rad: float, ref_norm: float, ref_dip_rad: float) -> bool:
         return abs(norm - ref_norm) < FIELD_AGREES_NORM * ref_norm and abs(dip_rad - ref_dip_rad) < FIELD_AGREES_DIP_RAD
 
-    def update(self, dt_s: float, norm: float, dip_rad: float, rate_rad_s: float) -> FieldReference:
-        """One levelled reading ``dt_s`` after the previous one, the sensor turning at ``rate_rad_s``; the reference now."""
+    def update(self, t_s: float, norm: float, dip_rad: float, rate_rad_s: float) -> FieldReference:
+        """One levelled reading taken at ``t_s`` (after the previous one), the sensor turning at ``rate_rad_s``; the
+        reference now."""
+        dt_s = t_s - self._t if self._t is not None else 0.0
+        self._t = t_s
         ref = self.reference
         agrees = self._agrees(norm, dip_rad, ref.norm, ref.dip_rad)
         self._undisturbed_s = self._undisturbed_s + dt_s if agrees else 0.0

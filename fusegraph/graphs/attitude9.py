@@ -252,7 +252,6 @@ class Attitude9Builder:
         """The undisturbed field now (the start's, then as ``FieldTracker`` follows it)."""
         self._start_reference: FieldReference | None = None  # the start's: where a batch pass's tracker begins
         self._field: FieldTracker | None = None
-        self._field_t = np.nan  # time of the reading the tracker took last
         self._keyframe_rate: list[float] = []  # RMS gyro rate over the interval before each keyframe, rad/s
         self.posterior_quat: list[FloatArray] = []
         """Online: keyframe k's attitude right after the update that added it (causal)."""
@@ -610,7 +609,7 @@ class Attitude9Builder:
             if self._field is None and not self.deferred_mag:  # a batch follows it in each pass, with that pass's attitudes
                 self._field = self.field_tracker()
             if self._field is not None:
-                self.reference = self._field.update(self._since_field(k), norm, dip, self._keyframe_rate[k])
+                self.reference = self._field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
                 if self._hard_iron is not None:
                     self._hard_iron.reference = self.reference
         if not self.deferred_mag:
@@ -623,13 +622,6 @@ class Attitude9Builder:
         if self._start_reference is None or (mag.reference_tau_s <= 0 and mag.new_field_s <= 0):
             return None
         return FieldTracker(mag, self._start_reference)
-
-    def _since_field(self, k: int) -> float:
-        """Seconds from the reading the field tracker took last to keyframe k's (one keyframe period at the first)."""
-        t = self.keyframe_t[k]
-        dt = t - self._field_t if math.isfinite(self._field_t) and t > self._field_t else self.model.keyframe_period_s
-        self._field_t = t
-        return dt
 
     def _heading(self, k: int, world_R_body: gtsam.Rot3, mag: FloatArray, norm: float, dip: float, robust: bool,
                  reference: FieldReference | None = None) -> gtsam.AttitudeFactorPose3:
@@ -717,7 +709,7 @@ class Attitude9Builder:
         mean_force = gyro_frame[0].rotate(self._keyframe_accel[0])
         heading_var = np.deg2rad(model.initial_attitude_sigma_deg) ** 2
         drift_var = model.imu.gyro_bias_prior_rad_s**2
-        field, field_t = self.field_tracker(), self.keyframe_t[0]
+        field = self.field_tracker()
         for k in range(1, len(self.keyframe_t)):
             if k in self._bridges:  # after a dropout the gyro's frame starts again from gravity and the field, as at the start
                 world_R_gyro = gtsam.Rot3()
@@ -737,10 +729,7 @@ class Attitude9Builder:
             mag = fields.get(k)
             if mag is not None and self.reference is not None:
                 norm, dip = field_norm_dip(attitude, mag)
-                reference = self.reference
-                if field is not None:
-                    reference = field.update(self.keyframe_t[k] - field_t, norm, dip, self._keyframe_rate[k])
-                    field_t = self.keyframe_t[k]
+                reference = self.reference if field is None else field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
                 sigma = heading_sigma_rad(model.mag, reference, norm, dip)
                 gain = heading_var / (heading_var + sigma * sigma)
                 heading_var *= 1.0 - gain
@@ -779,14 +768,10 @@ class Attitude9Builder:
     def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""
         out = []
-        field, last_t = self.field_tracker(), None  # the reference followed again with this pass's attitudes
+        field = self.field_tracker()  # the reference followed again with this pass's attitudes
         for k, mag in self.mag_readings:
             norm, dip = field_norm_dip(attitude[k], mag)
-            reference = self.reference
-            if field is not None:
-                t = self.keyframe_t[k]
-                reference = field.update(t - last_t if last_t is not None else self.model.keyframe_period_s, norm, dip, self._keyframe_rate[k])
-                last_t = t
+            reference = self.reference if field is None else field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
             out.append(self._heading(k, attitude[k], mag, norm, dip, robust, reference))
         return out
 
