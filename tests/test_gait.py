@@ -66,6 +66,18 @@ def test_a_stride_without_a_value_is_left_out_of_the_bout_mean() -> None:
 
 
 @requires_shared_data("mobgap")
+def test_a_participant_folder_that_is_a_link_is_read(tmp_path: Path) -> None:
+    """A Mobilise-D layout assembled from links (a participant of another cohort linked in) is read like a copy."""
+    from fusegraph.datasets.mobgap_lab import DEFAULT_DIR, data_files, mobgap_sessions
+
+    (tmp_path / "lab" / "MS").mkdir(parents=True)
+    (tmp_path / "lab" / "MS" / "001").symlink_to(DEFAULT_DIR / "lab" / "HA" / "001", target_is_directory=True)
+    assert [p.relative_to(tmp_path) for p in data_files(tmp_path)] == [Path("lab/MS/001/data.mat")]
+    names = [name for name, _ in mobgap_sessions(tmp_path)]
+    assert names and all(name.startswith("MS_001_") for name in names)
+
+
+@requires_shared_data("mobgap")
 def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from fusegraph.cli import main
     from fusegraph.datasets.mobgap_lab import DEFAULT_DIR

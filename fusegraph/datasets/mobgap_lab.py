@@ -24,6 +24,14 @@ DEFAULT_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "
 """Where the shared recordings are (``../shared/data/mobgap`` beside the repository)."""
 
 
+def data_files(directory: str | Path) -> list[Path]:
+    """Every ``data.mat`` under ``directory``, participant folders that are symbolic links included (``Path.rglob``
+    does not follow them before Python 3.13)."""
+    import glob
+
+    return sorted(Path(p) for p in glob.glob(str(Path(glob.escape(str(directory))) / "**" / "data.mat"), recursive=True))
+
+
 def mobgap_dataset(directory: str | Path = DEFAULT_DIR) -> Any:
     """mobgap's dataset over every ``data.mat`` under ``directory`` (laboratory, INDIP reference, bout level)."""
     with warnings.catch_warnings():  # mobgap's import and loader warn about its pickled models and its cache: not the user's concern
@@ -31,7 +39,7 @@ def mobgap_dataset(directory: str | Path = DEFAULT_DIR) -> Any:
         from mobgap.data import GenericMobilisedDataset
 
     directory = Path(directory)
-    paths = sorted(directory.rglob("data.mat"))
+    paths = data_files(directory)
     if not paths:
         raise SessionError(f"{directory}: no data.mat below it (a Mobilise-D layout: lab/<cohort>/<participant>/data.mat)")
     return GenericMobilisedDataset(paths, test_level_names=["time_measure", "test", "trial"], parent_folders_as_metadata=["cohort", "participant_id"],

@@ -133,11 +133,11 @@ def score_recording(estimate: GaitEstimate, reference: GaitReference) -> dict[st
 def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The JSON of ``fusegraph bench gait``: ``directory`` is a Mobilise-D folder in mobgap's layout (default
     ../shared/data/mobgap; mobgap's row needs it) or a folder of sessions ``import mobgap`` wrote (no mobgap row)."""
-    from ..datasets.mobgap_lab import DEFAULT_DIR, mobgap_sessions
+    from ..datasets.mobgap_lab import DEFAULT_DIR, data_files, mobgap_sessions
     from .runner import load_sessions
 
     folder = Path(directory or DEFAULT_DIR)
-    raw = bool(list(folder.rglob("data.mat")))
+    raw = bool(data_files(folder))
     sessions = mobgap_sessions(folder) if raw else load_sessions([folder])
     peer, pipelines = mobgap_estimates(folder) if raw and with_mobgap else ({}, {})
     per: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in METHODS}
