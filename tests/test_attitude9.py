@@ -540,3 +540,36 @@ def test_the_undisturbed_field_is_followed_and_a_steady_new_one_taken_while_turn
         assert wandering.update(k * dt, 55.0 + 11.0 * (k % 2), np.radians(60.0), turning) == start
     unchanged = FieldTracker(MagNoise(), start)  # both settings 0: the start's reference throughout
     assert unchanged.update(0.0, 44.1, np.radians(69.3), turning) == start
+
+
+def test_a_new_place_field_is_taken_and_said() -> None:
+    """The sensor carried to a place where the Earth's field is stronger and dips less (north unchanged): the online
+    estimate (the BROAD-chosen model: a new field after 20 s of turning) takes it as the reference, says so in a
+    warning and in ``extras['new_field_s']``, and keeps its heading."""
+    import warnings
+    from dataclasses import replace
+
+    from fusegraph.geometry import matrix_from_quat
+    from fusegraph.session import SessionWarning
+
+    session = simulate_attitude9(4, duration_s=70.0, disturbance_uT=0.0)
+    mag, truth, extra = session.stream("mag"), session.truth, session.meta["truth_extra"]
+    dip = np.radians(55.0)
+    there = 60.0 * np.array([0.0, np.cos(dip), -np.sin(dip)])  # uT, ENU: 20 % stronger than the start's 50, 10 deg less dip
+    moved = mag.t >= 10.0
+    true_body = np.einsum("nji,j->ni", matrix_from_quat(truth.values[moved]), there)  # world_R_body^T B
+    raw = mag.values.copy()
+    raw[moved] = (true_body - np.asarray(extra["mag_offset_uT"])) / np.asarray(extra["mag_gain"])  # noise-free there: the rule, not noise
+    session = replace(session, streams={**session.streams, "mag": replace(mag, values=raw)})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        estimate = attitude9.run_online(session)
+    said = [str(w.message) for w in caught if issubclass(w.category, SessionWarning) and "reference field" in str(w.message)]
+    assert len(said) == 1 and "dip 55.0 deg" in said[0], said
+    (t_new,) = estimate.extras["new_field_s"]
+    assert 30.0 <= t_new < 45.0  # 20 s of turning after the move, once a reading disagrees with the start's field
+    after = np.zeros(len(truth.t))
+    after[truth.t > t_new + 5.0] = 1.0
+    # measured 0.12 deg; judged against the start's field throughout (new_field_s 0) the gate keeps the heading sigma
+    # inflated and the heading wanders to 1.3 deg
+    assert _score(estimate, session, after).heading < 0.6

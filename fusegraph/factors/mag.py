@@ -149,6 +149,8 @@ class FieldTracker:
         self._candidate_n = 0
         self._candidate_s = 0.0
         self._t: float | None = None  # the time of the reading taken last
+        self.adopted: list[tuple[float, FieldReference]] = []
+        """Every new field taken as the reference: (time of the reading, the field)."""
 
     @staticmethod
     def _agrees(norm: float, dip_rad: float, ref_norm: float, ref_dip_rad: float) -> bool:
@@ -176,6 +178,7 @@ class FieldTracker:
             if not agrees and self._candidate_s >= self.noise.new_field_s:
                 self.reference = FieldReference(*self._candidate)
                 self._undisturbed_s = UNDISTURBED_S
+                self.adopted.append((t_s, self.reference))
         else:
             self._candidate, self._candidate_n, self._candidate_s = (norm, dip_rad), 1, 0.0
         return self.reference

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -252,6 +253,8 @@ class Attitude9Builder:
         """The undisturbed field now (the start's, then as ``FieldTracker`` follows it)."""
         self._start_reference: FieldReference | None = None  # the start's: where a batch pass's tracker begins
         self._field: FieldTracker | None = None
+        self.new_fields: list[tuple[float, FieldReference]] = []
+        """New fields taken as the reference (``FieldTracker.adopted``): online as they come; a batch, its last pass's."""
         self._keyframe_rate: list[float] = []  # RMS gyro rate over the interval before each keyframe, rad/s
         self.posterior_quat: list[FloatArray] = []
         """Online: keyframe k's attitude right after the update that added it (causal)."""
@@ -610,10 +613,30 @@ class Attitude9Builder:
                 self._field = self.field_tracker()
             if self._field is not None:
                 self.reference = self._field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
+                self.new_fields = self._field.adopted
                 if self._hard_iron is not None:
                     self._hard_iron.reference = self.reference
         if not self.deferred_mag:
             self._pending.add(k, self._heading(k, world_R_body, mag, norm, dip, robust=True))
+
+    def notes(self) -> list[str]:
+        """What a user is told about the run: each dropout bridged, each new field taken as the reference (a user sees where
+        the estimate changed its mind about the room)."""
+        gaps = [f"no gyro/accel/mag sample for {length_s:.2f} s after t = {after_s:.2f} s: the gap is bridged (the attitude across it "
+                "comes from gravity and the field after it, not from the gyro)" for after_s, length_s in self.gaps]
+        fields = [f"from t = {t_s:.1f} s the magnetometer's reference field is one of norm {field.norm:.1f} (the readings' unit) and dip "
+                  f"{math.degrees(field.dip_rad):.1f} deg: a field off the start's that held steady while the sensor turned (another "
+                  "place's Earth field, or a disturbance that did not change; MagNoise.new_field_s)" for t_s, field in self.new_fields]
+        return gaps + fields
+
+    def extras(self) -> dict[str, Any]:
+        """The run's counts for an estimate's extras: the tracker's samples used and dropped, the new fields' times (s)."""
+        out: dict[str, Any] = {}
+        if self.tracker_factors or self.tracker_dropped:
+            out.update(tracker_factors=self.tracker_factors, tracker_dropped=self.tracker_dropped)
+        if self.new_fields:
+            out["new_field_s"] = [t for t, _ in self.new_fields]
+        return out
 
     def field_tracker(self) -> FieldTracker | None:
         """A tracker of the undisturbed field from the start's reference, or None when the model keeps that reference
@@ -773,6 +796,7 @@ class Attitude9Builder:
             norm, dip = field_norm_dip(attitude[k], mag)
             reference = self.reference if field is None else field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
             out.append(self._heading(k, attitude[k], mag, norm, dip, robust, reference))
+        self.new_fields = field.adopted if field is not None else []
         return out
 
 

@@ -157,22 +157,15 @@ def run_online(session: Session, model: Attitude9Model | None = None, config: On
         solver.update()
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), np.array(builder.posterior_quat), np.array(builder.posterior_gyro_bias), False)
     runtime = time.perf_counter() - start
-    _report_gaps(session, builder)
-    extras = {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors, **_tracker_extras(builder)}
+    _say(session, builder)
+    extras = {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors, **builder.extras()}
     return Estimate("online", data.t.copy(), quats, None, runtime, extras)
 
 
-def _report_gaps(session: Session, builder: Attitude9Builder) -> None:
-    """One warning per dropout the graph bridged, with its time and length."""
-    for after_s, length_s in builder.gaps:
-        warnings.warn(f"{session.where}: no gyro/accel/mag sample for {length_s:.2f} s after t = {after_s:.2f} s: the gap is bridged "
-                      "(the attitude across it comes from gravity and the field after it, not from the gyro)", SessionWarning, stacklevel=3)
-
-
-def _tracker_extras(builder: Attitude9Builder) -> dict[str, int]:
-    if not builder.tracker_factors and not builder.tracker_dropped:
-        return {}
-    return {"tracker_factors": builder.tracker_factors, "tracker_dropped": builder.tracker_dropped}
+def _say(session: Session, builder: Attitude9Builder) -> None:
+    """One warning per note of the run (``Attitude9Builder.notes``: the dropouts bridged, the new fields taken)."""
+    for note in builder.notes():
+        warnings.warn(f"{session.where}: {note}", SessionWarning, stacklevel=3)
 
 
 def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: gtsam.Ordering, max_iterations: int) -> gtsam.Values:
@@ -243,7 +236,6 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     start = time.perf_counter()
     model = model_for(session, model, "batch")
     builder, increment = _build_batch(session, data, model)
-    _report_gaps(session, builder)
     kq, kb, residual = _solve_batch(builder, increment, max_iterations, None)
     check = "ok"
     if np.isfinite(residual) and residual > DIVERGED_HEADING_DEG:
@@ -259,7 +251,8 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
         residual = again
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), kq, kb, True)
     runtime = time.perf_counter() - start
-    extras = {"keyframes": len(builder.keyframe_t), "check": check, "heading_residual_median_deg": residual, **_tracker_extras(builder)}
+    _say(session, builder)
+    extras = {"keyframes": len(builder.keyframe_t), "check": check, "heading_residual_median_deg": residual, **builder.extras()}
     return Estimate("batch", data.t.copy(), quats, None, runtime, extras)
 
 
