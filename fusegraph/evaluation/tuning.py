@@ -240,8 +240,12 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
 
 
 def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
-    """Every grid point of a BROAD study on one trial (``job``: path, study, solver): total RMSE, degrees."""
+    """Every grid point of a BROAD study on one trial (``job``: path, study, solver): total RMSE, degrees. What each grid
+    point's run notes (a new field taken, a gap bridged) is not repeated per point: the study chooses, ``run`` says."""
+    import warnings
+
     from ..metrics import broad_errors
+    from ..session import SessionWarning
     from ..systems import attitude9
 
     path, study, solver = job
@@ -250,10 +254,12 @@ def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, float]:
     out = {}
     for name, point in grid_settings(broad_grid(study, solver)).items():
         model = _broad_model(study, point, solver)
-        if study == "broad_online":
-            estimate = attitude9.run_online(session, model, attitude9.online_config(point))
-        else:
-            estimate = (attitude9.run_online if solver == "online" else attitude9.run_batch)(session, model)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SessionWarning)
+            if study == "broad_online":
+                estimate = attitude9.run_online(session, model, attitude9.online_config(point))
+            else:
+                estimate = (attitude9.run_online if solver == "online" else attitude9.run_batch)(session, model)
         out[name] = broad_errors(estimate.quat_wxyz, session.truth.values, movement).total  # type: ignore[union-attr]
     return out
 
