@@ -274,6 +274,9 @@ def test_bench_on_the_attached_magnet_trial(tmp_path, capsys) -> None:  # type: 
     # the magnet rides on the sensor: VQF's heading follows it; the heading-only factor with
     # norm/dip gating and the Cauchy kernel does not (measured 2.4 deg)
     assert row["online"]["total"] < 0.5 * row["vqf"]["total"]
+    ratio = result["ratios"]["online/vqf"]  # one trial: it is the worst, and its ratio the means'
+    assert set(result["ratios"]) == {"online/vqf"} and ratio["worst_trial"] == stem
+    assert ratio["worst_trial_ratio"] == pytest.approx(row["online"]["total"] / row["vqf"]["total"]) == pytest.approx(ratio["total"])
     (trial,) = DEFAULT_DIR.glob("32_*.mat")
     assert main(["import", "broad", str(trial), "--out", str(tmp_path / stem)]) == 0
     capsys.readouterr()

@@ -26,7 +26,8 @@ def bench_broad(
     ``trials`` keeps the files whose name starts with one of these prefixes (e.g. ``"01"``); all by default.
     ``methods``: attitude9 solvers (default: all of them, the peers first). One parameter set serves every trial; the truth only scores.
     JSON: ``trials.<trial>.<method>`` and ``mean.<method>`` with ``total``, ``heading``, ``inclination`` (deg) and
-    ``x_realtime`` (the mean of the trials' ratios), plus the report it was laid out from (``methods``, ``sessions``:
+    ``x_realtime`` (the mean of the trials' ratios), ``ratios`` (``peer_ratios``: ours against each peer, with the worst
+    trial), plus the report it was laid out from (``methods``, ``sessions``:
     what ``report attitude9 DIR --json`` prints for the imported trials).
     """
     from ..datasets.broad import DEFAULT_DIR
@@ -50,9 +51,30 @@ def bench_broad(
     for method in names:
         rows = [trial[method] for trial in out["trials"].values()]
         out["mean"][method] = {key: float(np.mean([r[key] for r in rows])) for key in ("total", "heading", "inclination", "x_realtime")}
+    out["ratios"] = peer_ratios(out)
     out.update(methods=report["methods"], sessions=report["sessions"])
     out["published"] = published_baselines(Path(directory or DEFAULT_DIR))
     out["settings"] = tuning_provenance()
+    return out
+
+
+PEERS = (("online", "vqf"), ("batch", "vqf_offline"), ("online", "imufusion"))
+"""Each of our estimates beside the peer a user would pick for the same information (causal, or the whole recording)."""
+
+
+def peer_ratios(bench: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """``ours/peer`` for every pair of ``PEERS`` the bench ran: the means' ratios (total, inclination, speed) and the trial
+    where ours does worst against the peer (``worst_trial``, its total's ratio ``worst_trial_ratio``)."""
+    mean, trials = bench["mean"], bench["trials"]
+    out = {}
+    for ours, peer in PEERS:
+        if ours in mean and peer in mean:
+            per_trial = {stem: row[ours]["total"] / row[peer]["total"] for stem, row in trials.items()}
+            worst = max(per_trial, key=lambda stem: per_trial[stem])
+            out[f"{ours}/{peer}"] = {"total": mean[ours]["total"] / mean[peer]["total"],
+                                     "inclination": mean[ours]["inclination"] / mean[peer]["inclination"],
+                                     "speed": mean[ours]["x_realtime"] / mean[peer]["x_realtime"],
+                                     "worst_trial": worst, "worst_trial_ratio": per_trial[worst]}
     return out
 
 
