@@ -269,8 +269,9 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     """Our graph's settings of one BROAD study (``broad_mag``: heading sigma, disturbance gains, Cauchy width;
     ``broad_motion``: the velocity prior, gyro and accelerometer noise, gravity sigma and its inflation; ``broad_bias``: the
     accelerometer bias's prior and walk, the gyro bias's walk; ``broad_online``: the online solver's relinearisation
-    checks) chosen by leave-one-trial-out on the BROAD trials for ``solver`` (online or batch), the other study's settings
-    as tuned (``sessions``: imported session directories instead of the trial files): total RMSE, degrees."""
+    checks; ``broad_hard_iron``: the carried magnet's model; ``broad_field``: how the undisturbed field is followed)
+    chosen by leave-one-trial-out on the BROAD trials for ``solver`` (online or batch), the other study's settings as
+    tuned (``sessions``: imported session directories instead of the trial files): total RMSE, degrees."""
     paths = [str(p) for p in recordings(directory, sessions)]
     per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers)
     scores: dict[str, dict[str, float]] = {name: {} for name in grid_settings(broad_grid(study, solver))}

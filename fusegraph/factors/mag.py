@@ -136,15 +136,17 @@ class FieldTracker:
     trial 06 the field read 41.6 uT and 71.3 deg dip where the trial starts and 44.3 uT, 69 deg while the hand moves,
     so a reference fixed at the start judged the whole movement disturbed and the causal heading ran on the gyro. Here
     the reference follows a field that agrees with it (``MagNoise.reference_tau_s``), and a field that disagrees but
-    holds steady by itself for ``MagNoise.new_field_s`` while the sensor turns is a new place's Earth field and becomes
-    the reference: a magnet near the path changes the field as the sensor moves, so it does not hold steady while
-    turning. Fed once per keyframe; causal."""
+    holds steady by itself for ``MagNoise.new_field_s`` while the sensor turns is taken as a new place's Earth field and
+    becomes the reference: a magnet near the path changes the field as the sensor moves, so it does not hold steady
+    while turning; a disturbance that does not change with place reads the same as another place's Earth field (on
+    BROAD trial 10 the moving hand's field was taken and its headings were worse than the gyro's: norm and dip cannot
+    tell them apart). Fed once per keyframe; causal."""
 
     def __init__(self, noise: MagNoise, reference: FieldReference):
         self.noise = noise
         self.reference = reference
         """The reference now."""
-        self._undisturbed_s = UNDISTURBED_S
+        self._undisturbed_s = UNDISTURBED_S  # the start's field has agreed with itself since the start
         self._candidate = (reference.norm, reference.dip_rad)
         self._candidate_n = 0
         self._candidate_s = 0.0
