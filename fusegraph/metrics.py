@@ -386,8 +386,12 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
     bouts_s, contacts_s = reference.bouts_s, reference.contacts_s
     bout_length_m, bout_speed_m_s = reference.stride_length_m, reference.walking_speed_m_s
     tp = fp = fn = 0
-    length_errors, speed_errors, length_bouts, speed_bouts = [], [], [], []
-    length_values, speed_values = [], []
+    length_errors: list[float] = []
+    speed_errors: list[float] = []
+    length_bouts: list[int] = []
+    speed_bouts: list[int] = []
+    length_values: list[float] = []
+    speed_values: list[float] = []
     for n, (start, end) in enumerate(bouts_s):
         truth = contacts_s[(contacts_s >= start - 1e-6) & (contacts_s <= end + 1e-6)]
         found = steps_s[(steps_s >= start - GAIT_MATCH_S) & (steps_s <= end + GAIT_MATCH_S)]
@@ -399,15 +403,13 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
         tp, fp, fn = tp + matched, fp + len(found) - matched, fn + len(truth) - matched
         # a stride without a value (a peer's NaN) is not one of the bout's values: it neither counts nor poisons the mean
         inside = (stride_t_s >= start) & (stride_t_s <= end)
-        has_length, has_speed = inside & np.isfinite(stride_length_m), inside & np.isfinite(walking_speed_m_s)
-        if has_length.any() and n < len(bout_length_m) and np.isfinite(bout_length_m[n]):
-            length_values.append(float(np.mean(stride_length_m[has_length])))
-            length_errors.append(abs(length_values[-1] - float(bout_length_m[n])))
-            length_bouts.append(n)
-        if has_speed.any() and n < len(bout_speed_m_s) and np.isfinite(bout_speed_m_s[n]):
-            speed_values.append(float(np.mean(walking_speed_m_s[has_speed])))
-            speed_errors.append(abs(speed_values[-1] - float(bout_speed_m_s[n])))
-            speed_bouts.append(n)
+        for method, bout_mean, values, errors, bouts in ((stride_length_m, bout_length_m, length_values, length_errors, length_bouts),
+                                                         (walking_speed_m_s, bout_speed_m_s, speed_values, speed_errors, speed_bouts)):
+            has = inside & np.isfinite(method)
+            if has.any() and n < len(bout_mean) and np.isfinite(bout_mean[n]):
+                values.append(float(np.mean(method[has])))
+                errors.append(abs(values[-1] - float(bout_mean[n])))
+                bouts.append(n)
     return {"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": length_errors, "walking_speed_errors_m_s": speed_errors,
             "stride_length_bouts": length_bouts, "walking_speed_bouts": speed_bouts, "stride_length_m": length_values,
             "walking_speed_m_s": speed_values, "bouts": len(bouts_s)}

@@ -101,13 +101,15 @@ def _interval_ids(path: Path, id_column: str, t_ns: np.ndarray) -> np.ndarray:
     in, 0 outside every interval. An interval holds its start and not its end (the end is the first sample after it: so
     the shared export's blink ids on the gaze rows read)."""
     events = _table(path, (id_column, "start timestamp [ns]", "end timestamp [ns]"))
-    out = np.zeros(len(t_ns))
-    for number, (event, start, end) in enumerate(zip(events[id_column], events["start timestamp [ns]"], events["end timestamp [ns]"], strict=True),
-                                                 start=2):
-        if not (np.isfinite(start) and np.isfinite(end) and end > start):
-            raise SessionError(f"{path}: line {number}: an interval without a start and an end after it")
-        out[(t_ns >= start) & (t_ns < end)] = event
-    return out
+    start, end, ids = events["start timestamp [ns]"], events["end timestamp [ns]"], events[id_column]
+    bad = ~(np.isfinite(start) & np.isfinite(end) & (end > start))
+    if bad.any():
+        raise SessionError(f"{path}: line {int(np.argmax(bad)) + 2}: an interval without a start and an end after it")
+    order = np.argsort(start, kind="stable")  # the detector's events do not overlap: each sample looks up the last that started
+    start, end, ids = start[order], end[order], ids[order]
+    last = np.searchsorted(start, t_ns, side="right") - 1
+    inside = (last >= 0) & (t_ns < end[np.maximum(last, 0)])
+    return np.where(inside, ids[np.maximum(last, 0)], 0.0)
 
 
 def undistorted_rays(x_px: np.ndarray, y_px: np.ndarray, camera_matrix: np.ndarray, dist_coefs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -174,10 +176,6 @@ def _in_time_order(path: Path, table: dict[str, np.ndarray]) -> dict[str, np.nda
     return {column: values[keep] for column, values in table.items()}
 
 
-def _seconds(ns: np.ndarray, t0_ns: float) -> np.ndarray:
-    return (ns - t0_ns) * 1e-9
-
-
 def pinhole_pixels(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, focal_px: float = FOCAL_PX) -> np.ndarray:
     """The gaze rays (azimuth to the right, elevation up) as pixels of a pinhole camera (u right, v up from the centre)."""
     az, el = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
@@ -203,8 +201,8 @@ def load_pupil(directory: str | Path = DEFAULT_DIR) -> Session:
     worn = gaze.get("worn", np.ones(n))
     blink = gaze.get("blink id", np.zeros(n))
     t0_ns = float(imu["timestamp [ns]"][0])  # the IMU's first sample is t = 0 (stamps of ~1.6e18 ns read as float64 keep 256 ns: far below a sample)
-    t = _seconds(imu["timestamp [ns]"], t0_ns)
-    gaze_t = _seconds(gaze["timestamp [ns]"], t0_ns)
+    t = (imu["timestamp [ns]"] - t0_ns) * 1e-9
+    gaze_t = (gaze["timestamp [ns]"] - t0_ns) * 1e-9
     gyro = np.stack([imu[c] for c in IMU_COLUMNS[1:4]], axis=1)
     accel = np.stack([imu[c] for c in IMU_COLUMNS[4:7]], axis=1)
     for name, values, path in (("gyro", gyro, imu_path), ("acceleration", accel, imu_path)):

@@ -63,6 +63,7 @@ def feature_columns(names: Sequence[str]) -> list[int]:
     """The columns of rows of ``FEATURES`` that hold ``names`` (a model's features, in its order)."""
     return [FEATURES.index(name) for name in names]
 
+
 MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "activity_waist.json"
 """The model on main (``fusegraph tune activity --sessions DIR --write`` fits and writes it)."""
 

@@ -146,15 +146,17 @@ def mag_noise_tuned(study: str) -> MagNoise:
     hard-iron model its ``broad_hard_iron`` study chose (``broad_hard_iron_batch``) and the field tracking its
     ``broad_field`` study chose (``broad_field_batch``), once those studies have run."""
     noise = mag_noise_from(tuned(study))
-    hard_iron, field = HARD_IRON_STUDY.get(study), FIELD_STUDY.get(study)
-    noise = with_hard_iron(noise, tuned(hard_iron)) if hard_iron in tuned_studies() else noise
-    return with_field(noise, tuned(field)) if field in tuned_studies() else noise
+    estimate = study.removeprefix("broad_mag")  # "" (online) or "_batch": the layers' studies of the same estimate
+    for layer, apply in MAG_LAYERS:
+        if layer + estimate in tuned_studies():
+            noise = apply(noise, tuned(layer + estimate))
+    return noise
 
 
-HARD_IRON_STUDY = {"broad_mag": "broad_hard_iron", "broad_mag_batch": "broad_hard_iron_batch"}
-"""The hard-iron study that goes with each magnetometer study (the same estimate)."""
-FIELD_STUDY = {"broad_mag": "broad_field", "broad_mag_batch": "broad_field_batch"}
-"""The field-tracking study that goes with each magnetometer study (the same estimate)."""
+MAG_LAYERS: tuple[tuple[str, Callable[[MagNoise, Mapping[str, float]], MagNoise]], ...] = (("broad_hard_iron", with_hard_iron),
+                                                                                          ("broad_field", with_field))
+"""The studies layered on a magnetometer study's choice, in order, with how each applies its setting (``_batch`` appended for
+the batch's)."""
 
 
 @dataclass(frozen=True)
@@ -537,12 +539,13 @@ class Attitude9Builder:
         """Whether a sample (or a block of them) reached the accelerometer's range (``Attitude9Model.accel_range_m_s2``)."""
         return math.isfinite(self.model.accel_range_m_s2) and bool(clipped_samples(np.atleast_2d(accel), self.model.accel_range_m_s2).any())
 
-    def _preintegrate(self, accel: FloatArray, gyro: FloatArray, dt: FloatArray) -> gtsam.PreintegratedImuMeasurements:
-        """The interval's samples, with a gyro noise that grows with the rotation rate (scale errors)."""
+    def _preintegrate(self, accel: FloatArray, gyro: FloatArray, dt: FloatArray, rate_rad_s: float) -> gtsam.PreintegratedImuMeasurements:
+        """The interval's samples, with a gyro noise that grows with the rotation rate (``rate_rad_s``, the interval's RMS:
+        scale errors)."""
         params = self._params
         clipped = self._clipped(accel)
         if params is None or clipped:
-            params = preintegration_params(self.model.imu, float(np.sqrt(np.mean(np.einsum("ij,ij->i", gyro, gyro)))), float(dt.sum()))
+            params = preintegration_params(self.model.imu, rate_rad_s, float(dt.sum()))
         if clipped:
             params.setAccelerometerCovariance(CLIPPED_ACCEL_DENSITY**2 * np.eye(3))
         pim = gtsam.PreintegratedImuMeasurements(params, self._bias)
@@ -559,8 +562,8 @@ class Attitude9Builder:
         else:
             interval_accel, interval_gyro, interval_dt = (np.concatenate(blocks) for blocks in zip(*self._interval, strict=True))
         self._interval = []
-        pim = self._preintegrate(interval_accel, interval_gyro, interval_dt)
         self._keyframe_rate.append(float(np.sqrt(np.mean(np.einsum("ij,ij->i", interval_gyro, interval_gyro)))))
+        pim = self._preintegrate(interval_accel, interval_gyro, interval_dt, self._keyframe_rate[-1])
         self._keyframe_accel.append(pim.deltaVij() / pim.deltaTij())  # rotated sample by sample: the body may turn a lot in 0.2 s
         predicted = pim.predict(self._nav, self._bias)
         if not self._solved:
@@ -611,9 +614,10 @@ class Attitude9Builder:
                 self._hard_iron = HardIron(self.model.mag, self.reference)
             if self._field is None and not self.deferred_mag:  # a batch follows it in each pass, with that pass's attitudes
                 self._field = self.field_tracker()
+                if self._field is not None:
+                    self.new_fields = self._field.adopted  # the tracker's own list: it grows there
             if self._field is not None:
                 self.reference = self._field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
-                self.new_fields = self._field.adopted
                 if self._hard_iron is not None:
                     self._hard_iron.reference = self.reference
         if not self.deferred_mag:
