@@ -186,7 +186,19 @@ class FieldTracker:
         return self.reference
 
 
-_EYE3 = np.eye(3)
+def _solve3(a: FloatArray, y: FloatArray) -> FloatArray:
+    """``np.linalg.solve`` for one 3 x 3 system by its cofactors, in floats (~5x faster per call than numpy's, whose
+    overhead dominates at this size: the hard-iron estimate solves one per keyframe)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a.tolist()
+    y0, y1, y2 = y.tolist()
+    c00, c01, c02 = a11 * a22 - a12 * a21, a12 * a20 - a10 * a22, a10 * a21 - a11 * a20
+    c10, c11, c12 = a02 * a21 - a01 * a22, a00 * a22 - a02 * a20, a01 * a20 - a00 * a21
+    c20, c21, c22 = a01 * a12 - a02 * a11, a02 * a10 - a00 * a12, a00 * a11 - a01 * a10
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if det == 0.0:
+        raise np.linalg.LinAlgError("singular 3 x 3 system")
+    return np.array([c00 * y0 + c10 * y1 + c20 * y2, c01 * y0 + c11 * y1 + c21 * y2, c02 * y0 + c12 * y1 + c22 * y2]) / det
+
 
 
 class HardIron:
@@ -222,9 +234,10 @@ class HardIron:
     def _solve(self) -> FloatArray:
         """(B, b) from the normal equations, B eliminated first (a 3 x 3 solve): b's information is W I - C^T C / W."""
         W, C, v = self._weight, self._rotations, self._vector
-        schur = W * _EYE3 - C.T @ C / W + 1e-6 * W * _EYE3  # without a turn: the least-norm split
-        b = np.linalg.solve(schur, v[3:] - C.T @ v[:3] / W)
-        return np.concatenate([(v[:3] - C @ b) / W, b])
+        schur = C.T @ C / -W
+        schur.flat[::4] += W * (1.0 + 1e-6)  # without a turn: the least-norm split
+        b = _solve3(schur, v[3:] - C.T @ v[:3] / W)
+        return np.concatenate(((v[:3] - C @ b) / W, b))
 
     def correct(self, t_s: float, world_R_body: gtsam.Rot3, mag_body: FloatArray) -> FloatArray:
         """Take a reading at ``t_s`` with the attitude it was taken at; the reading corrected by the estimate so far."""
@@ -236,7 +249,7 @@ class HardIron:
         residual = float(np.sum((m - R.T @ theta[:3] - theta[3:]) ** 2)) if theta is not None else 0.0
         self._weight = forget * self._weight + 1.0
         self._rotations = forget * self._rotations + R
-        self._vector = forget * self._vector + np.r_[R @ m, m]
+        self._vector = forget * self._vector + np.concatenate((R @ m, m))
         self._square = forget * self._square + residual
         self.trusted = False
         self.bias = np.zeros(3)
@@ -245,9 +258,9 @@ class HardIron:
             field = theta[:3]  # the Earth's part in the world: must be the reference field (norm and dip), else no carried magnet
             norm = self.reference.norm
             fits = (math.sqrt(self._square / self._weight / 3.0) < tolerance * norm
-                    and abs(float(np.linalg.norm(field)) - norm) < tolerance * norm
+                    and abs(math.sqrt(float(field @ field)) - norm) < tolerance * norm
                     and abs(math.atan2(-field[2], math.hypot(field[0], field[1])) - self.reference.dip_rad) < tolerance
-                    and float(np.linalg.norm(theta[3:])) > self.noise.hard_iron_min * norm)
+                    and math.sqrt(float(theta[3:] @ theta[3:])) > self.noise.hard_iron_min * norm)
             # observability of b: its information once the field's is eliminated, per reading: 1 - (largest singular value
             # of the memory's mean rotation)^2 (0 without a turn)
             self.trusted = fits and 1.0 - float(np.linalg.norm(self._rotations / self._weight, 2)) ** 2 > self._MIN_SPREAD
