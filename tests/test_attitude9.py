@@ -514,6 +514,19 @@ def test_a_carried_magnet_is_separated_from_the_earth_field_by_the_rotation() ->
     assert not tracker.trusted and not tracker.bias.any()
 
 
+def test_the_hard_iron_estimates_3x3_solve_is_numpys() -> None:
+    from fusegraph.factors.mag import _solve3
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        a = rng.normal(size=(3, 3))
+        a = a @ a.T + 0.01 * np.eye(3)  # symmetric positive definite, as the Schur complement is
+        y = rng.normal(size=3)
+        np.testing.assert_allclose(_solve3(a, y), np.linalg.solve(a, y), rtol=1e-8, atol=1e-10)  # cofactors vs LU: rounding only
+    with pytest.raises(np.linalg.LinAlgError):
+        _solve3(np.ones((3, 3)), np.ones(3))
+
+
 def test_the_undisturbed_field_is_followed_and_a_steady_new_one_taken_while_turning() -> None:
     """``FieldTracker`` (VQF's rule): a field that agrees with the reference pulls it at the time constant; one that
     disagrees but holds steady while the sensor turns becomes the reference after ``new_field_s``; held still, or

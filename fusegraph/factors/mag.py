@@ -200,7 +200,6 @@ def _solve3(a: FloatArray, y: FloatArray) -> FloatArray:
     return np.array([c00 * y0 + c10 * y1 + c20 * y2, c01 * y0 + c11 * y1 + c21 * y2, c02 * y0 + c12 * y1 + c22 * y2]) / det
 
 
-
 class HardIron:
     """A magnet carried with the sensor: a constant offset ``b`` in the sensor frame on top of the Earth's field,
     m_k = world_R_body_k^T B + b. As the body turns, the Earth's part turns in the sensor frame and ``b`` does not, so
