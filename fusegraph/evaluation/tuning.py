@@ -235,18 +235,17 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     """The 9-axis model with one grid point of a BROAD study applied to the solver's tuned model."""
     from dataclasses import replace
 
-    from ..graphs.attitude9 import mag_noise_from, with_field, with_hard_iron
+    from ..graphs.attitude9 import MAG_LAYERS, mag_noise_from
     from ..systems.attitude9 import broad_model, with_bias, with_motion
 
     base = broad_model(solver)
+    layers = dict(MAG_LAYERS)  # the studies layered on the magnetometer's, each with how it applies its setting
     if study == "broad_online":
         return base
     if study == "broad_mag":
         return replace(base, mag=mag_noise_from(point, base.mag))
-    if study == "broad_hard_iron":
-        return replace(base, mag=with_hard_iron(base.mag, point))
-    if study == "broad_field":
-        return replace(base, mag=with_field(base.mag, point))
+    if study in layers:
+        return replace(base, mag=layers[study](base.mag, point))
     return with_bias(base, point) if study == "broad_bias" else with_motion(base, point)
 
 

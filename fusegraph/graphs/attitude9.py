@@ -617,7 +617,7 @@ class Attitude9Builder:
                 if self._field is not None:
                     self.new_fields = self._field.adopted  # the tracker's own list: it grows there
             if self._field is not None:
-                self.reference = self._field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
+                self.reference = self._followed(self._field, k, norm, dip)
                 if self._hard_iron is not None:
                     self._hard_iron.reference = self.reference
         if not self.deferred_mag:
@@ -649,6 +649,13 @@ class Attitude9Builder:
         if self._start_reference is None or (mag.reference_tau_s <= 0 and mag.new_field_s <= 0):
             return None
         return FieldTracker(mag, self._start_reference)
+
+    def _followed(self, field: FieldTracker | None, k: int, norm: float, dip: float) -> FieldReference:
+        """The reference at keyframe k: ``field`` fed keyframe k's levelled reading, or the start's when it is None."""
+        if field is None:
+            assert self.reference is not None
+            return self.reference
+        return field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
 
     def _heading(self, k: int, world_R_body: gtsam.Rot3, mag: FloatArray, norm: float, dip: float, robust: bool,
                  reference: FieldReference | None = None) -> gtsam.AttitudeFactorPose3:
@@ -756,8 +763,7 @@ class Attitude9Builder:
             mag = fields.get(k)
             if mag is not None and self.reference is not None:
                 norm, dip = field_norm_dip(attitude, mag)
-                reference = self.reference if field is None else field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
-                sigma = heading_sigma_rad(model.mag, reference, norm, dip)
+                sigma = heading_sigma_rad(model.mag, self._followed(field, k, norm, dip), norm, dip)
                 gain = heading_var / (heading_var + sigma * sigma)
                 heading_var *= 1.0 - gain
                 x, y, _ = attitude.rotate(mag).tolist()
@@ -798,8 +804,7 @@ class Attitude9Builder:
         field = self.field_tracker()  # the reference followed again with this pass's attitudes
         for k, mag in self.mag_readings:
             norm, dip = field_norm_dip(attitude[k], mag)
-            reference = self.reference if field is None else field.update(self.keyframe_t[k], norm, dip, self._keyframe_rate[k])
-            out.append(self._heading(k, attitude[k], mag, norm, dip, robust, reference))
+            out.append(self._heading(k, attitude[k], mag, norm, dip, robust, self._followed(field, k, norm, dip)))
         self.new_fields = field.adopted if field is not None else []
         return out
 
