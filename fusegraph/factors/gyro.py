@@ -77,6 +77,37 @@ def rate_matrix(omega: FloatArray) -> FloatArray:
     return out
 
 
+def scale_rate_map(gyro_rad_s: FloatArray, dt_s: FloatArray, bias_rad_s: FloatArray) -> FloatArray:
+    """M (3 x 9) with M c the constant bias that turns an interval's preintegrated rotation as a gyro error K w does
+    (c = K row by row; first order in both): the interval's rotation moves by sum_s A_s K w_s for the samples'
+    sensitivities A_s = (R_{s+1} ... R_n)^T Jr(phi_s) dt_s, and by (sum_s A_s) b for a bias b, so M = (sum A)^-1 sum A_s W(w_s).
+    About W(mean rate) when the axis holds still over the interval; at 500 deg/s the axis turns within a 0.2 s keyframe
+    and the two differ."""
+    omega = np.asarray(gyro_rad_s, dtype=float)
+    phi = (omega - np.asarray(bias_rad_s, dtype=float)) * np.asarray(dt_s, dtype=float)[:, None]
+    theta = np.linalg.norm(phi, axis=1)
+    small = theta < 1e-6
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5, (1.0 - np.cos(t)) / t**2)  # Jr = I - a [phi]x + b [phi]x^2
+    b = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
+    c = np.where(small, 1.0, np.sin(t) / t)  # Exp = I + c [phi]x + a [phi]x^2
+    hat = np.zeros((len(phi), 3, 3))
+    hat[:, 0, 1], hat[:, 0, 2], hat[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
+    hat[:, 1, 0], hat[:, 2, 0], hat[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
+    hat2 = hat @ hat
+    jr = np.eye(3) - a[:, None, None] * hat + b[:, None, None] * hat2
+    rot = np.eye(3) + c[:, None, None] * hat + a[:, None, None] * hat2
+    sens = np.empty_like(jr)
+    after = np.eye(3)  # (R_{s+1} ... R_n)^T
+    for s in range(len(phi) - 1, -1, -1):
+        sens[s] = after @ jr[s] * dt_s[s]
+        after = after @ rot[s].T
+    weighted = np.zeros((3, 9))
+    for row in range(3):  # A_s W(w_s): W's row r holds w_s in columns 3r..3r+2
+        weighted[:, 3 * row : 3 * row + 3] = (sens[:, :, row : row + 1] * omega[:, None, :]).sum(0)
+    return np.asarray(np.linalg.solve(sens.sum(0), weighted))
+
+
 def calibration_prior_factor(cal_key: int, prior: GyroCalibrationPrior) -> gtsam.PriorFactorVector:
     """Zero-mean prior on c (9 numbers)."""
     return gtsam.PriorFactorVector(cal_key, np.zeros(9), gtsam.noiseModel.Diagonal.Sigmas(prior.sigmas))
@@ -343,11 +374,15 @@ CATALOGUE = (
         units=("rad/s", "rad/s", "rad/s"),
         frame="body (sensor) axes",
         factors="AHRSFactor per keyframe interval (PreintegratedAhrsMeasurements) with a bias random walk; "
-        "head: gyro scale/misalignment as a calibration variable unless calibrated = true",
+        "head: gyro scale/misalignment as a calibration variable unless calibrated = true; attitude9 batch: the same when scale_sigma "
+        "is declared",
         keys=(
             KeySpec("noise_sigma_rad_s", 0.015, "white noise per sample, rad/s (head, > 0)"),
             KeySpec("bias_rw_sigma", 0.001, "bias random walk, rad/s/sqrt(s) (head, > 0; attitude9: default chosen on BROAD, 1e-6)"),
             KeySpec("calibrated", False, "true when scale factors and axes are already calibrated (head: else estimated)"),
+            KeySpec("scale_sigma", None, "attitude9 batch: estimate the scale factors and misalignment with this prior sigma on each "
+                    "scale error (fraction; absent: a perfect gyro, as chosen on BROAD); the estimate is in the run's extras gyro_calibration"),
+            KeySpec("misalignment_sigma_rad", None, "attitude9 batch, with scale_sigma: prior sigma of each cross-axis term, rad (default scale_sigma)"),
             KeySpec("delay_s", 0.0, "the output lags the motion by this much (the sensor's filter delay), s; head: every method re-times "
                     "the samples and reports at their stamps (estimate it with the tracker: frontends.head_timing.gyro_delay_from_tracker)"),
             KeySpec("delay_sigma_s", None, "how well delay_s is known, s (documentation: what the estimate of the delay said)"),

@@ -14,6 +14,7 @@ sensors output the mean over the last period); the state at t_i includes sample 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import gtsam
@@ -80,15 +81,23 @@ def preintegration_params(noise: ImuNoise, rate_rad_s: float = 0.0, interval_s: 
 _ZERO_BIAS = gtsam.imuBias.ConstantBias()
 
 
-def bias_walk_factor(bias_i: int, bias_j: int, dt_s: float, noise: ImuNoise) -> gtsam.BetweenFactorConstantBias:
-    """Random walk of both biases between keyframes dt_s apart (accelerometer first, as gtsam orders them)."""
+FREE_GYRO_BIAS_RAD_S = 1e3
+"""Sigma of a bias factor's gyro part when another factor holds it (the gyro calibration's linear factors), rad/s."""
+
+
+def bias_walk_factor(bias_i: int, bias_j: int, dt_s: float, noise: ImuNoise, gyro: bool = True) -> gtsam.BetweenFactorConstantBias:
+    """Random walk of both biases between keyframes dt_s apart (accelerometer first, as gtsam orders them); ``gyro``
+    False: the accelerometer's alone (the gyro's part free)."""
     a, g = noise.accel_bias_walk_m_s2_sqrt_s, noise.gyro_bias_walk_rad_s_sqrt_s
+    if not gyro:
+        g = FREE_GYRO_BIAS_RAD_S / math.sqrt(max(dt_s, 1e-9))
     sigmas = np.sqrt(max(dt_s, 1e-9)) * np.array([a, a, a, g, g, g])
     return gtsam.BetweenFactorConstantBias(bias_i, bias_j, _ZERO_BIAS, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
 
-def bias_prior_factor(bias_key: int, noise: ImuNoise) -> gtsam.PriorFactorConstantBias:
-    sigmas = np.r_[[noise.accel_bias_prior_m_s2] * 3, [noise.gyro_bias_prior_rad_s] * 3]
+def bias_prior_factor(bias_key: int, noise: ImuNoise, gyro: bool = True) -> gtsam.PriorFactorConstantBias:
+    """Zero-mean start-up prior on both biases; ``gyro`` False: the accelerometer's alone (the gyro's part free)."""
+    sigmas = np.r_[[noise.accel_bias_prior_m_s2] * 3, [noise.gyro_bias_prior_rad_s if gyro else FREE_GYRO_BIAS_RAD_S] * 3]
     return gtsam.PriorFactorConstantBias(bias_key, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from ..consistency import clipped_samples
 from ..factors.accel import GravityNoise, gravity_factor
 from ..factors.attitude import AttitudeTrack
-from ..factors.gyro import GAP_MIN_S, GAP_PERIODS, GAP_RATE_RAD_S
+from ..factors.gyro import GAP_MIN_S, GAP_PERIODS, GAP_RATE_RAD_S, GyroCalibrationPrior, calibration_prior_factor, scale_rate_map
 from ..factors.imu import (
     ImuNoise,
     MotionPriors,
@@ -59,6 +59,10 @@ def B(k: int) -> int:
     return int(gtsam.symbol("b", k))
 
 
+#: Key of the gyro's calibration c (9: its scale factors and misalignment K, row by row; ``Attitude9Model.gyro_calibration``),
+#: one session-wide variable that enters only linear factors on the gyro's effective biases.
+GYRO_CALIBRATION = int(gtsam.symbol("k", 0))
+
 #: Key of world_T_tracker (Pose3; only its rotation is observed): the attitude tracker's own world frame
 #: (an optical or magnetic tracker's room frame) relative to the graph's ENU world, one constant variable.
 TRACKER_WORLD = int(gtsam.symbol("a", 0))
@@ -73,6 +77,10 @@ RECENT_GYRO_S = 10.0
 #: Pushed blocks joined to the kept gyro samples at the latest after this many (a block may be one sample).
 _JOIN_BLOCKS = 64
 
+_GYRO_ROWS = np.hstack([np.zeros((3, 3)), np.eye(3)])
+"""The gyro part of a ConstantBias's tangent vector (accelerometer first, as gtsam orders it)."""
+_NO_RATE_MAP = np.zeros((3, 9))
+"""``scale_rate_map`` of no interval (the first keyframe's, a dropout's): K turns nothing."""
 _SAME_READING_SIGMAS = 3.0
 """A reading after a gap is where the still body's readings were when within this many of their scatter (x sqrt 2)."""
 _REST_CAUCHY_K = 2.0
@@ -182,6 +190,10 @@ class Attitude9Model:
     the motion priors alone carry the tilt)."""
     initial_attitude_sigma_deg: float = 5.0
     """Sigma of the start-up attitude from the first accelerometer and magnetometer samples."""
+    gyro_calibration: GyroCalibrationPrior | None = None
+    """Estimate the gyro's scale factors and misalignment as one session-wide variable (batch; None: a perfect gyro). The
+    bias variable of keyframe k is then the gyro's EFFECTIVE bias over the interval after it, b - K w (w that interval's
+    mean measured rate), and the bias walk and start-up prior hold b = beta + K w (as the head graph does)."""
     accel_range_m_s2: float = math.inf
     """The accelerometer's range (``consistency.saturation_level`` of the stream): a sample at it is clipped, a bound and not
     a measurement. An interval holding one gets ``CLIPPED_ACCEL_DENSITY`` (its velocity change unknown, the gyro's rotation
@@ -258,6 +270,12 @@ class Attitude9Builder:
         self.new_fields: list[tuple[float, FieldReference]] = []
         """New fields taken as the reference (``FieldTracker.adopted``): online as they come; a batch, its last pass's."""
         self._keyframe_rate: list[float] = []  # RMS gyro rate over the interval before each keyframe, rad/s
+        # the gyro calibration (batch): per keyframe, how K turns the interval before it (``scale_rate_map``) and its length
+        self._calibrated = self.model.gyro_calibration is not None and deferred_mag
+        self._rate_map: list[FloatArray] = []
+        self.gyro_calibration_estimate: FloatArray | None = None
+        """The batch's estimate of the gyro's K (scale factors on the diagonal, misalignment off it)."""
+        self._interval_s: list[float] = []
         self.posterior_quat: list[FloatArray] = []
         """Online: keyframe k's attitude right after the update that added it (causal)."""
         self.posterior_gyro_bias: list[FloatArray] = []
@@ -449,7 +467,7 @@ class Attitude9Builder:
         noise = robust(gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot] * 3, [1e3] * 3]), _REST_CAUCHY_K if at_rest else 0.0)
         add = self._pending.add
         add(k - 1, gtsam.BetweenFactorPose3(self.X(k - 1), self.X(k), gtsam.Pose3(), noise))
-        add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), gap_s, model.imu))
+        add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), gap_s, model.imu, gyro=not self._calibrated))
         add(k, velocity_prior_factor(self.V(k), model.motion.velocity_sigma_m_s if math.isfinite(model.motion.velocity_sigma_m_s) else 50.0))
         if math.isfinite(model.motion.position_sigma_m):
             add(k, position_prior_factor(self.X(k), model.motion.position_sigma_m))
@@ -466,6 +484,8 @@ class Attitude9Builder:
         self._keyframe_guess.append(guess.attitude())
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
         self._keyframe_rate.append(0.0)  # a keyframe after a dropout: no interval before it
+        self._rate_map.append(_NO_RATE_MAP)
+        self._interval_s.append(gap_s)
         self._nav = guess
         self._restart = _Restart() if self._solved and not at_rest else None  # the batch starts again in ``inertial_initial``
         self._after_keyframe(k, guess.attitude(), mag)
@@ -522,7 +542,7 @@ class Attitude9Builder:
         pose_noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma] * 3, [0.01] * 3])
         self._pending.add(0, gtsam.PriorFactorPose3(self.X(0), self._nav.pose(), pose_noise))
         self._pending.add(0, velocity_prior_factor(self.V(0), model.motion.velocity_sigma_m_s if np.isfinite(model.motion.velocity_sigma_m_s) else 50.0))
-        self._pending.add(0, bias_prior_factor(self.B(0), model.imu))
+        self._pending.add(0, bias_prior_factor(self.B(0), model.imu, gyro=not self._calibrated))
         self._pending.insert(self.X(0), self._nav.pose())
         self._pending.insert(self.V(0), np.zeros(3))
         self._pending.insert(self.B(0), self._bias)
@@ -531,6 +551,8 @@ class Attitude9Builder:
         self._keyframe_guess.append(rot)
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
         self._keyframe_rate.append(0.0)
+        self._rate_map.append(_NO_RATE_MAP)
+        self._interval_s.append(0.0)
         self._after_keyframe(0, rot, mag)
         self._last_t = t
         self._count += 1
@@ -564,6 +586,9 @@ class Attitude9Builder:
         self._interval = []
         self._keyframe_rate.append(float(np.sqrt(np.mean(np.einsum("ij,ij->i", interval_gyro, interval_gyro)))))
         pim = self._preintegrate(interval_accel, interval_gyro, interval_dt, self._keyframe_rate[-1])
+        if self._calibrated:
+            self._rate_map.append(scale_rate_map(interval_gyro, interval_dt, np.asarray(self._bias.gyroscope())))
+            self._interval_s.append(pim.deltaTij())
         self._keyframe_accel.append(pim.deltaVij() / pim.deltaTij())  # rotated sample by sample: the body may turn a lot in 0.2 s
         predicted = pim.predict(self._nav, self._bias)
         if not self._solved:
@@ -579,7 +604,7 @@ class Attitude9Builder:
                 add(k, gtsam.PriorFactorPose3(self.X(k), predicted.pose(), noise))
                 self._restart = None
         add(k - 1, gtsam.ImuFactor(self.X(k - 1), self.V(k - 1), self.X(k), self.V(k), self.B(k - 1), pim))
-        add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), pim.deltaTij(), model.imu))
+        add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), pim.deltaTij(), model.imu, gyro=not self._calibrated))
         # an infinite sigma drops the pseudo-measurement (a vehicle travels; the start pose fixes the gauge)
         if math.isfinite(model.motion.position_sigma_m):
             add(k, position_prior_factor(self.X(k), model.motion.position_sigma_m))
@@ -634,12 +659,15 @@ class Attitude9Builder:
         return gaps + fields
 
     def extras(self) -> dict[str, Any]:
-        """The run's counts for an estimate's extras: the tracker's samples used and dropped, the new fields' times (s)."""
+        """The run's counts for an estimate's extras: the tracker's samples used and dropped, the new fields' times (s), the
+        gyro calibration estimated (batch)."""
         out: dict[str, Any] = {}
         if self.tracker_factors or self.tracker_dropped:
             out.update(tracker_factors=self.tracker_factors, tracker_dropped=self.tracker_dropped)
         if self.new_fields:
             out["new_field_s"] = [t for t, _ in self.new_fields]
+        if self.gyro_calibration_estimate is not None:  # K: the reading is scaled by I + K
+            out["gyro_calibration"] = self.gyro_calibration_estimate.round(5).tolist()
         return out
 
     def field_tracker(self) -> FieldTracker | None:
@@ -797,6 +825,54 @@ class Attitude9Builder:
             keep = int(np.searchsorted(times, min(times[-1], self._last_t) - RECENT_GYRO_S, side="left"))
             times, gyro = times[keep:], gyro[keep:]
         self._recent_flat = (times, gyro)
+
+    def with_calibration(self, graph: gtsam.NonlinearFactorGraph, order: gtsam.Ordering, values: gtsam.Values) -> gtsam.Values:
+        """The batch's graph, ordering and initial values with the gyro calibration (``calibration_factors``) where the
+        model estimates one: its factors added, its key eliminated last (it is in every gyro bias factor)."""
+        factors, initial = self.calibration_factors()
+        for factor in factors:
+            graph.add(factor)
+        if factors:
+            order.push_back(GYRO_CALIBRATION)
+            values.insert(initial)
+        return values
+
+    def read_calibration(self, values: gtsam.Values) -> None:
+        """Keep a batch solution's gyro calibration (``gyro_calibration_estimate``, reported in ``extras``)."""
+        if values.exists(GYRO_CALIBRATION):
+            self.gyro_calibration_estimate = np.asarray(values.atVector(GYRO_CALIBRATION)).reshape(3, 3)
+
+    def calibration_factors(self) -> tuple[list[gtsam.NonlinearFactor], gtsam.Values]:
+        """The gyro calibration's factors over the whole recording (batch, ``Attitude9Model.gyro_calibration``) and its
+        initial value: its prior, and the gyro bias's start-up prior and walk through the effective biases (keyframe k's
+        the interval after it: beta_k = b_k - M_k c, ``scale_rate_map``, so b_k = beta_k + M_k c). Empty without one."""
+        calibration = self.model.gyro_calibration
+        values = gtsam.Values()
+        if calibration is None or not self._calibrated:
+            return [], values
+        values.insert(GYRO_CALIBRATION, np.zeros(9))
+        count = len(self.keyframe_t)
+        # keyframe k's effective bias covers the interval after it (the last keyframe's none: its bias is b itself)
+        maps = [*self._rate_map[1:count], _NO_RATE_MAP]
+        imu = self.model.imu
+        out: list[gtsam.NonlinearFactor] = [calibration_prior_factor(GYRO_CALIBRATION, calibration)]
+        out.append(self._bias_linear([(0, _GYRO_ROWS)], maps[0], imu.gyro_bias_prior_rad_s))
+        for k in range(1, count):
+            sigma = imu.gyro_bias_walk_rad_s_sqrt_s * math.sqrt(max(self._interval_s[k], 1e-9))
+            out.append(self._bias_linear([(k - 1, -_GYRO_ROWS), (k, _GYRO_ROWS)], maps[k] - maps[k - 1], sigma))
+        return out, values
+
+    def _bias_linear(self, biases: list[tuple[int, FloatArray]], calibration: FloatArray, sigma: float) -> gtsam.LinearContainerFactor:
+        """sum A_k beta_k + W c ~ N(0, sigma^2 I) over bias variables (ConstantBias, linear: exact at any value)."""
+        at_zero = gtsam.Values()
+        args: list[object] = []
+        for k, matrix in biases:
+            args += [self.B(k), matrix]
+            at_zero.insert(self.B(k), gtsam.imuBias.ConstantBias())
+        args += [GYRO_CALIBRATION, calibration]
+        at_zero.insert(GYRO_CALIBRATION, np.zeros(9))
+        jacobian = gtsam.JacobianFactor(*args, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma))  # type: ignore[call-overload]
+        return gtsam.LinearContainerFactor(jacobian, at_zero)
 
     def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""

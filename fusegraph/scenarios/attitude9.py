@@ -37,6 +37,9 @@ class Attitude9ScenarioConfig:
     """Gyro white noise per sample, rad/s."""
     gyro_bias_max_rad_s: float = 0.01
     """Constant gyro bias per axis, uniform in +-this, rad/s."""
+    gyro_scale_error: float = 0.0
+    """Scale-factor error of each gyro axis (the reading is (1 + s) times the rate), s uniform in +-this (fraction; drawn
+    from its own generator, so 0 leaves every other draw as it was)."""
     accel_white_m_s2: float = 0.05
     """Accelerometer white noise per sample, m/s^2."""
     mag_white_uT: float = 0.3
@@ -153,7 +156,8 @@ def simulate_attitude9(seed: int = 0, config: Attitude9ScenarioConfig | None = N
     offset = rng.uniform(-cfg.mag_offset_uT, cfg.mag_offset_uT, 3)
     bias = rng.uniform(-cfg.gyro_bias_max_rad_s, cfg.gyro_bias_max_rad_s, 3)
     noise = 1.0 if cfg.noise else 0.0
-    gyro = gyro + bias + noise * rng.normal(0, cfg.gyro_white_rad_s, gyro.shape)
+    scale = np.random.default_rng([seed, 3]).uniform(-cfg.gyro_scale_error, cfg.gyro_scale_error, 3) if cfg.gyro_scale_error else np.zeros(3)
+    gyro = gyro * (1.0 + scale) + bias + noise * rng.normal(0, cfg.gyro_white_rad_s, gyro.shape)
     accel = accel + noise * rng.normal(0, cfg.accel_white_m_s2, accel.shape)
     mag_raw = (mag_true + noise * rng.normal(0, cfg.mag_white_uT, mag_true.shape) - offset) / gain
     # calibration recording: slow tumbling through all orientations, no disturbance
@@ -178,6 +182,7 @@ def simulate_attitude9(seed: int = 0, config: Attitude9ScenarioConfig | None = N
         "truth_extra": {
             "disturbance_s": [start, stop],
             "gyro_bias_rad_s": bias.tolist(),
+            "gyro_scale_error": scale.tolist(),
             "mag_gain": gain.tolist(),
             "mag_offset_uT": offset.tolist(),
         },

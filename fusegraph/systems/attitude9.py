@@ -24,6 +24,7 @@ from ..consistency import stream_range
 from ..estimate import Estimate
 from ..factors.accel import GravityNoise, declared_gravity
 from ..factors.attitude import AttitudeTrack
+from ..factors.gyro import GyroCalibrationPrior
 from ..factors.mag import MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
 from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, mag_noise_tuned
@@ -105,7 +106,9 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
     Without an explicit ``model``: the solver's BROAD-chosen model (``broad_model``), with what the ``accel`` stream
     declares replacing its motion, noise, bias and gravity settings (``velocity_sigma_m_s``, ``noise_m_s2_sqrt_hz``,
     ``bias_rw_m_s2_sqrt_s``, ``sigma_deg``, ``inflation_deg_per_m_s2``) and the ``gyro`` stream's ``bias_rw_sigma`` its
-    bias walk and its ``noise_sigma_rad_s`` its white noise (a data sheet's figures belong with the recording):
+    bias walk and its ``noise_sigma_rad_s`` its white noise (a data sheet's figures belong with the recording), and
+    its ``scale_sigma`` (fraction; ``misalignment_sigma_rad`` beside, the same by default) has the batch estimate the
+    gyro's scale factors and misalignment (``Attitude9Model.gyro_calibration``; off on BROAD, where it was measured):
     BROAD is hand-held motion, and a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior
     (e.g. 2 m/s)."""
     if model is None:
@@ -119,6 +122,8 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
         if density is not None:
             imu["gyro_noise_rad_s_sqrt_hz"] = density
         model = replace(model, imu=replace(model.imu, **imu)) if imu else model
+        if "scale_sigma" in (gyro := declared["gyro"]):  # the batch estimates the gyro's scale factors and misalignment
+            model = replace(model, gyro_calibration=GyroCalibrationPrior(gyro["scale_sigma"], gyro.get("misalignment_sigma_rad", gyro["scale_sigma"])))
         if model.gravity is not None:
             model = replace(model, gravity=declared_gravity(meta, model.gravity))
     if "accel" in session.streams:  # a clipping accelerometer's samples at its range are bounds, not measurements
@@ -280,7 +285,7 @@ def _solve_batch(
     if builder.tracker_factors:
         order.push_back(TRACKER_WORLD)  # one variable tied to every keyframe: eliminated last
     base = increment.graph()
-    values = builder.inertial_initial(builder.tracker_seeded(gtsam.Values(increment.values)))
+    values = builder.with_calibration(base, order, builder.inertial_initial(builder.tracker_seeded(gtsam.Values(increment.values))))
     if seed_quat_wxyz is not None:
         for k, quat in enumerate(seed_quat_wxyz):
             if np.all(np.isfinite(quat)):
@@ -296,6 +301,7 @@ def _solve_batch(
         attitude = [values.atPose3(X(k)).rotation() for k in range(keyframes)]
     kq = np.array([quat_wxyz_from_rot3(r) for r in attitude])
     kb = np.array([values.atConstantBias(B(k)).gyroscope() for k in range(keyframes)])
+    builder.read_calibration(values)
     residuals = heading_residuals_deg(builder, attitude)
     return kq, kb, float(np.median(residuals)) if len(residuals) else float("nan")
 
