@@ -61,7 +61,12 @@ integral, 4th order) and the correction (none, Mobilise-D's, or Zijlstra & Hof's
 The in-sample choice's corner, 1.2 Hz, is the grid's upper edge; widened by 1.5 and 2 Hz (2026-11-26) every choice stayed
 (leave-one-participant-out 0.147 m), so the grid stays. A corner proportional to each bout's step frequency (0.4-0.85
 times it, the bout filtered on its own) was measured the same day: 0.262 m leave-one-participant-out, 0.125 in-sample;
-not built."""
+not built. Neither the excursion integrated per step instead (each step's acceleration and velocity made zero-mean, the
+height's end-to-end trend removed: no corner at all; measured 2026-11-26, per participant HA/001 / HA/002 with the
+correction 1: 0.090 / 0.166 m, MS Project's 0.092 / 0.290, Zijlstra & Hof's 0.177 / 0.376): in the grid beside the
+corners each fold still chooses a corner (the other participant's in-sample MAE is lower there), so the
+leave-one-participant-out figure stays; taking it INSTEAD of the corners, after seeing this, would be choosing on the
+scored participants."""
 
 
 def with_missed_steps(steps_s: FloatArray) -> tuple[FloatArray, np.ndarray]:
