@@ -60,7 +60,8 @@ def B(k: int) -> int:
 
 
 #: Key of the gyro's calibration c (9: its scale factors and misalignment K, row by row; ``Attitude9Model.gyro_calibration``),
-#: one session-wide variable that enters only linear factors on the gyro's effective biases.
+#: one session-wide variable that enters only linear factors on the gyro's effective biases (a builder with a key prefix
+#: takes index 1 + the prefix's code, so two bodies in one graph keep their own).
 GYRO_CALIBRATION = int(gtsam.symbol("k", 0))
 
 #: Key of world_T_tracker (Pose3; only its rotation is observed): the attitude tracker's own world frame
@@ -192,8 +193,8 @@ class Attitude9Model:
     """Sigma of the start-up attitude from the first accelerometer and magnetometer samples."""
     gyro_calibration: GyroCalibrationPrior | None = None
     """Estimate the gyro's scale factors and misalignment as one session-wide variable (batch; None: a perfect gyro). The
-    bias variable of keyframe k is then the gyro's EFFECTIVE bias over the interval after it, b - K w (w that interval's
-    mean measured rate), and the bias walk and start-up prior hold b = beta + K w (as the head graph does)."""
+    bias variable of keyframe k is then the gyro's EFFECTIVE bias over the interval after it, b - M_k c (M_k: how K turns
+    that interval, ``factors.gyro.scale_rate_map``), and the bias walk and start-up prior hold b (as the head graph does)."""
     accel_range_m_s2: float = math.inf
     """The accelerometer's range (``consistency.saturation_level`` of the stream): a sample at it is clipped, a bound and not
     a measurement. An interval holding one gets ``CLIPPED_ACCEL_DENSITY`` (its velocity change unknown, the gyro's rotation
@@ -272,6 +273,8 @@ class Attitude9Builder:
         self._keyframe_rate: list[float] = []  # RMS gyro rate over the interval before each keyframe, rad/s
         # the gyro calibration (batch): per keyframe, how K turns the interval before it (``scale_rate_map``) and its length
         self._calibrated = self.model.gyro_calibration is not None and deferred_mag
+        self.calibration_key = int(gtsam.symbol("k", 1 + ord(prefix))) if prefix else GYRO_CALIBRATION
+        """This body's gyro calibration key."""
         self._rate_map: list[FloatArray] = []
         self.gyro_calibration_estimate: FloatArray | None = None
         """The batch's estimate of the gyro's K (scale factors on the diagonal, misalignment off it)."""
@@ -833,14 +836,14 @@ class Attitude9Builder:
         for factor in factors:
             graph.add(factor)
         if factors:
-            order.push_back(GYRO_CALIBRATION)
+            order.push_back(self.calibration_key)
             values.insert(initial)
         return values
 
     def read_calibration(self, values: gtsam.Values) -> None:
         """Keep a batch solution's gyro calibration (``gyro_calibration_estimate``, reported in ``extras``)."""
-        if values.exists(GYRO_CALIBRATION):
-            self.gyro_calibration_estimate = np.asarray(values.atVector(GYRO_CALIBRATION)).reshape(3, 3)
+        if values.exists(self.calibration_key):
+            self.gyro_calibration_estimate = np.asarray(values.atVector(self.calibration_key)).reshape(3, 3)
 
     def calibration_factors(self) -> tuple[list[gtsam.NonlinearFactor], gtsam.Values]:
         """The gyro calibration's factors over the whole recording (batch, ``Attitude9Model.gyro_calibration``) and its
@@ -850,12 +853,12 @@ class Attitude9Builder:
         values = gtsam.Values()
         if calibration is None or not self._calibrated:
             return [], values
-        values.insert(GYRO_CALIBRATION, np.zeros(9))
+        values.insert(self.calibration_key, np.zeros(9))
         count = len(self.keyframe_t)
         # keyframe k's effective bias covers the interval after it (the last keyframe's none: its bias is b itself)
         maps = [*self._rate_map[1:count], _NO_RATE_MAP]
         imu = self.model.imu
-        out: list[gtsam.NonlinearFactor] = [calibration_prior_factor(GYRO_CALIBRATION, calibration)]
+        out: list[gtsam.NonlinearFactor] = [calibration_prior_factor(self.calibration_key, calibration)]
         out.append(self._bias_linear([(0, _GYRO_ROWS)], maps[0], imu.gyro_bias_prior_rad_s))
         for k in range(1, count):
             sigma = imu.gyro_bias_walk_rad_s_sqrt_s * math.sqrt(max(self._interval_s[k], 1e-9))
@@ -869,8 +872,8 @@ class Attitude9Builder:
         for k, matrix in biases:
             args += [self.B(k), matrix]
             at_zero.insert(self.B(k), gtsam.imuBias.ConstantBias())
-        args += [GYRO_CALIBRATION, calibration]
-        at_zero.insert(GYRO_CALIBRATION, np.zeros(9))
+        args += [self.calibration_key, calibration]
+        at_zero.insert(self.calibration_key, np.zeros(9))
         jacobian = gtsam.JacobianFactor(*args, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma))  # type: ignore[call-overload]
         return gtsam.LinearContainerFactor(jacobian, at_zero)
 
