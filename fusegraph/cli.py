@@ -61,6 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--tracker-gap", metavar="START:END", help="head: no tracker samples from START to END seconds, e.g. 30:90")
     sim.add_argument("--transmitters", type=int, metavar="N", help="ultrasonic: transmitters emitting at once (default 3)")
     sim.add_argument("--latency-true", type=float, metavar="S", help="true tracker latency, seconds (default 0.1)")
+    sim.add_argument("--gyro-scale-error", type=float, metavar="S", help="attitude9: each gyro axis reads (1 + s) times the rate, "
+                     "s uniform in +-S (default 0; declare scale_sigma on the gyro in session.toml to have the batch estimate it)")
     sim.add_argument("--latency-assumed", type=float, metavar="S",
                      help="write stamps made with this assumed latency and declare it unknown (latency_sigma_s), so solvers estimate it")
 
@@ -393,9 +395,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         "tracker_latency_s": args.latency_true, "tracker_latency_assumed_s": args.latency_assumed,
         "sensors": tuple(x.strip() for x in args.sensors.split(",")) if args.sensors else None,
         "tracker_gap_s": _gap_arg(args.tracker_gap) if args.tracker_gap else None, "transmitters": args.transmitters, "gait": args.gait,
+        "gyro_scale_error": args.gyro_scale_error,
     }
     flags = {"tracker_latency_s": "--latency-true", "tracker_latency_assumed_s": "--latency-assumed", "sensors": "--sensors",
-             "tracker_gap_s": "--tracker-gap", "transmitters": "--transmitters", "gait": "--gait"}
+             "tracker_gap_s": "--tracker-gap", "transmitters": "--transmitters", "gait": "--gait", "gyro_scale_error": "--gyro-scale-error"}
     for name, value in given.items():
         if value is None:
             continue

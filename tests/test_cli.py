@@ -177,3 +177,21 @@ def test_stamps_in_milliseconds_are_named(tmp_path: Path, capsys: pytest.Capture
     assert main(["run", str(tmp_path / "ms"), "--solver", "online"]) == 2
     err = capsys.readouterr().err
     assert "stream 'gyro'" in err and "milliseconds" in err, err
+
+
+def test_a_declared_gyro_scale_is_estimated_and_printed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import numpy as np
+
+    session = tmp_path / "a9"
+    assert main(["simulate", "attitude9", "--gyro-scale-error", "0.02", "--duration", "20", "--out", str(session)]) == 0
+    toml = session / "session.toml"
+    toml.write_text(toml.read_text().replace("[streams.gyro]\n", "[streams.gyro]\nscale_sigma = 0.05\n"))
+    capsys.readouterr()
+    assert main(["run", str(session), "--solver", "batch", "--out", str(tmp_path / "e.csv"), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert np.shape(printed["gyro_calibration"]) == (3, 3)
+    assert main(["run", str(session), "--solver", "batch", "--out", str(tmp_path / "e.csv")]) == 0
+    assert "gyro calibration estimated" in capsys.readouterr().out
+    assert main(["run", str(session), "--solver", "online", "--out", str(tmp_path / "o.csv"), "--json"]) == 0
+    assert "gyro_calibration" not in json.loads(capsys.readouterr().out)  # the online estimate keeps a perfect gyro
+    assert main(["simulate", "head", "--gyro-scale-error", "0.01", "--out", str(tmp_path / "h")]) == 2  # attitude9 only

@@ -31,8 +31,15 @@ class Outcome:
     files: list[Path] = field(default_factory=list)
 
     def as_json(self) -> dict[str, Any]:
-        """``{"system": s, "solver": s, "metrics": {...}}`` (metrics empty without truth)."""
-        return {"system": self.preset.name, "solver": self.solver, "metrics": self.metrics or {}}
+        """``{"system": s, "solver": s, "metrics": {...}}`` (metrics empty without truth), and the estimated calibrations a
+        solver reports (``ESTIMATED``) where it has them."""
+        found = {key: self.estimate.extras[key] for key in ESTIMATED if key in self.estimate.extras}
+        return {"system": self.preset.name, "solver": self.solver, "metrics": self.metrics or {}, **found}
+
+
+ESTIMATED = ("gyro_calibration",)
+"""Estimate extras that ``run`` prints: what a solver learnt about the sensors (the 9-axis batch's gyro K, when the
+recording declares ``scale_sigma``)."""
 
 
 def solve_session(session: Session, solver: str) -> Outcome:
@@ -80,6 +87,11 @@ def describe(outcome: Outcome) -> str:
     if latency is not None:
         sigma = e.extras.get("latency_sigma_s")
         lines.append(f"tracker latency estimated: {1000 * latency:.1f} ms" + (f" (sigma {1000 * sigma:.1f} ms)" if sigma else ""))
+    gyro = e.extras.get("gyro_calibration")
+    if gyro is not None:
+        K = np.asarray(gyro)
+        lines.append("gyro calibration estimated (each reading corrected to (I + K) times it): K's scale terms "
+                     + " / ".join(f"{100 * v:+.2f} %" for v in np.diag(K)) + f", largest cross-axis term {np.abs(K - np.diag(np.diag(K))).max():.4f} rad")
     if outcome.metrics:
         flat = flatten(outcome.metrics)
         keys = [k for k in outcome.preset.metric_keys if k in flat] + [k for k in flat if k.startswith("gap_")]

@@ -84,7 +84,7 @@ def _clip(session: Session, duration_s: float) -> Session:
 SIMULATORS: dict[str, Simulator] = {
     "head": Simulator(_head_simulate, 10.0, options=("profile", "tracker_latency_s", "tracker_latency_assumed_s", "sensors", "tracker_gap_s"),
                       profiles=("realistic", "ideal")),
-    "attitude9": Simulator(_attitude9_simulate, 10.0, options=("profile", "sensors"), profiles=("realistic", "noise_free")),
+    "attitude9": Simulator(_attitude9_simulate, 10.0, options=("profile", "sensors", "gyro_scale_error"), profiles=("realistic", "noise_free")),
     "gaze": Simulator(_gaze_simulate, 40.0, 5.0, options=("sensors",)),
     "bicycle": Simulator(_bicycle_simulate, 40.0, 10.0),
     "walking": Simulator(_walking_simulate, float("nan"), 20.0, options=("sensors", "gait")),
