@@ -9,7 +9,7 @@ from conftest import assert_jacobians_match, cut_streams, random_rot3, requires_
 
 from fusegraph.factors.accel import GravityNoise, gravity_factor
 from fusegraph.factors.mag import FieldReference, MagNoise, field_norm_dip, fit_mag_calibration, heading_factor, heading_sigma_rad
-from fusegraph.graphs.attitude9 import Attitude9Builder, fill_samples, initial_attitude
+from fusegraph.graphs.attitude9 import Attitude9Builder, Attitude9Model, fill_samples, initial_attitude
 from fusegraph.metrics import broad_errors
 from fusegraph.scenarios.attitude9 import simulate_attitude9
 from fusegraph.systems import attitude9
@@ -638,3 +638,50 @@ def test_the_batch_estimates_the_gyro_scale_a_recording_declares() -> None:
     assert np.allclose(np.diag(K)[:2], -true_scale[:2], atol=0.004)
     assert _score(calibrated, session).total < 0.7 * _score(plain, session).total
     assert "gyro_calibration" not in plain.extras
+
+
+def test_the_zero_rate_update_reads_the_bias_from_a_rest() -> None:
+    from fusegraph.factors.imu import FREE_GYRO_BIAS_RAD_S, ZERO_RATE_SCATTER_FLOOR_RAD_S, zero_rate_factor
+
+    rng = np.random.default_rng(5)
+    bias = np.array([0.01, -0.004, 0.002])
+    gyro = bias + rng.normal(0.0, 0.003, (57, 3))
+    dt = np.full(57, 1.0 / 286.0)
+    factor = zero_rate_factor(7, gyro, dt)
+    mean = factor.prior().gyroscope()
+    assert np.allclose(mean, gyro.mean(0), atol=1e-15)
+    sigmas = factor.noiseModel().sigmas()
+    assert np.allclose(sigmas[:3], FREE_GYRO_BIAS_RAD_S)  # the accelerometer's part is free
+    assert np.allclose(sigmas[3:], gyro.std(0).mean() / np.sqrt(57))  # the readings' standard error
+    assert zero_rate_factor(7, gyro, dt, 0.01).noiseModel().sigmas()[3] == 0.01  # a rest's own rate where larger
+    assert zero_rate_factor(7, np.tile(bias, (57, 1)), dt).noiseModel().sigmas()[3] == pytest.approx(ZERO_RATE_SCATTER_FLOOR_RAD_S / np.sqrt(57))
+    # the same readings, column-major: the same bits (an imported session and one in memory agree to the last digit)
+    again = zero_rate_factor(7, np.asfortranarray(gyro), dt)
+    assert np.array_equal(again.prior().gyroscope(), mean) and np.array_equal(again.noiseModel().sigmas(), sigmas)
+
+
+def test_a_rest_pins_the_gyro_bias_only_with_the_zero_rate_update() -> None:
+    from dataclasses import replace
+
+    from fusegraph.factors.imu import MotionPriors
+
+    # 20 s lying still: readings = bias + noise; the field and gravity constant
+    rng = np.random.default_rng(6)
+    t = np.arange(0.0, 20.0, 0.01)
+    bias = np.array([0.02, -0.01, 0.015])
+    gyro = bias + rng.normal(0.0, 0.004, (len(t), 3))
+    accel = np.array([0.0, 0.0, 9.81]) + rng.normal(0.0, 0.02, (len(t), 3))
+    mag = np.array([0.0, 20.0, -45.0]) + rng.normal(0.0, 0.3, (len(t), 3))
+    found = {}
+    for sigma in (np.inf, 0.0):
+        builder = Attitude9Builder(Attitude9Model(motion=MotionPriors(rest_rate_sigma_rad_s=sigma)), deferred_mag=True)
+        builder.add_samples(t, gyro, accel, mag)
+        graph = builder.take().graph()
+        found[sigma] = sum(isinstance(graph.at(i), gtsam.PriorFactorConstantBias) for i in range(graph.size()))
+    assert found[np.inf] == 1  # the start-up prior alone
+    assert found[0.0] > 90  # nearly every keyframe of the rest (the first 0.34 s are not yet one)
+    assert replace(Attitude9Model()).motion.rest_rate_sigma_rad_s == np.inf  # off unless chosen (the 9-axis system: tuned.toml)
+    from fusegraph.tuned import tuned
+
+    for solver, study in (("online", "broad_rest"), ("batch", "broad_rest_batch")):
+        assert attitude9.broad_model(solver).motion.rest_rate_sigma_rad_s == tuned(study)["rest_rate_sigma_rad_s"]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import functools
 import itertools
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -224,6 +225,13 @@ VQF's default 20 s). Online it chose 0 / 20 s, the new field's time on the grid'
 the same (in-sample 2.177) at a worse cross-validated figure (2.243 -> 2.268 deg): the grid stays."""
 
 
+BROAD_REST_GRID: Mapping[str, Sequence[float]] = {"rest_rate_sigma_rad_s": (math.inf, 0.01, 0.003, 0.001, 0.0)}
+"""The zero-rate update tried by ``broad_rest`` (``factors.imu.zero_rate_factor``; the other studies' settings as they
+chose): none (inf), or at rest the gyro reads its bias up to a true rate of 0.01 / 0.003 / 0.001 rad/s, or up to the
+readings' own standard error alone (0). The rest is the existing detector's (``MotionPriors``: every sample below 0.05
+rad/s and within 0.3 m/s^2 of g over 0.14 s, before the whole interval)."""
+
+
 BROAD_ONLINE_GRID: Mapping[str, Sequence[float]] = {"relinearize_skip": (1.0, 2.0, 5.0, 10.0)}
 """The online solver's own setting tried by ``broad_online`` (the model as the other studies chose): how many iSAM2 updates
 apart it checks which variables to relinearise (gtsam's default 10). Every check relinearised ~21 variables on BROAD (the
@@ -235,7 +243,7 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
     """The 9-axis model with one grid point of a BROAD study applied to the solver's tuned model."""
     from dataclasses import replace
 
-    from ..graphs.attitude9 import MAG_LAYERS, mag_noise_from
+    from ..graphs.attitude9 import MAG_LAYERS, mag_noise_from, with_rest
     from ..systems.attitude9 import broad_model, with_bias, with_motion
 
     base = broad_model(solver)
@@ -246,6 +254,8 @@ def _broad_model(study: str, point: Mapping[str, float], solver: str) -> Any:
         return replace(base, mag=mag_noise_from(point, base.mag))
     if study in layers:
         return replace(base, mag=layers[study](base.mag, point))
+    if study == "broad_rest":
+        return with_rest(base, point)
     return with_bias(base, point) if study == "broad_bias" else with_motion(base, point)
 
 
@@ -279,7 +289,8 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     """Our graph's settings of one BROAD study (``broad_mag``: heading sigma, disturbance gains, Cauchy width;
     ``broad_motion``: the velocity prior, gyro and accelerometer noise, gravity sigma and its inflation; ``broad_bias``: the
     accelerometer bias's prior and walk, the gyro bias's walk; ``broad_online``: the online solver's relinearisation
-    checks; ``broad_hard_iron``: the carried magnet's model; ``broad_field``: how the undisturbed field is followed)
+    checks; ``broad_hard_iron``: the carried magnet's model; ``broad_field``: how the undisturbed field is followed;
+    ``broad_rest``: the zero-rate update at rest)
     chosen by leave-one-trial-out on the BROAD trials for ``solver`` (online or batch), the other study's settings as
     tuned (``sessions``: imported session directories instead of the trial files): total RMSE, degrees."""
     paths = [str(p) for p in recordings(directory, sessions)]
@@ -345,9 +356,10 @@ def uwb_calibrated_logo(sessions: Sequence[str | Path] = (), workers: int = 1) -
 
 BROAD_GRIDS: dict[str, Mapping[str, Sequence[float]]] = {"broad_ekf": BROAD_EKF_GRID, "broad_mag": BROAD_MAG_GRID, "broad_motion": BROAD_MOTION_GRID,
                                                           "broad_bias": BROAD_BIAS_GRID, "broad_online": BROAD_ONLINE_GRID,
-                                                          "broad_hard_iron": BROAD_HARD_IRON_GRID, "broad_field": BROAD_FIELD_GRID}
+                                                          "broad_hard_iron": BROAD_HARD_IRON_GRID, "broad_field": BROAD_FIELD_GRID,
+                                                          "broad_rest": BROAD_REST_GRID}
 """The BROAD studies' grids by name."""
-BROAD_PER_SOLVER = ("broad_mag", "broad_motion", "broad_bias", "broad_hard_iron", "broad_field")
+BROAD_PER_SOLVER = ("broad_mag", "broad_motion", "broad_bias", "broad_hard_iron", "broad_field", "broad_rest")
 """The BROAD studies that tune the online and the batch estimate each (``--solver``; the batch's written as ``<study>_batch``)."""
 BROAD_BATCH_GRIDS: dict[str, Mapping[str, Sequence[float]]] = {"broad_mag": BROAD_MAG_BATCH_GRID, "broad_bias": BROAD_BIAS_BATCH_GRID}
 """A batch study's own grid where it has one (else ``BROAD_GRIDS``'s)."""
@@ -562,9 +574,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.evaluation.tuning", description=__doc__)
     parser.add_argument("study",
                         help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias / broad_online / "
-                        "broad_hard_iron / broad_field "
+                        "broad_hard_iron / broad_field / broad_rest "
                         "(leave-one-trial-out on BROAD)")
-    parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias, broad_hard_iron, broad_field: "
+    parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias, broad_hard_iron, broad_field, "
+                        "broad_rest: "
                         "which estimate they tune")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     parser.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml (what the reports read)")

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..geometry import FloatArray
 from .linear import isotropic, zeros
 
 #: Standard gravity, m/s^2.
@@ -66,6 +67,10 @@ class MotionPriors:
     """... and every accelerometer norm within this of gravity, m/s^2 ..."""
     rest_window_s: float = 0.14
     """... over this long a trailing window."""
+    rest_rate_sigma_rad_s: float = math.inf
+    """A zero-rate update where the whole interval between two keyframes and the rest window before it are still: the
+    gyro then reads its bias, up to this true rate (how still a detected rest is: the detector passes rates below
+    ``rest_gyro_rad_s``) or the readings' own standard error where that is larger (``zero_rate_factor``); inf: none."""
 
 
 def preintegration_params(noise: ImuNoise, rate_rad_s: float = 0.0, interval_s: float = 1.0) -> gtsam.PreintegrationParams:
@@ -99,6 +104,26 @@ def bias_prior_factor(bias_key: int, noise: ImuNoise, gyro: bool = True) -> gtsa
     """Zero-mean start-up prior on both biases; ``gyro`` False: the accelerometer's alone (the gyro's part free)."""
     sigmas = np.r_[[noise.accel_bias_prior_m_s2] * 3, [noise.gyro_bias_prior_rad_s if gyro else FREE_GYRO_BIAS_RAD_S] * 3]
     return gtsam.PriorFactorConstantBias(bias_key, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+
+ZERO_RATE_SCATTER_FLOOR_RAD_S = 1e-4
+"""Least per-sample scatter a zero-rate update assumes, rad/s: a quantised gyro can read one value through a rest (a
+scatter of 0), and its noise is then about its step over sqrt(12), not 0."""
+
+
+def zero_rate_factor(bias_key: int, gyro_rad_s: FloatArray, dt_s: FloatArray, rest_rate_sigma_rad_s: float = 0.0) -> gtsam.PriorFactorConstantBias:
+    """At rest the gyro reads its bias: the gyro part of the interval's bias at the readings' mean, its sigma their
+    standard error (their own scatter over sqrt(n), at least ``ZERO_RATE_SCATTER_FLOOR_RAD_S`` over sqrt(n)) or the rest's
+    own rate (``rest_rate_sigma_rad_s``) where that is larger; the accelerometer's part free."""
+    # one memory layout and numpy's reductions (no BLAS product): the same readings give the same bits whether they came
+    # row- or column-major (an imported session and the one in memory agree to the last digit)
+    gyro = np.ascontiguousarray(gyro_rad_s, dtype=float)
+    n = len(gyro)
+    dt = np.ascontiguousarray(dt_s, dtype=float)
+    mean = (gyro * dt[:, None]).sum(axis=0) / dt.sum()
+    sigma = max(max(float(np.std(gyro, axis=0).mean()), ZERO_RATE_SCATTER_FLOOR_RAD_S) / math.sqrt(n), rest_rate_sigma_rad_s)
+    return gtsam.PriorFactorConstantBias(bias_key, gtsam.imuBias.ConstantBias(zeros(3), mean),
+                                         gtsam.noiseModel.Diagonal.Sigmas(np.r_[[FREE_GYRO_BIAS_RAD_S] * 3, [sigma] * 3]))
 
 
 def position_prior_factor(pose_key: int, sigma_m: float) -> gtsam.GPSFactor:

@@ -36,6 +36,7 @@ from ..factors.imu import (
     preintegration_params,
     still_samples,
     velocity_prior_factor,
+    zero_rate_factor,
 )
 from ..factors.linear import robust
 from ..factors.mag import FieldReference, FieldTracker, HardIron, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
@@ -150,6 +151,11 @@ def with_field(noise: MagNoise, settings: Mapping[str, float]) -> MagNoise:
     return replace(noise, reference_tau_s=float(settings["reference_tau_s"]), new_field_s=float(settings["new_field_s"]))
 
 
+def with_rest(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
+    """``model`` with a ``broad_rest`` setting (a grid point, or the chosen one): the zero-rate update's rest rate."""
+    return replace(model, motion=replace(model.motion, rest_rate_sigma_rad_s=float(settings["rest_rate_sigma_rad_s"])))
+
+
 def mag_noise_tuned(study: str) -> MagNoise:
     """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``), with the
     hard-iron model its ``broad_hard_iron`` study chose (``broad_hard_iron_batch``) and the field tracking its
@@ -178,7 +184,7 @@ class Attitude9Model:
     imu: ImuNoise = field(default_factory=ImuNoise)
     """Gyro and accelerometer noise and bias walks."""
     motion: MotionPriors = field(default_factory=MotionPriors)
-    """Zero-mean position/velocity pseudo-measurements and the rest detector."""
+    """Zero-mean position/velocity pseudo-measurements, the rest detector and its zero-rate update."""
     mag: MagNoise = field(default_factory=lambda: mag_noise_tuned("broad_mag"))
     """Magnetometer heading noise and disturbance rejection, chosen for the online estimate by leave-one-trial-out over
     the thirteen BROAD trials (``fusegraph tune broad_mag``; the values and their scores are in ``tuned.toml`` [broad_mag])."""
@@ -616,6 +622,10 @@ class Attitude9Builder:
         rest_samples = int(round(model.motion.rest_window_s / max(pim.deltaTij(), 1e-9) * (self._count - self.keyframe_index[-1])))
         if self._still_run >= max(rest_samples, 1):
             add(k, velocity_prior_factor(self.V(k), model.motion.rest_velocity_sigma_m_s))
+            if math.isfinite(model.motion.rest_rate_sigma_rad_s) and self._still_run >= len(interval_gyro) + rest_samples:
+                # the interval and the rest window before it are still: its readings are the bias (the interval's bias
+                # variable is the keyframe's before it)
+                add(k - 1, zero_rate_factor(self.B(k - 1), interval_gyro, interval_dt, model.motion.rest_rate_sigma_rad_s))
         if model.gravity is not None and not self._clipped(accel):
             add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
         self._pending.insert(self.X(k), predicted.pose())

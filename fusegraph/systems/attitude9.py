@@ -27,12 +27,12 @@ from ..factors.attitude import AttitudeTrack
 from ..factors.gyro import GyroCalibrationPrior
 from ..factors.mag import MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
-from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, mag_noise_tuned
+from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, mag_noise_tuned, with_rest
 from ..graphs.increment import GraphIncrement
 from ..progress import progress
 from ..session import Session, SessionError, SessionWarning
 from ..solvers.online import OnlineConfig, OnlineSmoother
-from ..tuned import tuned
+from ..tuned import tuned, tuned_studies
 
 
 def online_config(setting: Mapping[str, float]) -> OnlineConfig:
@@ -188,11 +188,11 @@ def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: 
 
 def broad_model(solver: str = "online") -> Attitude9Model:
     """The 9-axis model each solver runs with: its settings chosen for it by leave-one-trial-out over the BROAD trials
-    (``fusegraph tune broad_mag|broad_motion|broad_bias [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion], [broad_bias] and
-    their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's)."""
+    (``fusegraph tune broad_mag|broad_motion|broad_bias|broad_rest [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion],
+    [broad_bias], [broad_rest] and their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's)."""
     suffix = "" if solver == "online" else "_batch"
-    model = with_motion(Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}")), tuned(f"broad_motion{suffix}"))
-    return with_bias(model, tuned(f"broad_bias{suffix}"))
+    model = with_bias(with_motion(Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}")), tuned(f"broad_motion{suffix}")), tuned(f"broad_bias{suffix}"))
+    return with_rest(model, tuned(f"broad_rest{suffix}")) if f"broad_rest{suffix}" in tuned_studies() else model
 
 
 def with_motion(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
