@@ -68,9 +68,10 @@ class MotionPriors:
     rest_window_s: float = 0.14
     """... over this long a trailing window."""
     rest_rate_sigma_rad_s: float = math.inf
-    """A zero-rate update where the whole interval between two keyframes and the rest window before it are still: the
-    gyro then reads its bias, up to this true rate (how still a detected rest is: the detector passes rates below
-    ``rest_gyro_rad_s``) or the readings' own standard error where that is larger (``zero_rate_factor``); inf: none."""
+    """A zero-rate update where the whole interval between two keyframes and the rest window before it are still and its
+    readings agree with the interval's before (``steady_rest``): the gyro then reads its bias, up to this true rate (how
+    still a detected rest is: the detector passes rates below ``rest_gyro_rad_s``) or the readings' own standard error
+    where that is larger (``zero_rate_factor``); inf: none."""
 
 
 def preintegration_params(noise: ImuNoise, rate_rad_s: float = 0.0, interval_s: float = 1.0) -> gtsam.PreintegrationParams:
@@ -111,17 +112,35 @@ ZERO_RATE_SCATTER_FLOOR_RAD_S = 1e-4
 scatter of 0), and its noise is then about its step over sqrt(12), not 0."""
 
 
-def zero_rate_factor(bias_key: int, gyro_rad_s: FloatArray, dt_s: FloatArray, rest_rate_sigma_rad_s: float = 0.0) -> gtsam.PriorFactorConstantBias:
-    """At rest the gyro reads its bias: the gyro part of the interval's bias at the readings' mean, its sigma their
-    standard error (their own scatter over sqrt(n), at least ``ZERO_RATE_SCATTER_FLOOR_RAD_S`` over sqrt(n)) or the rest's
-    own rate (``rest_rate_sigma_rad_s``) where that is larger; the accelerometer's part free."""
+def rest_reading(gyro_rad_s: FloatArray, dt_s: FloatArray) -> tuple[FloatArray, float]:
+    """An interval's mean gyro reading and its standard error (the readings' own scatter over sqrt(n), at least
+    ``ZERO_RATE_SCATTER_FLOOR_RAD_S`` over sqrt(n)), rad/s."""
     # one memory layout and numpy's reductions (no BLAS product): the same readings give the same bits whether they came
     # row- or column-major (an imported session and the one in memory agree to the last digit)
     gyro = np.ascontiguousarray(gyro_rad_s, dtype=float)
-    n = len(gyro)
     dt = np.ascontiguousarray(dt_s, dtype=float)
     mean = (gyro * dt[:, None]).sum(axis=0) / dt.sum()
-    sigma = max(max(float(np.std(gyro, axis=0).mean()), ZERO_RATE_SCATTER_FLOOR_RAD_S) / math.sqrt(n), rest_rate_sigma_rad_s)
+    return mean, max(float(np.std(gyro, axis=0).mean()), ZERO_RATE_SCATTER_FLOOR_RAD_S) / math.sqrt(len(gyro))
+
+
+STEADY_SIGMAS = 3.0
+"""Two rest intervals read the same rate when their means differ by at most this many of their combined standard errors
+on every axis (a 3-sigma test: a rest edge that turns slowly changes the mean from one interval to the next)."""
+
+
+def steady_rest(previous: tuple[FloatArray, float], current: tuple[FloatArray, float]) -> bool:
+    """Whether two consecutive rest intervals' readings (``rest_reading``) agree: the body turned at neither, or at the
+    same rate (which a rest of several intervals does not)."""
+    bound = STEADY_SIGMAS * math.sqrt(previous[1] ** 2 + current[1] ** 2)
+    return bool(np.all(np.abs(current[0] - previous[0]) <= bound))
+
+
+def zero_rate_factor(bias_key: int, reading: tuple[FloatArray, float], rest_rate_sigma_rad_s: float = 0.0) -> gtsam.PriorFactorConstantBias:
+    """At rest the gyro reads its bias: the gyro part of the interval's bias at the readings' mean (``rest_reading``), its
+    sigma their standard error or the rest's own rate (``rest_rate_sigma_rad_s``) where that is larger; the accelerometer's
+    part free."""
+    mean, standard_error = reading
+    sigma = max(standard_error, rest_rate_sigma_rad_s)
     return gtsam.PriorFactorConstantBias(bias_key, gtsam.imuBias.ConstantBias(zeros(3), mean),
                                          gtsam.noiseModel.Diagonal.Sigmas(np.r_[[FREE_GYRO_BIAS_RAD_S] * 3, [sigma] * 3]))
 

@@ -34,6 +34,8 @@ from ..factors.imu import (
     bias_walk_factor,
     position_prior_factor,
     preintegration_params,
+    rest_reading,
+    steady_rest,
     still_samples,
     velocity_prior_factor,
     zero_rate_factor,
@@ -277,6 +279,7 @@ class Attitude9Builder:
         self.new_fields: list[tuple[float, FieldReference]] = []
         """New fields taken as the reference (``FieldTracker.adopted``): online as they come; a batch, its last pass's."""
         self._keyframe_rate: list[float] = []  # RMS gyro rate over the interval before each keyframe, rad/s
+        self._rest_reading: tuple[FloatArray, float] | None = None  # the last interval's at rest (``rest_reading``), if it was one
         # the gyro calibration (batch): per keyframe, how K turns the interval before it (``scale_rate_map``) and its length
         self._calibrated = self.model.gyro_calibration is not None and deferred_mag
         self.calibration_key = int(gtsam.symbol("k", 1 + ord(prefix))) if prefix else GYRO_CALIBRATION
@@ -474,6 +477,7 @@ class Attitude9Builder:
             attitude = initial_attitude(accel, mag) if mag is not None else self._nav.attitude()
             self._bridges.add(k)
         noise = robust(gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot] * 3, [1e3] * 3]), _REST_CAUCHY_K if at_rest else 0.0)
+        self._rest_reading = None  # a rest's readings are compared across one interval, not across a gap
         add = self._pending.add
         add(k - 1, gtsam.BetweenFactorPose3(self.X(k - 1), self.X(k), gtsam.Pose3(), noise))
         add(k - 1, bias_walk_factor(self.B(k - 1), self.B(k), gap_s, model.imu, gyro=not self._calibrated))
@@ -623,9 +627,16 @@ class Attitude9Builder:
         if self._still_run >= max(rest_samples, 1):
             add(k, velocity_prior_factor(self.V(k), model.motion.rest_velocity_sigma_m_s))
             if math.isfinite(model.motion.rest_rate_sigma_rad_s) and self._still_run >= len(interval_gyro) + rest_samples:
-                # the interval and the rest window before it are still: its readings are the bias (the interval's bias
-                # variable is the keyframe's before it)
-                add(k - 1, zero_rate_factor(self.B(k - 1), interval_gyro, interval_dt, model.motion.rest_rate_sigma_rad_s))
+                # the interval and the rest window before it are still, and it reads what the interval before read: its
+                # readings are the bias (the interval's bias variable is the keyframe's before it)
+                reading, previous = rest_reading(interval_gyro, interval_dt), self._rest_reading
+                self._rest_reading = reading
+                if previous is not None and steady_rest(previous, reading):
+                    add(k - 1, zero_rate_factor(self.B(k - 1), reading, model.motion.rest_rate_sigma_rad_s))
+            else:
+                self._rest_reading = None
+        else:
+            self._rest_reading = None
         if model.gravity is not None and not self._clipped(accel):
             add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
         self._pending.insert(self.X(k), predicted.pose())
