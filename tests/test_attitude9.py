@@ -206,11 +206,14 @@ def test_the_recording_declares_its_motion_and_the_default_is_chosen_on_broad() 
     declared = {**accel.meta, "velocity_sigma_m_s": 2.0, "noise_m_s2_sqrt_hz": 0.02, "sigma_deg": 3.0, "bias_rw_m_s2_sqrt_s": 3e-3}
     gyro = session.stream("gyro")
     walking = replace(session, streams={**session.streams, "accel": replace(accel, meta=declared),
-                                        "gyro": replace(gyro, meta={**gyro.meta, "bias_rw_sigma": 2e-4})})
+                                        "gyro": replace(gyro, meta={**gyro.meta, "bias_rw_sigma": 2e-4, "rest_rate_sigma_rad_s": 0.02})})
     model = attitude9.model_for(walking)
     assert model.motion.velocity_sigma_m_s == 2.0 and model.gravity is not None and model.gravity.sigma_deg == 3.0
     assert model.imu.accel_noise_m_s2_sqrt_hz == 0.02
     assert model.imu.accel_bias_walk_m_s2_sqrt_s == 3e-3 and model.imu.gyro_bias_walk_rad_s_sqrt_s == 2e-4
+    assert model.motion.rest_rate_sigma_rad_s == 0.02 and model.motion.velocity_sigma_m_s == 2.0  # a worn sensor's swaying rests
+    assert attitude9.model_for(session).motion.rest_rate_sigma_rad_s == tuned("broad_rest")["rest_rate_sigma_rad_s"]
+    walking.validate()  # the key is in the gyro's catalogue entry
     # an explicit model is taken as given
     assert attitude9.model_for(walking, attitude9.broad_model()).motion.velocity_sigma_m_s == tuned("broad_motion")["velocity_sigma_m_s"]
 

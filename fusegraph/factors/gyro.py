@@ -383,6 +383,9 @@ CATALOGUE = (
             KeySpec("scale_sigma", None, "attitude9 batch: estimate the scale factors and misalignment with this prior sigma on each "
                     "scale error (fraction; absent: a perfect gyro, as chosen on BROAD); the estimate is in the run's extras gyro_calibration"),
             KeySpec("misalignment_sigma_rad", None, "attitude9 batch, with scale_sigma: prior sigma of each cross-axis term, rad (default scale_sigma)"),
+            KeySpec("rest_rate_sigma_rad_s", None, "attitude9: how still a detected rest is, rad/s: the zero-rate update's sigma where larger "
+                    "than the readings' standard error (default: chosen on BROAD, whose rests lie on a table; a worn sensor whose "
+                    "wearer stands still sways: declare a wider rate, or inf for no update)"),
             KeySpec("delay_s", 0.0, "the output lags the motion by this much (the sensor's filter delay), s; head: every method re-times "
                     "the samples and reports at their stamps (estimate it with the tracker: frontends.head_timing.gyro_delay_from_tracker)"),
             KeySpec("delay_sigma_s", None, "how well delay_s is known, s (documentation: what the estimate of the delay said)"),

@@ -108,7 +108,8 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
     ``bias_rw_m_s2_sqrt_s``, ``sigma_deg``, ``inflation_deg_per_m_s2``) and the ``gyro`` stream's ``bias_rw_sigma`` its
     bias walk and its ``noise_sigma_rad_s`` its white noise (a data sheet's figures belong with the recording), and
     its ``scale_sigma`` (fraction; ``misalignment_sigma_rad`` beside, the same by default) has the batch estimate the
-    gyro's scale factors and misalignment (``Attitude9Model.gyro_calibration``; off on BROAD, where it was measured):
+    gyro's scale factors and misalignment (``Attitude9Model.gyro_calibration``; off on BROAD, where it was measured), its
+    ``rest_rate_sigma_rad_s`` the zero-rate update's rest rate (``MotionPriors``; inf: none):
     BROAD is hand-held motion, and a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior
     (e.g. 2 m/s)."""
     if model is None:
@@ -124,6 +125,7 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
         model = replace(model, imu=replace(model.imu, **imu)) if imu else model
         if "scale_sigma" in (gyro := declared["gyro"]):  # the batch estimates the gyro's scale factors and misalignment
             model = replace(model, gyro_calibration=GyroCalibrationPrior(gyro["scale_sigma"], gyro.get("misalignment_sigma_rad", gyro["scale_sigma"])))
+        model = with_rest(model, gyro) if "rest_rate_sigma_rad_s" in gyro else model  # how still its rests are (inf: no update)
         if model.gravity is not None:
             model = replace(model, gravity=declared_gravity(meta, model.gravity))
     if "accel" in session.streams:  # a clipping accelerometer's samples at its range are bounds, not measurements
