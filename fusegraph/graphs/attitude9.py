@@ -40,7 +40,7 @@ from ..factors.imu import (
     velocity_prior_factor,
     zero_rate_factor,
 )
-from ..factors.linear import robust
+from ..factors.linear import linear_factor, robust
 from ..factors.mag import FieldReference, FieldTracker, HardIron, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
 from ..tuned import tuned, tuned_studies
@@ -280,14 +280,14 @@ class Attitude9Builder:
         """New fields taken as the reference (``FieldTracker.adopted``): online as they come; a batch, its last pass's."""
         self._keyframe_rate: list[float] = []  # RMS gyro rate over the interval before each keyframe, rad/s
         self._rest_reading: tuple[FloatArray, float] | None = None  # the last interval's at rest (``rest_reading``), if it was one
-        # the gyro calibration (batch): per keyframe, how K turns the interval before it (``scale_rate_map``) and its length
+        # the gyro calibration (batch): keyframe k -> how K turns the preintegrated interval before it (``scale_rate_map``;
+        # none before the first keyframe and across a dropout)
         self._calibrated = self.model.gyro_calibration is not None and deferred_mag
         self.calibration_key = int(gtsam.symbol("k", 1 + ord(prefix))) if prefix else GYRO_CALIBRATION
         """This body's gyro calibration key."""
-        self._rate_map: list[FloatArray] = []
+        self._rate_map: dict[int, FloatArray] = {}
         self.gyro_calibration_estimate: FloatArray | None = None
         """The batch's estimate of the gyro's K (scale factors on the diagonal, misalignment off it)."""
-        self._interval_s: list[float] = []
         self.posterior_quat: list[FloatArray] = []
         """Online: keyframe k's attitude right after the update that added it (causal)."""
         self.posterior_gyro_bias: list[FloatArray] = []
@@ -497,8 +497,6 @@ class Attitude9Builder:
         self._keyframe_guess.append(guess.attitude())
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
         self._keyframe_rate.append(0.0)  # a keyframe after a dropout: no interval before it
-        self._rate_map.append(_NO_RATE_MAP)
-        self._interval_s.append(gap_s)
         self._nav = guess
         self._restart = _Restart() if self._solved and not at_rest else None  # the batch starts again in ``inertial_initial``
         self._after_keyframe(k, guess.attitude(), mag)
@@ -564,8 +562,6 @@ class Attitude9Builder:
         self._keyframe_guess.append(rot)
         self._keyframe_accel.append(np.asarray(accel, dtype=float))
         self._keyframe_rate.append(0.0)
-        self._rate_map.append(_NO_RATE_MAP)
-        self._interval_s.append(0.0)
         self._after_keyframe(0, rot, mag)
         self._last_t = t
         self._count += 1
@@ -600,8 +596,7 @@ class Attitude9Builder:
         self._keyframe_rate.append(float(np.sqrt(np.mean(np.einsum("ij,ij->i", interval_gyro, interval_gyro)))))
         pim = self._preintegrate(interval_accel, interval_gyro, interval_dt, self._keyframe_rate[-1])
         if self._calibrated:
-            self._rate_map.append(scale_rate_map(interval_gyro, interval_dt, np.asarray(self._bias.gyroscope())))
-            self._interval_s.append(pim.deltaTij())
+            self._rate_map[k] = scale_rate_map(interval_gyro, interval_dt, np.asarray(self._bias.gyroscope()))
         self._keyframe_accel.append(pim.deltaVij() / pim.deltaTij())  # rotated sample by sample: the body may turn a lot in 0.2 s
         predicted = pim.predict(self._nav, self._bias)
         if not self._solved:
@@ -626,17 +621,12 @@ class Attitude9Builder:
         rest_samples = int(round(model.motion.rest_window_s / max(pim.deltaTij(), 1e-9) * (self._count - self.keyframe_index[-1])))
         if self._still_run >= max(rest_samples, 1):
             add(k, velocity_prior_factor(self.V(k), model.motion.rest_velocity_sigma_m_s))
-            if math.isfinite(model.motion.rest_rate_sigma_rad_s) and self._still_run >= len(interval_gyro) + rest_samples:
-                # the interval and the rest window before it are still, and it reads what the interval before read: its
-                # readings are the bias (the interval's bias variable is the keyframe's before it)
-                reading, previous = rest_reading(interval_gyro, interval_dt), self._rest_reading
-                self._rest_reading = reading
-                if previous is not None and steady_rest(previous, reading):
-                    add(k - 1, zero_rate_factor(self.B(k - 1), reading, model.motion.rest_rate_sigma_rad_s))
-            else:
-                self._rest_reading = None
-        else:
-            self._rest_reading = None
+        # the interval and the rest window before it still, and it reads what the interval before read: its readings are
+        # the bias (the interval's bias variable is the keyframe's before it)
+        resting = math.isfinite(model.motion.rest_rate_sigma_rad_s) and self._still_run >= len(interval_gyro) + rest_samples
+        previous, self._rest_reading = self._rest_reading, rest_reading(interval_gyro, interval_dt) if resting else None
+        if previous is not None and self._rest_reading is not None and steady_rest(previous, self._rest_reading):
+            add(k - 1, zero_rate_factor(self.B(k - 1), self._rest_reading, model.motion.rest_rate_sigma_rad_s))
         if model.gravity is not None and not self._clipped(accel):
             add(k, gravity_factor(self.X(k), accel, model.gravity, model.imu.gravity_m_s2))
         self._pending.insert(self.X(k), predicted.pose())
@@ -877,26 +867,17 @@ class Attitude9Builder:
         values.insert(self.calibration_key, np.zeros(9))
         count = len(self.keyframe_t)
         # keyframe k's effective bias covers the interval after it (the last keyframe's none: its bias is b itself)
-        maps = [*self._rate_map[1:count], _NO_RATE_MAP]
-        imu = self.model.imu
-        out: list[gtsam.NonlinearFactor] = [calibration_prior_factor(self.calibration_key, calibration)]
-        out.append(self._bias_linear([(0, _GYRO_ROWS)], maps[0], imu.gyro_bias_prior_rad_s))
-        for k in range(1, count):
-            sigma = imu.gyro_bias_walk_rad_s_sqrt_s * math.sqrt(max(self._interval_s[k], 1e-9))
-            out.append(self._bias_linear([(k - 1, -_GYRO_ROWS), (k, _GYRO_ROWS)], maps[k] - maps[k - 1], sigma))
-        return out, values
-
-    def _bias_linear(self, biases: list[tuple[int, FloatArray]], calibration: FloatArray, sigma: float) -> gtsam.LinearContainerFactor:
-        """sum A_k beta_k + W c ~ N(0, sigma^2 I) over bias variables (ConstantBias, linear: exact at any value)."""
-        at_zero = gtsam.Values()
-        args: list[object] = []
-        for k, matrix in biases:
-            args += [self.B(k), matrix]
+        maps = [self._rate_map.get(k + 1, _NO_RATE_MAP) for k in range(count)]
+        at_zero = gtsam.Values(values)  # every bias and the calibration at zero: the linear factors' point (each copies its keys)
+        for k in range(count):
             at_zero.insert(self.B(k), gtsam.imuBias.ConstantBias())
-        args += [self.calibration_key, calibration]
-        at_zero.insert(self.calibration_key, np.zeros(9))
-        jacobian = gtsam.JacobianFactor(*args, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma))  # type: ignore[call-overload]
-        return gtsam.LinearContainerFactor(jacobian, at_zero)
+        imu, cal = self.model.imu, self.calibration_key
+        out: list[gtsam.NonlinearFactor] = [calibration_prior_factor(cal, calibration),
+                                            linear_factor([(self.B(0), _GYRO_ROWS), (cal, maps[0])], imu.gyro_bias_prior_rad_s, at_zero=at_zero)]
+        for k, interval_s in enumerate(np.diff(self.keyframe_t), start=1):
+            sigma = imu.gyro_bias_walk_rad_s_sqrt_s * math.sqrt(max(float(interval_s), 1e-9))
+            out.append(linear_factor([(self.B(k - 1), -_GYRO_ROWS), (self.B(k), _GYRO_ROWS), (cal, maps[k] - maps[k - 1])], sigma, at_zero=at_zero))
+        return out, values
 
     def heading_factors(self, attitude: list[gtsam.Rot3], robust: bool) -> list[gtsam.AttitudeFactorPose3]:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""

@@ -32,7 +32,7 @@ from ..graphs.increment import GraphIncrement
 from ..progress import progress
 from ..session import Session, SessionError, SessionWarning
 from ..solvers.online import OnlineConfig, OnlineSmoother
-from ..tuned import tuned, tuned_studies
+from ..tuned import tuned
 
 
 def online_config(setting: Mapping[str, float]) -> OnlineConfig:
@@ -194,7 +194,7 @@ def broad_model(solver: str = "online") -> Attitude9Model:
     [broad_bias], [broad_rest] and their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's)."""
     suffix = "" if solver == "online" else "_batch"
     model = with_bias(with_motion(Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}")), tuned(f"broad_motion{suffix}")), tuned(f"broad_bias{suffix}"))
-    return with_rest(model, tuned(f"broad_rest{suffix}")) if f"broad_rest{suffix}" in tuned_studies() else model
+    return with_rest(model, tuned(f"broad_rest{suffix}"))
 
 
 def with_motion(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
