@@ -9,6 +9,7 @@ from conftest import assert_jacobians_match, cut_streams, random_rot3, requires_
 
 from fusegraph.factors.accel import GravityNoise, gravity_factor
 from fusegraph.factors.mag import FieldReference, MagNoise, field_norm_dip, fit_mag_calibration, heading_factor, heading_sigma_rad
+from fusegraph.geometry import quat_conjugate, quat_multiply
 from fusegraph.graphs.attitude9 import Attitude9Builder, Attitude9Model, fill_samples, initial_attitude
 from fusegraph.metrics import broad_errors
 from fusegraph.scenarios.attitude9 import simulate_attitude9
@@ -255,6 +256,30 @@ def test_online_estimate_is_causal() -> None:
     truncated = replace(session, streams=streams)
     early = attitude9.run_online(truncated)
     np.testing.assert_allclose(early.quat_wxyz, full.quat_wxyz[:cut], atol=1e-9)  # the future changes nothing
+
+
+def test_the_online_solver_eliminates_in_time_order_with_the_accuracy_of_its_default_order() -> None:
+    """The builder tells the online solver each variable's keyframe (a per-keyframe point another sensor adds too; the
+    tracker's frame and the calibration span many), so iSAM2 eliminates in time order (an update re-eliminates only the
+    keyframes its factors reach: BROAD trial 01's iSAM2 updates took half the time) and, where the tree stays in that
+    order, folds old keyframes into its own linear factors instead of re-linearising a new solver. On this simulated
+    60 s the estimate moves 0.001 deg RMS, 0.007 at most (measured) against gtsam's default order; the bounds are 10x."""
+    builder = Attitude9Builder(prefix="t")
+    assert builder.keyframe_of(builder.X(7)) == 7 and builder.keyframe_of(builder.B(0)) == 0 and builder.keyframe_of(builder.V(12)) == 12
+    point = int(gtsam.symbol("g", 3))
+    assert builder.keyframe_of(builder.calibration_key) is None and builder.keyframe_of(point) is None
+    builder.add_variable(point, np.zeros(3), per_keyframe=True)
+    assert builder.keyframe_of(int(gtsam.symbol("g", 5))) == 5
+
+    from dataclasses import replace
+
+    session = simulate_attitude9(3, duration_s=60.0)
+    ordered = attitude9.run_online(session)
+    default = attitude9.run_online(session, config=replace(attitude9.ONLINE_CONFIG, time_ordered=False))
+    assert ordered.extras["in_place"] >= 1 and default.extras["in_place"] == 0 and default.extras["reanchors"] >= 25
+    turn = quat_multiply(quat_conjugate(ordered.quat_wxyz), default.quat_wxyz)
+    angle_deg = np.degrees(2 * np.arccos(np.clip(np.abs(turn[:, 0]), 0, 1)))
+    assert np.sqrt(np.mean(angle_deg**2)) < 0.01 and angle_deg.max() < 0.07
 
 
 @requires_shared_data("broad")

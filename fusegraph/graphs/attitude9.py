@@ -45,6 +45,7 @@ from ..factors.mag import FieldReference, FieldTracker, HardIron, MagCalibration
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
 from ..tuned import tuned, tuned_studies
 from .increment import GraphIncrement
+from .ordering import SYMBOL_INDEX_BITS, SYMBOL_INDEX_MASK
 
 
 def X(k: int) -> int:
@@ -264,6 +265,7 @@ class Attitude9Builder:
         """Key prefix: '' gives x/v/b keys; another letter ('t' -> 'T'...) lets two bodies share a graph."""
         letters = (prefix.upper(), prefix.lower(), chr(ord(prefix.upper()) + 1)) if prefix else ()
         self._key0 = tuple(int(gtsam.symbol(c, 0)) for c in letters) if prefix else (X(0), V(0), B(0))
+        self._keyframe_letters = {key0 >> SYMBOL_INDEX_BITS for key0 in self._key0}  # gtsam Symbols: letter << 56 | keyframe
         self.deferred_mag = deferred_mag
         self._pending = GraphIncrement()
         self.keyframe_t: list[float] = []
@@ -351,6 +353,13 @@ class Attitude9Builder:
     def state_keys(self, k: int) -> tuple[int, int | None]:
         return self.X(k), self.B(k)
 
+    def keyframe_of(self, key: int) -> int | None:
+        """The keyframe of a variable: this body's pose, velocity and bias, and another sensor's per-keyframe variables
+        (``add_variable(..., per_keyframe=True)``); None for one that spans many (the tracker's frame, the gyro
+        calibration). With it the online solver eliminates in time order and marginalises old keyframes inside iSAM2
+        (``OnlineSmoother._time_order``, ``_marginalize_in_place``)."""
+        return key & SYMBOL_INDEX_MASK if key >> SYMBOL_INDEX_BITS in self._keyframe_letters else None
+
     def read_latest(self, isam: gtsam.ISAM2, k: int) -> tuple[gtsam.Rot3, FloatArray]:
         """Read keyframe k's posterior (pose, velocity, bias): the next prediction starts from it."""
         pose = isam.calculateEstimatePose3(self.X(k))
@@ -382,8 +391,12 @@ class Attitude9Builder:
         """A factor another sensor makes on this graph's keyframes (it goes out with the next ``take``)."""
         self._pending.add(oldest_keyframe, factor)
 
-    def add_variable(self, key: int, value: FloatArray) -> None:
-        """The initial guess of a point or vector variable another sensor adds (goes out with the next ``take``)."""
+    def add_variable(self, key: int, value: FloatArray, per_keyframe: bool = False) -> None:
+        """The initial guess of a point or vector variable another sensor adds (goes out with the next ``take``).
+        ``per_keyframe``: the key is a gtsam Symbol whose index is its keyframe (the online solver then eliminates and
+        marginalises it with that keyframe's states, ``keyframe_of``)."""
+        if per_keyframe:
+            self._keyframe_letters.add(key >> SYMBOL_INDEX_BITS)
         self._pending.insert(key, np.asarray(value, dtype=float))
 
     @property

@@ -58,6 +58,8 @@ from ..factors.linear import zeros
 from ..geometry import FloatArray, rot3_from_quat_wxyz
 from ..session import Session, SessionWarning
 from .increment import GraphIncrement
+from .ordering import SYMBOL_INDEX_BITS as _INDEX_BITS
+from .ordering import SYMBOL_INDEX_MASK as _INDEX_MASK
 from .ordering import nested_dissection
 
 
@@ -580,8 +582,6 @@ _RANK = {"t": 0, "e": 1, "b": 2, "x": 3}
 _RANK_OF_CHR = np.full(256, -1)
 for _tag, _rank in _RANK.items():
     _RANK_OF_CHR[ord(_tag)] = _rank
-_INDEX_BITS = 56  # a gtsam Symbol key: its character in the top 8 bits, its index below
-_INDEX_MASK = (1 << _INDEX_BITS) - 1
 
 
 def rates_at(gyro_t: FloatArray, rate_rad_s: FloatArray, t: FloatArray) -> FloatArray:

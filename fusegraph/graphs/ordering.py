@@ -12,6 +12,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+SYMBOL_INDEX_BITS = 56
+"""A gtsam Symbol key: its character in the top 8 bits, its index (a keyframe's, for per-keyframe variables) below."""
+SYMBOL_INDEX_MASK = (1 << SYMBOL_INDEX_BITS) - 1
+
 
 def nested_dissection(steps: Sequence[Sequence[int]], shared: Sequence[int] = (), leaf_steps: int = 8) -> list[int]:
     """Every key of ``steps`` (the variables of each keyframe, in time order) by nested dissection over the

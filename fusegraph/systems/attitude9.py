@@ -165,7 +165,7 @@ def run_online(session: Session, model: Attitude9Model | None = None, config: On
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), np.array(builder.posterior_quat), np.array(builder.posterior_gyro_bias), False)
     runtime = time.perf_counter() - start
     _say(session, builder)
-    extras = {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors, **builder.extras()}
+    extras = {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors, "in_place": solver.in_place_marginalisations, **builder.extras()}
     return Estimate("online", data.t.copy(), quats, None, runtime, extras)
 
 

@@ -162,7 +162,7 @@ class GazeGraph:
 
     def _add_point(self, k: int) -> None:
         point = self._initial_point(k)
-        self.builder.add_variable(G(k), point)
+        self.builder.add_variable(G(k), point, per_keyframe=True)
         if self.session.config.target_depth_m is None:
             self.builder.add_factor(k, wall_plane_prior(G(k), self.wall_m, self.model.fixation))
         else:
