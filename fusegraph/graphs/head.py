@@ -58,9 +58,7 @@ from ..factors.linear import zeros
 from ..geometry import FloatArray, rot3_from_quat_wxyz
 from ..session import Session, SessionWarning
 from .increment import GraphIncrement
-from .ordering import SYMBOL_INDEX_BITS as _INDEX_BITS
-from .ordering import SYMBOL_INDEX_MASK as _INDEX_MASK
-from .ordering import nested_dissection
+from .ordering import SYMBOL_INDEX_BITS, SYMBOL_INDEX_MASK, nested_dissection
 
 
 def X(k: int) -> int:
@@ -465,7 +463,7 @@ class HeadGraphBuilder:
     def keyframe_of(key: int) -> int | None:
         """The keyframe of a variable; None for the gyro calibration and the latency segments, which span many (the
         online solver eliminates in time order with this: ``OnlineSmoother._time_order``)."""
-        return key & _INDEX_MASK if _RANK_OF_CHR[key >> _INDEX_BITS] >= 0 else None  # the split ``time_ordering`` makes
+        return key & SYMBOL_INDEX_MASK if _RANK_OF_CHR[key >> SYMBOL_INDEX_BITS] >= 0 else None  # the split ``time_ordering`` makes
 
     def _flush_waiting_tracker(self) -> None:
         """Attach every waiting tracker sample whose keyframe exists."""
@@ -617,8 +615,8 @@ def time_ordering(keys: Iterable[int]) -> list[int]:
     took super-linear time here (60 s of data: 0.08 s, 240 s: 1.1 s). Keys are split into character and index
     with integer arithmetic on all of them at once (a ``gtsam.Symbol`` per key cost ~0.1 s on a 10-minute graph)."""
     key_array = np.fromiter(keys, dtype=np.uint64)
-    index = (key_array & np.uint64(_INDEX_MASK)).astype(np.int64)
-    rank = _RANK_OF_CHR[(key_array >> np.uint64(_INDEX_BITS)).astype(np.int64)]
+    index = (key_array & np.uint64(SYMBOL_INDEX_MASK)).astype(np.int64)
+    rank = _RANK_OF_CHR[(key_array >> np.uint64(SYMBOL_INDEX_BITS)).astype(np.int64)]
     per_keyframe = rank >= 0
     order = np.lexsort((rank[per_keyframe], index[per_keyframe]))  # by keyframe, then rank within it
     step_keys, step_index = key_array[per_keyframe][order], index[per_keyframe][order]
