@@ -21,8 +21,11 @@ def test_study_ranks_the_grid_and_refuses_test_seeds() -> None:
 
 
 def test_the_gaze_ekf_study_scores_a_setting() -> None:
-    score = STUDIES["gaze_ekf"].score({"gyro_sigma_rad_s": 0.1, "accel_inflation": 0.0, "gaze_walk_m_per_sqrt_s": 0.05}, 100)
+    setting = {"gyro_sigma_rad_s": 0.1, "accel_inflation": 0.0, "gaze_walk_m_per_sqrt_s": 0.05, "mag_yaw_sigma_rad": 0.05}
+    score = STUDIES["gaze_ekf"].score(setting, 100)
     assert 0.0 < score < 1000.0  # mm on a 1 m wall: finite and not absurd
+    # the head filter's magnetometer yaw noise is the study's own (it came from BROAD's 9-axis study before)
+    assert STUDIES["gaze_ekf"].score({**setting, "mag_yaw_sigma_rad": 0.4}, 100) != score
 
 
 def test_leave_one_group_out_scores_each_group_with_a_setting_chosen_without_it() -> None:

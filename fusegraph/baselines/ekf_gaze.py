@@ -26,10 +26,12 @@ from .ekf9 import Ekf9Config, _tilt_compensated_yaw
 class GazeEkfConfig:
     """Noise figures of the gaze EKF."""
 
-    head: Ekf9Config = Ekf9Config(gyro_sigma_rad_s=float(value("gaze_ekf", "gyro_sigma_rad_s")), accel_inflation=float(value("gaze_ekf", "accel_inflation")))
-    """Head-angle part. The paper gives no noise values: the gyro sigma and the accelerometer inflation (an addition no
-    paper has) are chosen with the gaze walk by ``fusegraph tune gaze_ekf`` on seeds 100-119 (``tuned.toml``; 11.6 mm
-    against 78 mm for the 9-axis figures used before)."""
+    head: Ekf9Config = Ekf9Config(gyro_sigma_rad_s=float(value("gaze_ekf", "gyro_sigma_rad_s")), accel_inflation=float(value("gaze_ekf", "accel_inflation")),
+                                  mag_yaw_sigma_rad=float(value("gaze_ekf", "mag_yaw_sigma_rad")))
+    """Head-angle part. The paper gives no noise values: the gyro sigma, the magnetometer yaw noise and the accelerometer
+    inflation (an addition no paper has) are chosen with the gaze walk by ``fusegraph tune gaze_ekf`` on seeds 100-119
+    (``tuned.toml``; 11.3 mm against 78 mm for the 9-axis figures used before). Until 2026-11-27 the yaw noise was the
+    9-axis EKF's, chosen on BROAD (0.2 rad; 0.1 before: 11.6 mm), which moved this simulation's figure."""
     gaze_walk_m_per_sqrt_s: float = float(value("gaze_ekf", "gaze_walk_m_per_sqrt_s"))
     """Random walk of the gaze point, m/sqrt(s): small keeps a fixation steady, large follows a saccade (same study)."""
     pixel_sigma: float = 5.0

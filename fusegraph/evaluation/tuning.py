@@ -407,7 +407,8 @@ def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
     from ..systems.gaze import rms_mm
 
     s = _simulated("gaze", seed)
-    head = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_inflation=setting["accel_inflation"])
+    head = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_inflation=setting["accel_inflation"],
+                      mag_yaw_sigma_rad=setting["mag_yaw_sigma_rad"])
     config = GazeEkfConfig(head=head, gaze_walk_m_per_sqrt_s=setting["gaze_walk_m_per_sqrt_s"])
     out = run_gaze_ekf(s.t, s.gyro_rad_s, s.accel_m_s2, s.mag, s.tracker_t, s.gaze_px, s.config.wall_m, s.config.camera, config)
     rms = rms_mm(out, s)
@@ -495,8 +496,9 @@ def _head_ekf_score(setting: dict[str, Any], seed: int, mode: str = "method2") -
 
 
 STUDIES: dict[str, Study] = {
-    "gaze_ekf": Study("gaze_ekf", {"gyro_sigma_rad_s": (0.01, 0.03, 0.1, 0.3), "accel_inflation": (0.0, 20.0),
-                                   "gaze_walk_m_per_sqrt_s": (0.05, 0.2)}, _gaze_ekf_score, "mm, hypot of X and Z RMS on the wall"),
+    "gaze_ekf": Study("gaze_ekf", {"gyro_sigma_rad_s": (0.1, 0.3, 1.0), "accel_inflation": (0.0, 20.0),
+                                   "gaze_walk_m_per_sqrt_s": (0.02, 0.05, 0.2), "mag_yaw_sigma_rad": (0.025, 0.05, 0.1, 0.2)},
+                      _gaze_ekf_score, "mm, hypot of X and Z RMS on the wall"),
     "gaze_fixation": Study("gaze_fixation", GAZE_FIXATION_GRID, _gaze_fixation_score,
                            "mm, hypot of X and Z RMS on the wall of fusegraph online (the graph's fixation model)"),
     "gaze_fixation_batch": Study("gaze_fixation_batch", GAZE_FIXATION_GRID, lambda s, seed: _gaze_fixation_score(s, seed, "batch"),
