@@ -34,9 +34,9 @@ METHODS = ("no_removal", "paper_pipeline", "online", "batch")
 
 
 def _ekf_tuned(study: str) -> Ekf9Config:
-    """The 9-axis EKF with a constant accelerometer noise and the gyro/accelerometer sigmas a study chose."""
+    """The 9-axis EKF with a constant accelerometer noise and the gyro/accelerometer sigmas and magnetometer yaw noise a study chose."""
     return Ekf9Config(gyro_sigma_rad_s=float(value(study, "gyro_sigma_rad_s")), accel_sigma_m_s2=float(value(study, "accel_sigma_m_s2")),
-                      accel_inflation=0.0)
+                      accel_inflation=0.0, mag_yaw_sigma_rad=float(value(study, "mag_yaw_sigma_rad")))
 
 
 PAPER_EKF = _ekf_tuned("bicycle_ekf")
