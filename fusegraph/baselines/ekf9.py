@@ -10,7 +10,9 @@ form throughout. Euler angles are the papers' choice; they are singular at pitch
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -39,6 +41,14 @@ class Ekf9Config:
     """Per-axis gain G of the calibration M = G m + B."""
     mag_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Offset B of the calibration, in the magnetometer's unit."""
+
+    @classmethod
+    def from_setting(cls, setting: Mapping[str, Any], **fixed: float) -> Ekf9Config:
+        """The filter with every noise figure a study's setting holds (a grid point, or ``tuned(study)``: its other keys,
+        another filter's or the provenance, are not this filter's) and ``fixed`` beside; a figure the study does not
+        choose keeps its default. One path for every study, so a figure added to a study's grid reaches its filter."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{key: float(value) for key, value in setting.items() if key in names}, **fixed)  # type: ignore[arg-type]
 
     def with_noise_scaled(self, factor: float) -> Ekf9Config:
         """The filter told every sensor sigma ``factor`` times its figure (gyro, accelerometer, magnetometer yaw)."""

@@ -17,7 +17,7 @@ import numpy as np
 from ..factors.gaze import SceneCamera
 from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, euler_rate_matrix, quat_wxyz_from_rot3, wrap_angle
-from ..tuned import value
+from ..tuned import tuned, value
 from .ekf import joseph_update
 from .ekf9 import Ekf9Config, _tilt_compensated_yaw
 
@@ -26,8 +26,7 @@ from .ekf9 import Ekf9Config, _tilt_compensated_yaw
 class GazeEkfConfig:
     """Noise figures of the gaze EKF."""
 
-    head: Ekf9Config = Ekf9Config(gyro_sigma_rad_s=float(value("gaze_ekf", "gyro_sigma_rad_s")), accel_inflation=float(value("gaze_ekf", "accel_inflation")),
-                                  mag_yaw_sigma_rad=float(value("gaze_ekf", "mag_yaw_sigma_rad")))
+    head: Ekf9Config = Ekf9Config.from_setting(tuned("gaze_ekf"))
     """Head-angle part. The paper gives no noise values: the gyro sigma, the magnetometer yaw noise and the accelerometer
     inflation (an addition no paper has) are chosen with the gaze walk by ``fusegraph tune gaze_ekf`` on seeds 100-119
     (``tuned.toml``; 11.3 mm against 78 mm for the 9-axis figures used before). Until 2026-11-27 the yaw noise was the

@@ -407,9 +407,7 @@ def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
     from ..systems.gaze import rms_mm
 
     s = _simulated("gaze", seed)
-    head = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_inflation=setting["accel_inflation"],
-                      mag_yaw_sigma_rad=setting["mag_yaw_sigma_rad"])
-    config = GazeEkfConfig(head=head, gaze_walk_m_per_sqrt_s=setting["gaze_walk_m_per_sqrt_s"])
+    config = GazeEkfConfig(head=Ekf9Config.from_setting(setting), gaze_walk_m_per_sqrt_s=setting["gaze_walk_m_per_sqrt_s"])
     out = run_gaze_ekf(s.t, s.gyro_rad_s, s.accel_m_s2, s.mag, s.tracker_t, s.gaze_px, s.config.wall_m, s.config.camera, config)
     rms = rms_mm(out, s)
     return float(np.hypot(rms["x_mm"], rms["z_mm"]))
@@ -435,9 +433,7 @@ def _bicycle_ekf_score(setting: dict[str, Any], seed: int, method: str = "paper_
     from ..systems.bicycle import RUNNERS, braking_rms_deg
 
     s = _simulated("bicycle", seed)
-    config = Ekf9Config(gyro_sigma_rad_s=setting["gyro_sigma_rad_s"], accel_sigma_m_s2=setting["accel_sigma_m_s2"], accel_inflation=0.0,
-                        mag_yaw_sigma_rad=setting["mag_yaw_sigma_rad"])
-    rms = braking_rms_deg(RUNNERS[method](s, config), s)  # type: ignore[operator]
+    rms = braking_rms_deg(RUNNERS[method](s, Ekf9Config.from_setting(setting, accel_inflation=0.0)), s)  # type: ignore[operator]
     return float(np.hypot(rms["pitch_deg"], rms["roll_deg"]))
 
 

@@ -28,15 +28,14 @@ from ..records import BicycleScenarioConfig, BicycleSession
 from ..session import Session
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig, OnlineSmoother
-from ..tuned import value
+from ..tuned import tuned
 
 METHODS = ("no_removal", "paper_pipeline", "online", "batch")
 
 
 def _ekf_tuned(study: str) -> Ekf9Config:
-    """The 9-axis EKF with a constant accelerometer noise and the gyro/accelerometer sigmas and magnetometer yaw noise a study chose."""
-    return Ekf9Config(gyro_sigma_rad_s=float(value(study, "gyro_sigma_rad_s")), accel_sigma_m_s2=float(value(study, "accel_sigma_m_s2")),
-                      accel_inflation=0.0, mag_yaw_sigma_rad=float(value(study, "mag_yaw_sigma_rad")))
+    """The 9-axis EKF with a constant accelerometer noise and the noise figures a study chose (``Ekf9Config.from_setting``)."""
+    return Ekf9Config.from_setting(tuned(study), accel_inflation=0.0)
 
 
 PAPER_EKF = _ekf_tuned("bicycle_ekf")

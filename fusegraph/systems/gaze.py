@@ -51,7 +51,7 @@ class GazeModel:
     """The head's 9-axis graph; its position prior holds the eye within centimetres of its rest place."""
     fixation: FixationNoise = field(default_factory=FixationNoise)
     """How the fixated point moves."""
-    online: OnlineConfig = field(default_factory=lambda: OnlineConfig(1.0, 10, 0.05, covariance=False, in_place=False))  # in place: README, gaze
+    online: OnlineConfig = field(default_factory=lambda: OnlineConfig(1.0, 10, 0.05, covariance=False, in_place=False))
     """iSAM2 settings (the 9-axis system's, re-anchored by rebuilding: in place, the fixation walk's Cauchy factors kept stale linearisations)."""
 
 
