@@ -13,11 +13,11 @@ Rows:
 
 * ``fusegraph``: ``run --solver gait`` (the walking preset: a step per walking cycle of ``pdr.detect_cycles``, the
   contacts it missed inside a bout inferred, ``frontends.gait.with_missed_steps``; step length from the inverted
-  pendulum, ``frontends.gait``, with the person's sensor height as the leg; a stride as two consecutive steps, speed =
-  stride length / stride time) on each session. The pendulum's drift removal and correction are chosen from
-  ``frontends.gait.PENDULUM_GRID`` by leave-one-participant-out (the held-out participant's rows are its sessions
-  DECLARING the settings chosen on the others, ``[gait]``; the in-sample choice printed beside); a folder of one
-  participant is scored with the settings on main (``PendulumConfig()``).
+  pendulum or in proportion to the pelvis's vertical excursion, ``frontends.gait``; a stride as two consecutive steps,
+  speed = stride length / stride time) on each session. The step-length model, its drift removal and its scale are
+  chosen from ``frontends.gait.STEP_LENGTH_GRID`` by leave-one-participant-out (the held-out participant's rows are its
+  sessions DECLARING the settings chosen on the others, ``[gait]``; the in-sample choice printed beside); a folder of
+  one participant is scored with the settings on main (``StepLengthConfig()``).
 * ``paper_speed``: the walking paper's speed regression on the vertical peak-to-peak acceleration (``pdr.SpeedModel``)
   UNCALIBRATED: its per-person fit needs a calibration walk at known speeds, and these recordings have none outside the
   reference (which never calibrates); the model's default figures serve, stride length = speed x stride time.
@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ..frontends.gait import PENDULUM_GRID, PendulumConfig
+from ..frontends.gait import STEP_LENGTH_GRID, StepLengthConfig
 from ..metrics import GAIT_MATCH_S, GaitReference, gait_counts, gait_scores
 from ..session import Session, SessionError
 from .runner import solve_session
@@ -81,9 +81,10 @@ def paper_speed(session: Session) -> GaitEstimate:
     return GaitEstimate(steps, steps, speed * 2.0 * np.array([c.period_s for c in cycles]), speed)
 
 
-def declare(session: Session, config: PendulumConfig) -> Session:
-    """The session declaring the pendulum's settings (``[gait] highpass_hz, correction``) that ``--solver gait`` reads."""
-    return replace(session, meta={**session.meta, "gait": {"highpass_hz": config.highpass_hz, "correction": config.correction}})
+def declare(session: Session, config: StepLengthConfig) -> Session:
+    """The session declaring the step-length settings (``[gait] model, highpass_hz, correction``) that ``--solver gait``
+    reads."""
+    return replace(session, meta={**session.meta, "gait": {"model": config.model, "highpass_hz": config.highpass_hz, "correction": config.correction}})
 
 
 def fusegraph_counts(session: Session) -> dict[str, Any]:
@@ -149,24 +150,24 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
             recordings[name] = {"scored": False, "reason": "no reference walking bout"}
             continue
         scored[name] = (str(session.meta.get("session", {}).get("subject", name)), session, reference)
-    # the pendulum's settings: leave-one-participant-out over PENDULUM_GRID, each point the sessions declaring it
-    grid: dict[PendulumConfig, dict[str, dict[str, Any]]] = {}
-    for n, config in enumerate(PENDULUM_GRID):
+    # the step-length settings: leave-one-participant-out over STEP_LENGTH_GRID, each point the sessions declaring it
+    grid: dict[StepLengthConfig, dict[str, dict[str, Any]]] = {}
+    for n, config in enumerate(STEP_LENGTH_GRID):
         grid[config] = {name: fusegraph_counts(declare(session, config)) for name, (_, session, _) in scored.items()}
         if progress is not None:
-            progress(f"pendulum grid point {n + 1}/{len(PENDULUM_GRID)}")
+            progress(f"step-length grid point {n + 1}/{len(STEP_LENGTH_GRID)}")
     subjects = sorted({subject for subject, _, _ in scored.values()})
 
-    def mae(config: PendulumConfig, names: Sequence[str]) -> float:
+    def mae(config: StepLengthConfig, names: Sequence[str]) -> float:
         value = gait_scores([grid[config][name] for name in names])["stride_length_mae_m"]
         return float("inf") if value is None else float(value)
 
     cross_validated = len(subjects) > 1
-    chosen: dict[str, PendulumConfig] = {}
+    chosen: dict[str, StepLengthConfig] = {}
     for subject in subjects:
         others = [name for name, (s, _, _) in scored.items() if s != subject]
-        chosen[subject] = min(PENDULUM_GRID, key=lambda c: mae(c, others)) if cross_validated else PendulumConfig()
-    in_sample = min(PENDULUM_GRID, key=lambda c: mae(c, list(scored)))
+        chosen[subject] = min(STEP_LENGTH_GRID, key=lambda c: mae(c, others)) if cross_validated else StepLengthConfig()
+    in_sample = min(STEP_LENGTH_GRID, key=lambda c: mae(c, list(scored)))
     for name, (subject, session, reference) in scored.items():
         # fusegraph: run --solver gait on the session declaring the setting chosen without its participant
         rows = {"fusegraph": grid[chosen[subject]][name] if chosen[subject] in grid else fusegraph_counts(declare(session, chosen[subject])),
@@ -189,8 +190,8 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
     if cross_validated:
         methods["fusegraph"]["stride_length_mae_m_in_sample"] = mae(in_sample, list(scored))
     return {"methods": methods, "recordings": recordings, "match_s": GAIT_MATCH_S, "cross_validated": cross_validated,
-            "pendulum": {"chosen_per_participant": {s: _config_text(c) for s, c in chosen.items()}, "in_sample": _config_text(in_sample),
-                         "on_main": _config_text(PendulumConfig())},
+            "step_length": {"chosen_per_participant": {s: _config_text(c) for s, c in chosen.items()}, "in_sample": _config_text(in_sample),
+                         "on_main": _config_text(StepLengthConfig())},
             "notes": {"paper_speed": "uncalibrated: the default regression (no calibration walk outside the reference)",
                       "mobgap": (f"MobilisedPipelineUniversal on mobgap's own reading of the files ({_pipelines_text(pipelines)})"
                                  if peer else "not run (needs the raw folder)")},
@@ -229,9 +230,16 @@ def plot_gait(result: dict[str, Any], path: str | Path) -> Path:
     return plot_per_bout(bouts, {m: (v["stride_length_mae_m"], v["walking_speed_mae_m_s"]) for m, v in result["methods"].items()}, path)
 
 
-def _config_text(config: PendulumConfig) -> str:
-    return (f"accel_highpass_hz={config.accel_highpass_hz:g} highpass_hz={config.highpass_hz:g} order={config.order} "
+def _config_text(config: StepLengthConfig) -> str:
+    return (f"model={config.model} accel_highpass_hz={config.accel_highpass_hz:g} highpass_hz={config.highpass_hz:g} order={config.order} "
             f"correction={config.correction:g}")
+
+
+def config_of_text(text: str) -> StepLengthConfig:
+    """The setting a bench's JSON prints (``step_length``: ``model=... correction=...``), as a ``StepLengthConfig``."""
+    fields = dict(part.split("=", 1) for part in text.split())
+    return StepLengthConfig(None if fields["accel_highpass_hz"] == "None" else float(fields["accel_highpass_hz"]), float(fields["highpass_hz"]),
+                            int(fields["order"]), float(fields["correction"]), fields["model"])
 
 
 def format_gait(result: dict[str, Any]) -> str:
@@ -254,9 +262,9 @@ def format_gait(result: dict[str, Any]) -> str:
             continue
         lines.append(f"{name}: {rec['bouts']} bouts, {rec['reference_contacts']} contacts; " + "; ".join(
             f"{m} F1 {cell(r['step_f1'], '.2f')} SL {cell(r['stride_length_mae_m'], '.3f')}" for m, r in rec["methods"].items()))
-    pend = result["pendulum"]
+    pend = result["step_length"]
     rule = "leave-one-participant-out" if result["cross_validated"] else "the settings on main"
-    lines.append(f"fusegraph's pendulum settings, {rule}: " + "; ".join(f"{s}: {c}" for s, c in pend["chosen_per_participant"].items()))
+    lines.append(f"fusegraph's step-length settings, {rule}: " + "; ".join(f"{s}: {c}" for s, c in pend["chosen_per_participant"].items()))
     if result["cross_validated"]:
         lines.append(f"    in-sample best {pend['in_sample']} (stride MAE {result['methods']['fusegraph']['stride_length_mae_m_in_sample']:.3f} m); "
                      f"on main {pend['on_main']}")

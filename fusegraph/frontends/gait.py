@@ -1,12 +1,23 @@
-"""Step length from a waist IMU by the inverted pendulum (Zijlstra & Hof, "Assessment of spatio-temporal gait parameters
-from trunk accelerations during human walking", Gait & Posture 18(2):1-10, 2003).
+"""Step length from a waist IMU: the pelvis's vertical excursion within each step, turned into a length by the inverted
+pendulum (Zijlstra & Hof, "Assessment of spatio-temporal gait parameters from trunk accelerations during human walking",
+Gait & Posture 18(2):1-10, 2003) or in proportion to it (the excursion model).
 
-During a step the pelvis vaults over the stance leg like an inverted pendulum of length ``l`` (the sensor's height above
-the ground); a vertical excursion ``h`` within the step then means a forward travel of ``2 sqrt(2 l h - h^2)`` (eq. 1 of
-the paper). The paper's model underestimated the measured step length; it multiplies by a correction factor 1.25 fitted
-on its own subjects (``CORRECTION``: a literature constant, not fitted to any recording here). ``h`` comes from the
-vertical acceleration (gravity removed, levelled frame) integrated twice, the drift taken out by high-passes
-(``PendulumConfig``).
+Pendulum: during a step the pelvis vaults over the stance leg like an inverted pendulum of length ``l`` (the sensor's
+height above the ground); a vertical excursion ``h`` within the step then means a forward travel of ``2 sqrt(2 l h - h^2)``
+(eq. 1 of the paper). The paper's model underestimated the measured step length; it multiplies by a correction factor
+1.25 fitted on its own subjects (``CORRECTION``: a literature constant, not fitted to any recording here).
+
+Excursion: the step length is ``scale x h``. On both Mobilise-D participants in ../shared/data/mobgap the pendulum's
+error followed the step length itself, the same way in both: the reference over the pendulum's estimate (correction 1)
+rose from 0.76 at the slowest bout (0.46 m strides at 0.25 m/s) to 1.31 at the fastest (1.26 m at 1.06 m/s), so no one
+correction serves a person who walks at several speeds (each participant's own best was a different one). A step in
+proportion to the excursion fitted both with one scale (each chose 18-22 on its own). This form was found by looking at
+those two participants, so their leave-one-participant-out figure checks its scale, not the form: the participants that
+are not in ../shared check that. A shorter step lifts the pelvis more than the pendulum allows (a flexed knee, a longer
+double support), a longer one less.
+
+``h`` comes from the vertical acceleration (gravity removed, levelled frame) integrated twice, the drift taken out by
+high-passes (``StepLengthConfig``).
 
 A contact the cycle detector misses leaves an interval of two or more steps between detections; its excursion is one
 step's, so a stride made of it reads one step short, and the bout's mean comes from its easy strides alone.
@@ -38,35 +49,49 @@ MAX_STEP_S = 1.2
 """Longest single step, s: a longer interval between contacts is not one step."""
 
 
+MODELS = ("pendulum", "excursion")
+"""How an excursion becomes a step length (see the module docstring)."""
+
+
 @dataclass(frozen=True)
-class PendulumConfig:
-    """How the vertical excursion is integrated and scaled. ``bench gait`` chooses among ``PENDULUM_GRID`` by
-    leave-one-participant-out; the defaults are its in-sample choice on the two Mobilise-D participants in
-    ../shared/data/mobgap (stride-length MAE 0.089 m in-sample, 0.147 m leave-one-participant-out)."""
+class StepLengthConfig:
+    """How the vertical excursion is integrated and turned into a step length. ``bench gait`` chooses among
+    ``STEP_LENGTH_GRID`` by leave-one-participant-out; the defaults are its in-sample choice on the two Mobilise-D
+    participants in ../shared/data/mobgap (stride-length MAE 0.059 m in-sample, 0.092 m leave-one-participant-out; the
+    pendulum alone 0.089 / 0.147 m)."""
 
     accel_highpass_hz: float | None = 0.1
     """High-pass of the vertical acceleration before the first integral, Hz (None: none)."""
-    highpass_hz: float = 1.2
+    highpass_hz: float = 1.0
     """High-pass after each integral (drift removal), Hz."""
     order: int = 4
     """Butterworth order of those high-passes (applied forward and backward: zero phase)."""
-    correction: float = MS_PROJECT_CORRECTION
-    """Scale of the pendulum's step length (1: the pendulum as it is; Mobilise-D's ``MS_PROJECT_CORRECTION`` and Zijlstra &
-    Hof's ``CORRECTION`` are the grid's others)."""
+    correction: float = 18.0
+    """Scale of the step length: the pendulum's correction (1: the pendulum as it is; Mobilise-D's
+    ``MS_PROJECT_CORRECTION`` and Zijlstra & Hof's ``CORRECTION`` are the grid's others), or the excursion model's metres
+    of step per metre of excursion."""
+    model: str = "excursion"
+    """``pendulum`` or ``excursion`` (``MODELS``)."""
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ValueError(f"step-length model {self.model!r}: one of {', '.join(MODELS)}")
 
 
-PENDULUM_GRID = tuple(PendulumConfig(0.1, hp, 4, k) for hp in (0.5, 0.7, 1.0, 1.2) for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
-"""The drift-removal corner (mobgap's reimplementation of Zijlstra's method: 0.1 Hz on the acceleration, 1 Hz after the
-integral, 4th order) and the correction (none, Mobilise-D's, or Zijlstra & Hof's): literature values, no fitted one.
-The in-sample choice's corner, 1.2 Hz, is the grid's upper edge; widened by 1.5 and 2 Hz (2026-11-26) every choice stayed
-(leave-one-participant-out 0.147 m), so the grid stays. A corner proportional to each bout's step frequency (0.4-0.85
-times it, the bout filtered on its own) was measured the same day: 0.262 m leave-one-participant-out, 0.125 in-sample;
-not built. Neither the excursion integrated per step instead (each step's acceleration and velocity made zero-mean, the
-height's end-to-end trend removed: no corner at all; measured 2026-11-26, per participant HA/001 / HA/002 with the
-correction 1: 0.090 / 0.166 m, MS Project's 0.092 / 0.290, Zijlstra & Hof's 0.177 / 0.376): in the grid beside the
-corners each fold still chooses a corner (the other participant's in-sample MAE is lower there), so the
-leave-one-participant-out figure stays; taking it INSTEAD of the corners, after seeing this, would be choosing on the
-scored participants."""
+CORNERS_HZ = (0.5, 0.7, 1.0, 1.2)
+"""The drift-removal corners of the grid (mobgap's reimplementation of Zijlstra's method: 0.1 Hz on the acceleration,
+1 Hz after the integral, 4th order, and its neighbours)."""
+EXCURSION_SCALES = (12.0, 14.0, 16.0, 18.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0, 33.0, 36.0, 40.0)
+"""The excursion model's scales tried: wide enough that no fold's choice (18-22 at this grid's corners) lies at an edge."""
+STEP_LENGTH_GRID = (tuple(StepLengthConfig(0.1, hp, 4, k, "pendulum") for hp in CORNERS_HZ for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
+                    + tuple(StepLengthConfig(0.1, hp, 4, k, "excursion") for hp in CORNERS_HZ for k in EXCURSION_SCALES))
+"""Both models at every corner: the pendulum with the literature's corrections (none, Mobilise-D's, Zijlstra & Hof's; no
+fitted one), the excursion model over ``EXCURSION_SCALES``. Measured with the pendulum alone (2026-11-26): its in-sample
+corner, 1.2 Hz, was the grid's upper edge; widened by 1.5 and 2 Hz every choice stayed (leave-one-participant-out 0.147
+m); a corner proportional to each bout's step frequency gave 0.262 m leave-one-participant-out (0.125 in-sample); the
+excursion integrated per step instead (each step's acceleration and velocity made zero-mean: no corner) left each
+fold's choice where it was. With both models (2026-11-27) every fold chooses the excursion model (HA/001's fold: 1.2 Hz,
+22; HA/002's: 1.0 Hz, 18); corners 1.5 and 2 Hz and scales down to 12 and up to 40 changed no choice."""
 
 
 def with_missed_steps(steps_s: FloatArray) -> tuple[FloatArray, np.ndarray]:
@@ -105,9 +130,9 @@ def pelvis_excursion(vertical_m_s2: FloatArray, fs: float, highpass_hz: float = 
     return np.asarray(sosfiltfilt(sos, np.cumsum(velocity) / fs))
 
 
-def step_lengths(t: FloatArray, vertical_m_s2: FloatArray, steps_s: FloatArray, leg_m: float, config: PendulumConfig = PendulumConfig()) -> FloatArray:
-    """Length of each step, m: the step from one contact to the next (the last contact takes its predecessor's length;
-    NaN for a step longer than ``MAX_STEP_S``, a pause, and where the excursion exceeds the leg)."""
+def step_lengths(t: FloatArray, vertical_m_s2: FloatArray, steps_s: FloatArray, leg_m: float, config: StepLengthConfig = StepLengthConfig()) -> FloatArray:
+    """Length of each step, m: the step from one contact to the next by ``config.model`` (the last contact takes its
+    predecessor's length; NaN for a step longer than ``MAX_STEP_S``, a pause, and where the excursion exceeds the leg)."""
     steps_s = np.asarray(steps_s, dtype=float)
     out = np.full(len(steps_s), np.nan)
     if len(steps_s) < 2:
@@ -120,7 +145,7 @@ def step_lengths(t: FloatArray, vertical_m_s2: FloatArray, steps_s: FloatArray, 
             continue
         h = float(np.ptp(height[index[n] : index[n + 1] + 1]))
         if 0.0 < h < leg_m:
-            out[n] = config.correction * 2.0 * np.sqrt(2.0 * leg_m * h - h * h)
+            out[n] = config.correction * (h if config.model == "excursion" else 2.0 * np.sqrt(2.0 * leg_m * h - h * h))
     out[-1] = out[-2]
     return out
 
@@ -138,9 +163,9 @@ def strides(steps_s: FloatArray, step_m: FloatArray) -> tuple[FloatArray, FloatA
 
 
 def waist_gait(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, leg_m: float, front_end: PdrConfig,
-               config: PendulumConfig = PendulumConfig()) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray, FloatArray]:
+               config: StepLengthConfig = StepLengthConfig()) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray, FloatArray]:
     """Steps and strides of one lower-back recording: the walking cycles (``pdr.detect_cycles`` with ``front_end``) as
-    steps, with the contacts it missed inferred (``with_missed_steps``), the pendulum's step lengths, two steps a stride.
+    steps, with the contacts it missed inferred (``with_missed_steps``), their step lengths (``config``), two steps a stride.
     Returns (step times, True where inferred, stride times, stride lengths, speeds)."""
     gravity, cycles = walking_front_end(t, accel_m_s2, gyro_rad_s, front_end)
     steps, inferred = with_missed_steps(np.array([c.t for c in cycles]))

@@ -300,10 +300,10 @@ def _count_steps(session: Session) -> PointEstimate:
 
 def _waist_analysis(session: Session, solver: str) -> PointEstimate:
     """``activity``: each walking cycle's class by the waist classifier (``frontends.activity``; points: its index in
-    flat, stairs_up, stairs_down); ``gait``: strides from the inverted pendulum (``frontends.gait``; points: length m,
+    flat, stairs_up, stairs_down); ``gait``: strides from the pelvis's vertical excursion (``frontends.gait``; points: length m,
     speed m/s; the steps in ``extras``). Both on the waist gyro and accelerometer with the walking front end's cycles."""
     from ..frontends.activity import ACTIVITIES, classify_waist
-    from ..frontends.gait import PendulumConfig, waist_gait
+    from ..frontends.gait import StepLengthConfig, waist_gait
     from .walking import WAIST
 
     accel, gyro = session.synchronous("accel", "gyro")
@@ -316,8 +316,8 @@ def _waist_analysis(session: Session, solver: str) -> PointEstimate:
     leg = session.meta.get("person", {}).get("sensor_height_m")
     if leg is None:
         raise SessionError(f"{session.where}: --solver gait needs [person] sensor_height_m (the waist sensor's height: the pendulum's leg)")
-    declared: dict[str, Any] = {k: float(v) for k, v in session.meta.get("gait", {}).items()}
-    steps, inferred, stride_t, length, speed = waist_gait(accel.t, accel.values, gyro.values, float(leg), WAIST, replace(PendulumConfig(), **declared))
+    declared: dict[str, Any] = {k: str(v) if k == "model" else float(v) for k, v in session.meta.get("gait", {}).items()}
+    steps, inferred, stride_t, length, speed = waist_gait(accel.t, accel.values, gyro.values, float(leg), WAIST, replace(StepLengthConfig(), **declared))
     return PointEstimate("gait", stride_t, np.stack([length, speed], axis=1)[:, None, :], ("stride_length_m", "walking_speed_m_s"),
                          time.perf_counter() - start, {"steps_s": steps, "steps_inferred": inferred})
 
@@ -523,13 +523,14 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("truth_extra.bout_stride_length_m", None, "each reference bout's mean stride length, m"),
                       KeySpec("truth_extra.bout_walking_speed_m_s", None, "each reference bout's mean walking speed, m/s"),
                       KeySpec("truth_extra.initial_contacts_s", None, "the reference's initial contacts (steps), s"),
-                      KeySpec("gait.highpass_hz", None, "--solver gait: the pendulum's drift removal, Hz (frontends.gait.PendulumConfig)"),
-                      KeySpec("gait.correction", None, "--solver gait: the pendulum's step-length scale")),
+                      KeySpec("gait.model", None, "--solver gait: 'excursion' (step = correction x the pelvis's rise) or 'pendulum' (frontends.gait)"),
+                      KeySpec("gait.highpass_hz", None, "--solver gait: the excursion's drift removal, Hz (frontends.gait.StepLengthConfig)"),
+                      KeySpec("gait.correction", None, "--solver gait: the step length's scale (the pendulum's correction, or step per excursion)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (fixes beyond the tuned threshold, tuned.toml [walking_fixes], rejected, solved again)",
                  "ekf": "the paper's Kalman framework",
                  "dead_reckoning": "steps and rides only", "steps": "step count of the accelerometer alone (a phone's step recording; no trajectory)",
                  "activity": "each walking cycle's activity by the waist classifier (scored against an activity label stream)",
-                 "gait": "strides from the inverted pendulum, needs [person] sensor_height_m (scored against [truth_extra] reference bouts)"},
+                 "gait": "strides from the pelvis's vertical excursion, needs [person] sensor_height_m (scored against [truth_extra] reference bouts)"},
         truth="truth.csv, kind position: t, x, y, z of the waist in the building frame (ENU, z up from the ground floor), one row per "
         "IMU sample (a vehicle: per odometry row); scored as RMSE and final error, m. An accelerometer-only recording: the hand "
         "count as [truth_extra] steps",
