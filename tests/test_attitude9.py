@@ -481,8 +481,9 @@ def test_a_dropout_at_rest_costs_nothing_and_a_body_moved_in_it_is_found_again()
     they were, the bridge holds the attitude (as fast as the still gyro turned); the whole-trial error within 0.5 deg of the
     undamaged run's (measured +0.17 / +0.07 deg online and +0.07 / +0.06 batch on trials 15 and 21; 1.4 / 0.8 deg online
     before the rest bridge: the heading after the gap came from the field again). The same gap with the sensor turned
-    60 deg and set down: the field has moved, the bridge is the usual wide one, and the online estimate is within 2 deg of
-    the turned truth 5 s later (measured 1.4 deg)."""
+    60 deg and set down: the field has moved, the bridge is the usual wide one, and the online estimate is within 2.5 deg of
+    the turned truth 5 s later (measured 1.4 deg with the settings of 2026-11-26; 2.06 with those of 2026-11-27, 1.94 of it
+    with the start's field as the reference throughout)."""
     import warnings
 
     from fusegraph.datasets.broad import DEFAULT_DIR, load_broad
@@ -505,7 +506,7 @@ def test_a_dropout_at_rest_costs_nothing_and_a_body_moved_in_it_is_found_again()
         estimate = solve_session(moved, "online").estimate
     i = int(np.searchsorted(moved.truth.t, 26.0))
     error = broad_errors(on_truth_times(estimate, moved.truth.t[i : i + 1]).quat_wxyz, moved.truth.values[i : i + 1], np.ones(1))
-    assert error.total < 2.0, error
+    assert error.total < 2.5, error
 
 
 def _turning(seconds: float, rate_hz: float = 5.0, seed: int = 0) -> list[gtsam.Rot3]:
@@ -594,8 +595,10 @@ def test_the_undisturbed_field_is_followed_and_a_steady_new_one_taken_while_turn
 
 def test_a_new_place_field_is_taken_and_said() -> None:
     """The sensor carried to a place where the Earth's field is stronger and dips less (north unchanged): the online
-    estimate (the BROAD-chosen model: a new field after 20 s of turning) takes it as the reference, says so in a
-    warning and in ``extras['new_field_s']``, and keeps its heading."""
+    estimate with a new field taken after 20 s of turning and the reference not followed otherwise (VQF's default and the
+    model's choice until 2026-11-27; BROAD's study, all in one room, now chooses no new field and a following of 60 s,
+    so the recording declares it on its mag stream) takes it as the reference, says so in a warning and in
+    ``extras['new_field_s']``, and keeps its heading."""
     import warnings
     from dataclasses import replace
 
@@ -610,12 +613,16 @@ def test_a_new_place_field_is_taken_and_said() -> None:
     true_body = np.einsum("nji,j->ni", matrix_from_quat(truth.values[moved]), there)  # world_R_body^T B
     raw = mag.values.copy()
     raw[moved] = (true_body - np.asarray(extra["mag_offset_uT"])) / np.asarray(extra["mag_gain"])  # noise-free there: the rule, not noise
-    session = replace(session, streams={**session.streams, "mag": replace(mag, values=raw)})
+    # the recording declares the tracking on its mag stream (the user's way)
+    session = replace(session, streams={**session.streams, "mag": replace(mag, values=raw, meta={**mag.meta, "new_field_s": 20.0, "reference_tau_s": 0.0})})
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         estimate = attitude9.run_online(session)
     said = [str(w.message) for w in caught if issubclass(w.category, SessionWarning) and "reference field" in str(w.message)]
-    assert len(said) == 1 and "dip 55.0 deg" in said[0], said
+    assert len(said) == 1, said
+    # the dip as levelled with the estimated tilt: within 0.3 deg of the place's 55 (said 55.0 with the settings of
+    # 2026-11-26, 55.1 with those of 2026-11-27)
+    assert abs(float(said[0].split(" and dip ")[1].split(" deg")[0]) - 55.0) < 0.3, said
     (t_new,) = estimate.extras["new_field_s"]
     assert 30.0 <= t_new < 45.0  # 20 s of turning after the move, once a reading disagrees with the start's field
     after = np.zeros(len(truth.t))

@@ -100,18 +100,17 @@ def declared_gyro_density(session: Session, name: str = "gyro") -> float | None:
 
 
 def model_for(session: Session, model: Attitude9Model | None = None, solver: str = "online") -> Attitude9Model:
-    """The model with the session's magnetometer calibration: declared in the ``mag`` stream's metadata
-    (``calibration_gain``, ``calibration_offset``), or fitted to a ``mag_cal`` calibration recording.
+    """The model with the session's magnetometer calibration: declared in the ``mag`` stream's metadata (``calibration_gain``, ``calibration_offset``),
+    or fitted to a ``mag_cal`` calibration recording.
 
-    Without an explicit ``model``: the solver's BROAD-chosen model (``broad_model``), with what the ``accel`` stream
-    declares replacing its motion, noise, bias and gravity settings (``velocity_sigma_m_s``, ``noise_m_s2_sqrt_hz``,
-    ``bias_rw_m_s2_sqrt_s``, ``sigma_deg``, ``inflation_deg_per_m_s2``) and the ``gyro`` stream's ``bias_rw_sigma`` its
-    bias walk and its ``noise_sigma_rad_s`` its white noise (a data sheet's figures belong with the recording), and
-    its ``scale_sigma`` (fraction; ``misalignment_sigma_rad`` beside, the same by default) has the batch estimate the
-    gyro's scale factors and misalignment (``Attitude9Model.gyro_calibration``; off on BROAD, where it was measured), its
-    ``rest_rate_sigma_rad_s`` the zero-rate update's rest rate (``MotionPriors``; inf: none):
-    BROAD is hand-held motion, and a sensor that travels (a walker's belt, a vehicle) needs a wider velocity prior
-    (e.g. 2 m/s)."""
+    Without an explicit ``model``: the solver's BROAD-chosen model (``broad_model``), with what the ``accel`` stream declares replacing its motion,
+    noise, bias and gravity settings (``velocity_sigma_m_s``, ``noise_m_s2_sqrt_hz``, ``bias_rw_m_s2_sqrt_s``, ``sigma_deg``,
+    ``inflation_deg_per_m_s2``) and the ``gyro`` stream's ``bias_rw_sigma`` its bias walk and its ``noise_sigma_rad_s`` its white noise (a data
+    sheet's figures belong with the recording), and its ``scale_sigma`` (fraction; ``misalignment_sigma_rad`` beside, the same by default) has the
+    batch estimate the gyro's scale factors and misalignment (``Attitude9Model.gyro_calibration``; off on BROAD, where it was measured), its
+    ``rest_rate_sigma_rad_s`` the zero-rate update's rest rate (``MotionPriors``; inf: none): BROAD is hand-held motion, and a sensor that travels (a
+    walker's belt, a vehicle) needs a wider velocity prior (e.g. 2 m/s). The ``mag`` stream's ``reference_tau_s`` and ``new_field_s`` replace the
+    field tracking's (``MagNoise``; BROAD's trials share one room)."""
     if model is None:
         model = broad_model(solver)
         declared = {kind: session.stream(kind).meta if kind in session.streams else {} for kind in ("accel", "gyro")}
@@ -133,6 +132,8 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
     if "mag" not in session.streams:
         return model
     meta = session.stream("mag").meta
+    if field := {key: float(meta[key]) for key in ("reference_tau_s", "new_field_s") if key in meta}:  # e.g. carried between places
+        model = replace(model, mag=replace(model.mag, **field))
     if "calibration_gain" in meta and "calibration_offset" in meta:
         cal = MagCalibration(tuple(meta["calibration_gain"]), tuple(meta["calibration_offset"]))  # type: ignore[arg-type]
         return replace(model, mag_calibration=cal)
@@ -189,9 +190,9 @@ def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: 
 
 
 def broad_model(solver: str = "online") -> Attitude9Model:
-    """The 9-axis model each solver runs with: its settings chosen for it by leave-one-trial-out over the BROAD trials
-    (``fusegraph tune broad_mag|broad_motion|broad_bias|broad_rest [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion],
-    [broad_bias], [broad_rest] and their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's)."""
+    """The 9-axis model each solver runs with: its settings chosen for it by leave-one-trial-out over the BROAD trials (``fusegraph tune
+    broad_mag|broad_motion|broad_bias|broad_rest [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion], [broad_bias], [broad_rest]
+    and their ``_batch`` tables: each solver keeps its own, as the batch's best heading noise is not the causal estimate's)."""
     suffix = "" if solver == "online" else "_batch"
     model = with_bias(with_motion(Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}")), tuned(f"broad_motion{suffix}")), tuned(f"broad_bias{suffix}"))
     return with_rest(model, tuned(f"broad_rest{suffix}"))

@@ -217,8 +217,7 @@ NEEDS_WALL = "[session] needs wall_m (distance to the wall, metres) or, without 
 
 def declared_config(header: Mapping[str, Any], gaze_meta: Mapping[str, Any], duration_s: float) -> GazeScenarioConfig:
     """What the graph needs from a session's declarations: the wall (``wall_m``) or the fixation depth (``target_depth_m``)
-    from ``[session]``, the scene camera from the gaze stream's metadata (``focal_px``, ``width_px``, ``height_px``,
-    ``pixel_sigma``)."""
+    from ``[session]``, the scene camera from the gaze stream's metadata (``focal_px``, ``width_px``, ``height_px``, ``pixel_sigma``)."""
     camera = SceneCamera(**{k: type(getattr(SceneCamera(), k))(gaze_meta[k]) for k in ("focal_px", "width_px", "height_px", "pixel_sigma") if k in gaze_meta})
     return GazeScenarioConfig(
         duration_s=duration_s,
