@@ -482,8 +482,8 @@ def test_a_dropout_at_rest_costs_nothing_and_a_body_moved_in_it_is_found_again()
     undamaged run's (measured +0.17 / +0.07 deg online and +0.07 / +0.06 batch on trials 15 and 21; 1.4 / 0.8 deg online
     before the rest bridge: the heading after the gap came from the field again). The same gap with the sensor turned
     60 deg and set down: the field has moved, the bridge is the usual wide one, and the online estimate is within 2.5 deg of
-    the turned truth 5 s later (measured 1.4 deg with the settings of 2026-11-26; 2.06 with those of 2026-11-27, 1.94 of it
-    with the start's field as the reference throughout)."""
+    the turned truth 5 s later (measured 1.4 deg with the settings of 2026-11-26; 2.06 with those of 2026-11-27, and 1.94
+    with them but the start's field kept as the reference)."""
     import warnings
 
     from fusegraph.datasets.broad import DEFAULT_DIR, load_broad

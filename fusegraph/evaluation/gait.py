@@ -238,8 +238,8 @@ def _config_text(config: StepLengthConfig) -> str:
 def config_of_text(text: str) -> StepLengthConfig:
     """The setting a bench's JSON prints (``step_length``: ``model=... correction=...``), as a ``StepLengthConfig``."""
     fields = dict(part.split("=", 1) for part in text.split())
-    return StepLengthConfig(None if fields["accel_highpass_hz"] == "None" else float(fields["accel_highpass_hz"]), float(fields["highpass_hz"]),
-                            int(fields["order"]), float(fields["correction"]), fields["model"])
+    return StepLengthConfig(float(fields["accel_highpass_hz"]), float(fields["highpass_hz"]), int(fields["order"]), float(fields["correction"]),
+                            fields["model"])
 
 
 def format_gait(result: dict[str, Any]) -> str:

@@ -11,10 +11,10 @@ Excursion: the step length is ``scale x h``. On both Mobilise-D participants in 
 error followed the step length itself, the same way in both: the reference over the pendulum's estimate (correction 1)
 rose from 0.76 at the slowest bout (0.46 m strides at 0.25 m/s) to 1.31 at the fastest (1.26 m at 1.06 m/s), so no one
 correction serves a person who walks at several speeds (each participant's own best was a different one). A step in
-proportion to the excursion fitted both with one scale (each chose 18-22 on its own). This form was found by looking at
-those two participants, so their leave-one-participant-out figure checks its scale, not the form: the participants that
-are not in ../shared check that. A shorter step lifts the pelvis more than the pendulum allows (a flexed knee, a longer
-double support), a longer one less.
+proportion to the excursion fitted both with one scale (fitted on either participant alone: 18 and 22). This form was
+found by looking at those two participants, so their leave-one-participant-out figure checks its scale, not the form: the
+participants that are not in ../shared check that. (A reading, not measured here: a short step lifts the pelvis more
+than the pendulum allows, with a flexed knee and a longer double support, and a long one less.)
 
 ``h`` comes from the vertical acceleration (gravity removed, levelled frame) integrated twice, the drift taken out by
 high-passes (``StepLengthConfig``).
@@ -91,7 +91,7 @@ corner, 1.2 Hz, was the grid's upper edge; widened by 1.5 and 2 Hz every choice 
 m); a corner proportional to each bout's step frequency gave 0.262 m leave-one-participant-out (0.125 in-sample); the
 excursion integrated per step instead (each step's acceleration and velocity made zero-mean: no corner) left each
 fold's choice where it was. With both models (2026-11-27) every fold chooses the excursion model (HA/001's fold: 1.2 Hz,
-22; HA/002's: 1.0 Hz, 18); corners 1.5 and 2 Hz and scales down to 12 and up to 40 changed no choice."""
+22; HA/002's: 1.0 Hz, 18), and with the corners widened by 1.5 and 2 Hz no choice changed."""
 
 
 def with_missed_steps(steps_s: FloatArray) -> tuple[FloatArray, np.ndarray]:
