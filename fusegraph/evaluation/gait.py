@@ -262,11 +262,11 @@ def format_gait(result: dict[str, Any]) -> str:
             continue
         lines.append(f"{name}: {rec['bouts']} bouts, {rec['reference_contacts']} contacts; " + "; ".join(
             f"{m} F1 {cell(r['step_f1'], '.2f')} SL {cell(r['stride_length_mae_m'], '.3f')}" for m, r in rec["methods"].items()))
-    pend = result["step_length"]
+    step_length = result["step_length"]
     rule = "leave-one-participant-out" if result["cross_validated"] else "the settings on main"
-    lines.append(f"fusegraph's step-length settings, {rule}: " + "; ".join(f"{s}: {c}" for s, c in pend["chosen_per_participant"].items()))
+    lines.append(f"fusegraph's step-length settings, {rule}: " + "; ".join(f"{s}: {c}" for s, c in step_length["chosen_per_participant"].items()))
     if result["cross_validated"]:
-        lines.append(f"    in-sample best {pend['in_sample']} (stride MAE {result['methods']['fusegraph']['stride_length_mae_m_in_sample']:.3f} m); "
-                     f"on main {pend['on_main']}")
+        lines.append(f"    in-sample best {step_length['in_sample']} (stride MAE {result['methods']['fusegraph']['stride_length_mae_m_in_sample']:.3f} m); "
+                     f"on main {step_length['on_main']}")
     lines += [f"{k}: {v}" for k, v in result["notes"].items()]
     return "\n".join(lines)

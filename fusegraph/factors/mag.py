@@ -300,10 +300,10 @@ CATALOGUE = (
             KeySpec("calibration_gain", None, "per-axis gain [gx, gy, gz] (calibrated = gain * (raw - offset)); else fitted to a mag_cal stream"),
             KeySpec("calibration_offset", None, "per-axis offset [ox, oy, oz], in the stream's unit"),
             KeySpec("reference_tau_s", None, "attitude9: time constant with which the reference field follows a field that agrees with it, s "
-                    "(0: the start's throughout; default: chosen on BROAD, 60 online)"),
+                    "(0: the start's throughout; default: chosen on BROAD, tuned.toml [broad_field])"),
             KeySpec("new_field_s", None, "attitude9: a steady field off the reference held this long while the sensor turns becomes the "
-                    "reference, s (0: never; default: chosen on BROAD, whose trials share one room: 0 online; a recording carried between "
-                    "places: e.g. 20, VQF's)"),
+                    "reference, s (0: never; default: chosen on BROAD, whose trials share one room, tuned.toml [broad_field]; a recording "
+                    "carried between places: e.g. 20, VQF's)"),
         ),
     ),
 )

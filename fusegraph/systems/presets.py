@@ -316,7 +316,7 @@ def _waist_analysis(session: Session, solver: str) -> PointEstimate:
     leg = session.meta.get("person", {}).get("sensor_height_m")
     if leg is None:
         raise SessionError(f"{session.where}: --solver gait needs [person] sensor_height_m (the waist sensor's height: the pendulum's leg)")
-    declared: dict[str, Any] = {k: str(v) if k == "model" else float(v) for k, v in session.meta.get("gait", {}).items()}
+    declared: dict[str, Any] = {k: type(getattr(StepLengthConfig(), k))(v) for k, v in session.meta.get("gait", {}).items()}  # each field's type
     steps, inferred, stride_t, length, speed = waist_gait(accel.t, accel.values, gyro.values, float(leg), WAIST, replace(StepLengthConfig(), **declared))
     return PointEstimate("gait", stride_t, np.stack([length, speed], axis=1)[:, None, :], ("stride_length_m", "walking_speed_m_s"),
                          time.perf_counter() - start, {"steps_s": steps, "steps_inferred": inferred})
