@@ -257,6 +257,22 @@ def lost_beyond_m(epochs: RangeEpochs) -> float:
     return max(0.05, 3.0 * epochs.range_sigma_m)
 
 
+def oracle_labels(epochs: RangeEpochs, gate_chi2: float = 16.0) -> list[list[np.ndarray]]:
+    """The limit: each receiver's distances assigned against the TRUE positions (same assignment and gate), through the
+    range calibration where the session declares one (measured = scale x true + bias, its sigma per receiver and tag)."""
+    from .frontends.association import assign_ranges
+
+    assert epochs.positions is not None
+    out = []
+    receivers = len(epochs.receivers)
+    bias, scale, sigma = (np.zeros((receivers, epochs.transmitters)), np.ones((receivers, epochs.transmitters)),
+                          np.full((receivers, epochs.transmitters), epochs.range_sigma_m)) if epochs.calibration is None else epochs.calibration
+    for k in range(len(epochs.t)):
+        predicted = scale * np.linalg.norm(epochs.positions[k][None, :, :] - epochs.receivers[:, None, :], axis=2) + bias
+        out.append([assign_ranges(epochs.ranges[k][r], predicted[r], sigma[r], gate_chi2) for r in range(receivers)])
+    return out
+
+
 def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: FloatArray | None) -> AssociationScore:
     """Score a run. Each epoch, the method's transmitters are matched to the truth by position (the
     association question is which distance belongs to which transmitter; keeping identities over time

@@ -7,22 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..frontends.association import assign_ranges
-from ..metrics import identity_map, score_run
+from ..metrics import identity_map, oracle_labels, score_run
 from ..records import RangeEpochs
 from ..report.ultrasonic import plot_ultrasonic
 from ..systems.ultrasonic import TrackingRun, run_combinatorial, run_fusegraph
-
-
-def oracle_labels(epochs: RangeEpochs, gate_chi2: float = 16.0) -> list[list[np.ndarray]]:
-    """The limit: each receiver's distances assigned against the TRUE positions (same assignment and gate)."""
-    assert epochs.positions is not None
-    out = []
-    sigma = np.full(epochs.transmitters, epochs.range_sigma_m)
-    for k in range(len(epochs.t)):
-        predicted = np.linalg.norm(epochs.positions[k][None, :, :] - epochs.receivers[:, None, :], axis=2)
-        out.append([assign_ranges(epochs.ranges[k][r], predicted[r], sigma, gate_chi2) for r in range(len(epochs.receivers))])
-    return out
 
 
 def crossing_epochs(closest_m: float, speed_m_s: float, head_on: bool, seed: int = 0, rate_hz: float = 40.0) -> RangeEpochs:

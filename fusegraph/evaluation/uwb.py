@@ -8,16 +8,22 @@ from pathlib import Path
 from typing import Any
 
 from ..datasets.importers import uwb_session
+from ..metrics import oracle_labels, score_run
+from ..records import epochs_from_session
 from .runner import solve_session
 
 
 def bench_uwb(directory: str | Path) -> dict[str, Any]:
     """``labelled_rmse_m`` / ``unlabelled_rmse_m`` (the preset's ``rmse_all_m``: every estimate, lost tracks included),
     ``assoc_acc`` and ``lost_frac`` of the unlabelled run, the clock offset the import found from the raw ranges,
-    ms per epoch, and the association the geometry alone allows (no truth; near chance: a warning)."""
+    ms per epoch, the association the geometry alone allows (no truth; near chance: a warning), and ``assoc_oracle``: the
+    association of the ranges assigned against the TRUE tag positions through the declared calibration (the ceiling any
+    tracker meets: neighbouring tags' ranges at an anchor differ by less than the range noise; truth only scores it)."""
     unlabelled = solve_session(uwb_session(Path(directory), labelled=False), "online")
     labelled = solve_session(uwb_session(Path(directory), labelled=True), "online")
     assert unlabelled.metrics is not None and labelled.metrics is not None
+    epochs = epochs_from_session(unlabelled.session)
+    oracle = score_run(epochs, oracle_labels(epochs, gate_chi2=1e12), None)  # no gate: every UWB range is some tag's
     expected = float(unlabelled.estimate.extras.get("assoc_expected_geometry", float("nan")))
     tags = int(unlabelled.session.streams_of_kind("ranges")[0].meta["transmitters"])
     if expected < 1.0 / tags + 0.1:  # the geometry tells (almost) no range set apart: the tracker's continuity is all it has
@@ -31,4 +37,5 @@ def bench_uwb(directory: str | Path) -> dict[str, Any]:
         "clock_offset_s": float(unlabelled.session.meta["session"]["truth_clock_offset_s"]),
         "ms_per_epoch": unlabelled.metrics["ms_per_epoch"],
         "assoc_expected_geometry": expected,
+        "assoc_oracle": oracle.assoc_acc,
     }

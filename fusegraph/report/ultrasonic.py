@@ -80,7 +80,8 @@ def format_ultrasonic_table(result: dict[str, object]) -> str:
             f"(ratio {uwb['unlabelled_rmse_m'] / uwb['labelled_rmse_m']:.2f}), association {uwb['assoc_acc']:.3f}, "
             f"lost {uwb.get('lost_frac', float('nan')):.3f}, "
             f"clock offset {uwb['clock_offset_s'] * 1e3:.0f} ms (raw ranges vs motion capture), {uwb['ms_per_epoch']:.2f} ms/epoch; "
-            f"self-check: association from geometry alone {uwb.get('assoc_expected_geometry', float('nan')):.2f} (a lower bound, no truth)"
+            f"self-check: association from geometry alone {uwb.get('assoc_expected_geometry', float('nan')):.2f} (a lower bound, no truth); "
+            f"ceiling: the ranges assigned against the true tag positions {uwb.get('assoc_oracle', float('nan')):.3f}"
         )
     else:
         lines.append(f"uwb: {result.get('uwb_status', 'not run')} (--uwb DIR)")

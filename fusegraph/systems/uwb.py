@@ -113,11 +113,13 @@ class UwbTracker:
     def start(self, first: FloatArray, labelled: bool, mirror: float | None = None) -> None:
         """Initial pose from the first epochs' (E, A, T) ranges (the trolley barely moves in them).
 
-        Unlabelled, only each anchor's range DIFFERENCES are compared (no common bias affects them,
-        and which range is which tag is unknown); labelled, the columns say which tag each range is.
+        Unlabelled, only each anchor's range DIFFERENCES are compared (no common bias affects them, and which range is which
+        tag is unknown); labelled, the columns say which tag each range is. Both against what each tag would MEASURE (a
+        calibration's bias and scale on the prediction: an unlabelled range's bias is unknown; 0.1 m ones swamp the layout).
         """
         ranges = np.nanmedian(first, axis=0) if labelled else first[0]
-        mean = np.nanmean(first.reshape(-1, *first.shape[1:]), axis=(0, 2))
+        bias = np.zeros((len(self.anchors), self.tags)) if self.calibration is None else np.asarray(self.calibration.bias_m, dtype=float)
+        mean = np.nanmean(first.reshape(-1, *first.shape[1:]), axis=(0, 2)) - bias.mean(axis=1)
         ok = np.isfinite(mean)
         c = self.anchors[ok, :2].mean(0)
         common_bias = 0.0
@@ -131,7 +133,7 @@ class UwbTracker:
         for handed in (1.0, -1.0) if mirror is None else (mirror,):  # the offsets' frame seen from above: either handedness
             self.mirror = handed
             for heading in np.deg2rad(np.arange(0, 360, 5)):
-                predicted = self._predicted_ranges(self.tag_xy(np.r_[c, heading]))  # (T, A)
+                predicted = self._scale.T * self._predicted_ranges(self.tag_xy(np.r_[c, heading])) + bias.T  # (T, A), as measured
                 rel_p = predicted - predicted.mean(axis=0)
                 cost = 0.0
                 for epoch in epochs:
@@ -147,11 +149,10 @@ class UwbTracker:
                 if cost < best[0]:
                     best = (cost, float(heading), handed)
         self.mirror = best[2]
-        cfg = self.config
         biases = len(self.anchors) * self._bias_tags
         if self.calibration is None:
             self.x = np.r_[c, best[1], np.zeros(3), np.full(biases, common_bias)]
-            self.sqrt_info = np.diag(np.r_[[1 / 0.3] * 2, 1 / 0.3, [1 / 0.5] * 2, 1 / 1.0, [1 / cfg.bias_prior_m] * biases])
+            self.sqrt_info = np.diag(np.r_[[1 / 0.3] * 2, 1 / 0.3, [1 / 0.5] * 2, 1 / 1.0, [1 / self.config.bias_prior_m] * biases])
         else:  # the calibration's bias (anchor-major) with its own residual sigma as the prior
             self.x = np.r_[c, best[1], np.zeros(3), np.asarray(self.calibration.bias_m, dtype=float).reshape(-1)]
             self.sqrt_info = np.diag(np.r_[[1 / 0.3] * 2, 1 / 0.3, [1 / 0.5] * 2, 1 / 1.0, 1 / np.asarray(self.calibration.sigma_m).reshape(-1)])
@@ -259,9 +260,8 @@ def track_rigid(epochs: RangeEpochs, tag_offsets_m: FloatArray, config: UwbConfi
         costs[handed] = trial.cost
     tracker = UwbTracker(epochs.receivers, offsets, config, calibration)
     tracker.start(first, labelled, mirror=min(costs, key=costs.__getitem__))
-    positions = np.zeros((len(epochs.t), tags, 3))
+    positions, times = np.zeros((len(epochs.t), tags, 3)), np.zeros(len(epochs.t))
     labels: list[list[np.ndarray]] = []
-    times = np.zeros(len(epochs.t))
     for k, t in progress(enumerate(epochs.t), len(epochs.t), "rigid-body tracks (epochs)"):
         start = time.perf_counter()
         xy, given = tracker.step(float(t), ranges[k], labelled)
