@@ -172,6 +172,26 @@ def test_counter_rotation_gain_tells_a_world_still_gaze_from_one_that_moves_with
     assert counter_rotation_gain(session, []) is None
 
 
+def test_the_turn_beyond_the_gyro_is_what_an_attitude_adds_to_the_gyros_rotation_inside_a_fixation() -> None:
+    """``turn_beyond_gyro_deg``: nothing for the gyro itself or the gyro turned by a constant rotation (a heading
+    estimate); a correction of 3 deg in the middle of every fixation shows as 3 deg; a fixation without an attitude is NaN."""
+    from fusegraph.frontends.gaze_timing import gyro_attitude, turn_beyond_gyro_deg
+    from fusegraph.geometry import quat_multiply
+
+    session, _ = _vor_session(0.0)
+    found, _ = eye_velocity_fixations(session)
+    gyro = gyro_attitude(session)
+    turned = quat_multiply(np.tile(quat_from_rotvec(np.array([0.0, 0.2, 0.5])), (len(gyro), 1)), gyro)
+    assert np.max(turn_beyond_gyro_deg(gyro, gyro, found)) < 1e-6 and np.max(turn_beyond_gyro_deg(turned, gyro, found)) < 1e-6
+    jumped = gyro.copy()
+    for fixation in found:
+        late = fixation.rows[len(fixation.rows) // 2:]
+        jumped[late] = quat_multiply(np.tile(quat_from_rotvec(np.deg2rad([3.0, 0.0, 0.0])), (len(late), 1)), gyro[late])
+    np.testing.assert_allclose(turn_beyond_gyro_deg(jumped, gyro, found), 3.0, atol=1e-6)
+    jumped[found[0].rows[0]] = np.nan
+    assert np.isnan(turn_beyond_gyro_deg(jumped, gyro, found)[0])
+
+
 def test_undistorted_rays_invert_opencvs_distortion() -> None:
     """``datasets.pupil.undistorted_rays`` inverts OpenCV's rational distortion model: points distorted by its forward
     formula come back to their rays (1e-9 deg: the fixed point's convergence), across a wide-angle field."""

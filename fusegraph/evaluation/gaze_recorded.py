@@ -8,7 +8,9 @@ over fixations of each one's RMS angle to its mean direction.
 Rows: ``head_frame`` (no head attitude: the gaze in the head frame), ``gyro`` (the raw gyro integrated, no bias
 estimate), ``device`` (the device's own head attitude: null, with the reason in ``device_attitude``, when the export has
 no whole one: the Tobii export has none, the Pupil Invisible's has roll and pitch without a heading), the paper's
-``ekf``, fusegraph ``online`` and ``batch``.
+``ekf``, fusegraph ``online`` and ``batch``. Beside them ``fixation_turn_beyond_gyro_deg`` (``ekf``, ``online``,
+``batch``): per fixation the largest angle by which the method turned the head beyond its raw gyro, the median over
+fixations (``frontends.gaze_timing.turn_beyond_gyro_deg``; it says why a method disperses more than the raw gyro).
 
 Either export is read, told apart by its files (``export_kind``): a Tobii Pro Glasses 3 folder (``imudata.gz``:
 ``import tobii``) or a Pupil Labs Pupil Invisible one (``imu.csv`` + ``gaze.csv``: ``import pupil``, the device's own
@@ -29,7 +31,17 @@ from typing import Any
 import numpy as np
 
 from ..estimate import PointEstimate
-from ..frontends.gaze_timing import Fixation, _ray_and_rate, counter_rotation_gain, dispersions_deg, fixation_angles, saccade_threshold_deg_s, scoring_fixations
+from ..frontends.gaze_timing import (
+    Fixation,
+    _ray_and_rate,
+    counter_rotation_gain,
+    dispersions_deg,
+    fixation_angles,
+    gyro_attitude,
+    saccade_threshold_deg_s,
+    scoring_fixations,
+    turn_beyond_gyro_deg,
+)
 from ..records import GazeSession
 from ..session import Session
 from .runner import solve_session
@@ -100,6 +112,7 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
     turns = [f.eye_turn_deg for f in found]
     gaze = run.session.stream("gaze").meta
     header = run.session.meta["session"]
+    gyro = gyro_attitude(data)
     return {
         "dispersion_deg": {"device": None, **{name: m["dispersion_deg"] for name, m in run.metrics.items()}},
         "dispersion_mean_deg": {"device": None, **{name: m["dispersion_mean_deg"] for name, m in run.metrics.items()}},
@@ -115,6 +128,8 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
         # the key earlier versions printed: the head's turn, now read as the eye's counter-rotation (no gyro)
         "fixation_head_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
         "fixation_counter_rotation_gain": counter_rotation_gain(data, found),
+        "fixation_turn_beyond_gyro_deg": {name: _median_or_none(turn_beyond_gyro_deg(e.extras["world_R_head"], gyro, found))
+                                          for name, e in run.estimates.items() if name in ("ekf", "online", "batch")},
         "gaze_samples": len(data.tracker_t),
         "gaze_untracked": int(header.get("gaze_untracked", 0)),
         "duration_s": duration,
@@ -161,7 +176,17 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
     for name in ("online", "batch"):
         lines.append(f"{name}: x{d[name] / d['ekf']:.2f} the EKF's dispersion, x{d[name] / d['gyro']:.2f} the integrated gyro's, "
                  f"x{d[name] / d['head_frame']:.2f} the head-frame gaze's")
+    beyond = result.get("fixation_turn_beyond_gyro_deg")
+    if beyond:
+        lines.append("inside a fixation each method turned the head beyond its raw gyro by (median over fixations of the largest angle; "
+                     "a bias correction is tenths of a degree, more is an update's correction or a saturated gyro's recovery): "
+                     + ", ".join(f"{name} {value:.2f} deg" for name, value in beyond.items() if value is not None))
     return "\n".join(lines)
+
+
+def _median_or_none(values: np.ndarray) -> float | None:
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if len(finite) else None
 
 
 def _counter_rotation_text(gain: float | None) -> str:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from ..geometry import FloatArray, matrix_from_quat, quat_from_rotvec, quat_multiply
+from ..geometry import FloatArray, matrix_from_quat, quat_conjugate, quat_from_rotvec, quat_multiply, rotvec_from_quat
 from ..records import GazeSession
 
 BoolArray = npt.NDArray[np.bool_]
@@ -251,6 +251,23 @@ def dispersions_deg(world_R_head: FloatArray | None, session: GazeSession, found
     sample gets NaN there: it does not escape its hard samples."""
     rays = session.config.camera.ray(session.gaze_px)
     return np.array([float(np.rad2deg(np.sqrt(np.mean(fixation_angles(world_R_head, rays, f) ** 2)))) for f in found])
+
+
+def turn_beyond_gyro_deg(world_R_head: FloatArray, gyro_R_head: FloatArray, found: list[Fixation]) -> FloatArray:
+    """Per fixation, the largest angle between a method's head rotation since the fixation's first sample and the raw
+    gyro's (``gyro_attitude``), degrees: what the method turned the head beyond its gyro inside the fixation. A bias
+    correction over a fraction of a second is a few tenths of a degree; more is a filter's update or a saturated gyro's
+    recovery. A description of an estimate: it selects and scores nothing."""
+    out = []
+    for fixation in found:
+        q, g = world_R_head[fixation.rows], gyro_R_head[fixation.rows]
+        if not np.all(np.isfinite(q)):
+            out.append(np.nan)
+            continue
+        since_q = quat_multiply(quat_conjugate(q[:1]), q)
+        since_g = quat_multiply(quat_conjugate(g[:1]), g)
+        out.append(float(np.rad2deg(np.max(np.linalg.norm(rotvec_from_quat(quat_multiply(quat_conjugate(since_g), since_q)), axis=1)))))
+    return np.array(out)
 
 
 def gyro_attitude(session: GazeSession) -> FloatArray:
