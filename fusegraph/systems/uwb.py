@@ -10,7 +10,7 @@ the constant-velocity law, a bias random walk and the ranges the association gav
 Unlabelled: per anchor, the sorted ranges are assigned to the tags' predicted ranges (optimal assignment, gated), and
 neighbouring ranges that could have swapped are shared by the swap's probability. The start needs no prior: the
 trolley's centroid from the mean range per anchor, then the tags' rigid layout (its offsets, either handedness, every
-heading) that best explains the range DIFFERENCES at each anchor, which no common bias affects.
+heading) that best explains the range DIFFERENCES at each anchor (no common bias affects them; a declared calibration's on the prediction).
 """
 
 from __future__ import annotations
