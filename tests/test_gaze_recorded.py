@@ -155,6 +155,51 @@ def test_pupil_invisible_export_loads_in_head_axes_and_its_bench_is_the_report(t
     assert bench["export"] == "pupil" and bench["fixation_source"] == "device" and bench["dispersion_deg"]["device"] is None
 
 
+def test_the_gaze_delay_is_found_beyond_the_first_search_and_not_invented_for_a_still_head() -> None:
+    """``find_time_offset``: a gaze stamped 0.5 s late (beyond the first +-0.3 s) is found after the search widens (it
+    returned the 0.3 s edge before); a head that never turns does not tell the delay: none is applied and the import says
+    so (it returned the search's -0.3 s edge before, applied to every method)."""
+    from dataclasses import replace
+
+    from fusegraph.frontends.gaze_timing import OFFSET_SEARCH_S, find_time_offset
+
+    session, _ = _vor_session(0.5)
+    late = find_time_offset(session, bootstrap=10)
+    assert late.told and late.search_s > OFFSET_SEARCH_S and not late.at_edge
+    assert late.offset_s == pytest.approx(0.5, abs=0.01)  # as the perfect reflex's 80 ms above
+    rng = np.random.default_rng(2)
+    still = replace(session, gyro_rad_s=rng.normal(0, 0.002, session.gyro_rad_s.shape))
+    found = find_time_offset(still, bootstrap=10)
+    assert not found.told and found.offset_s == 0.0 and found.sigma_s == np.inf
+
+
+@requires_shared_data("gaze_pupil_invisible")
+def test_an_export_whose_head_does_not_turn_imports_without_a_delay_and_says_why(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The Pupil export cut to its first 0.5 s of IMU (under a hundred gaze samples with the head turning): `import
+    pupil` declares no delay (0, sigma inf) and says why, rather than the search's edge."""
+    from fusegraph.datasets.importers import pupil_session
+    from fusegraph.datasets.pupil import DEFAULT_DIR
+    from fusegraph.evaluation.gaze_recorded import analyse_gaze_recording
+    from fusegraph.session import SessionWarning
+
+    lines = (DEFAULT_DIR / "imu.csv").read_text().splitlines()
+    (tmp_path / "imu.csv").write_text("\n".join(lines[:101]) + "\n")  # 0.5 s at ~200 Hz: the head above 10 deg/s half of it
+    for name in ("gaze.csv", "blinks.csv"):
+        (tmp_path / name).symlink_to(DEFAULT_DIR / name)
+    with pytest.warns(SessionWarning, match="cannot be told"):
+        session = pupil_session(tmp_path)
+    gaze = session.stream("gaze").meta
+    assert gaze["time_offset_s"] == 0.0 and gaze["time_offset_sigma_s"] == np.inf
+    from fusegraph.evaluation.gaze_recorded import format_gaze_recorded, gaze_recorded_json
+    from fusegraph.session import load_session, save_session
+
+    assert load_session(save_session(session, tmp_path / "session")).stream("gaze").meta["time_offset_sigma_s"] == np.inf
+    with pytest.warns(SessionWarning, match="cannot be told"):  # the bench imports the folder again: said again
+        run = analyse_gaze_recording(tmp_path)
+    result = gaze_recorded_json(run)
+    assert result["time_offset_sigma_s"] is None and "not told by this recording" in format_gaze_recorded(result)
+
+
 def test_counter_rotation_gain_tells_a_world_still_gaze_from_one_that_moves_with_the_head() -> None:
     """The reflex's gain in the scored fixations: about 1 when the eye holds the target still in the world, about 0 when
     the gaze stays put in the head (the same fixations, the eye no longer counter-rotating)."""

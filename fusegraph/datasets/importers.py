@@ -181,12 +181,22 @@ def pupil_session(directory: Path) -> Session:
 def _with_gaze_offset(session: Session) -> Session:
     """The gaze stream with its delay behind the IMU declared (``frontends.gaze_timing.gaze_time_offset``), which every
     gaze solver applies."""
+    import warnings
     from dataclasses import replace
 
-    from ..frontends.gaze_timing import gaze_time_offset
+    from ..frontends.gaze_timing import HEAD_MIN_DEG_S, OFFSET_MIN_SAMPLES, find_time_offset
+    from ..session import SessionWarning
     from ..systems.gaze import from_session
 
-    offset, sigma = gaze_time_offset(from_session(session))
+    found = find_time_offset(from_session(session))
+    offset, sigma = found.offset_s, found.sigma_s
+    if not found.told:
+        warnings.warn(f"gaze: the head turned faster than {HEAD_MIN_DEG_S:g} deg/s in fewer than {OFFSET_MIN_SAMPLES} gaze samples: the gaze-to-IMU "
+                      "delay cannot be told from this recording; none is applied (declare time_offset_s on the gaze stream if the "
+                      "device's documentation gives one)", SessionWarning, stacklevel=3)
+    elif found.at_edge:
+        warnings.warn(f"gaze: the gaze-to-IMU delay found, {offset:.3f} s, lies at the search's edge (+-{found.search_s:g} s): the gaze and "
+                      "IMU stamps may not share a clock; check the export's timestamps", SessionWarning, stacklevel=3)
     gaze = session.stream("gaze")
     return replace(session, streams={**session.streams, "gaze": replace(gaze, meta={**gaze.meta, "time_offset_s": offset, "time_offset_sigma_s": sigma})})
 

@@ -121,7 +121,8 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
         "fixation_source": run.fixation_source,
         "fixation_fraction": float(sum(len(f.rows) for f in found) / max(len(data.tracker_t), 1)),
         "time_offset_s": float(gaze["time_offset_s"]),
-        "time_offset_sigma_s": float(gaze["time_offset_sigma_s"]),
+        # null: the recording did not tell the delay (the head turned too little), none applied
+        "time_offset_sigma_s": float(gaze["time_offset_sigma_s"]) if np.isfinite(float(gaze["time_offset_sigma_s"])) else None,
         "fixations": len(found),
         "fixation_samples": int(sum(len(f.rows) for f in found)),
         "fixation_eye_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
@@ -160,7 +161,8 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         f"{result['gaze_untracked']} untracked; magnetometer "
         f"{'used' if result['use_mag'] else 'not used' + (' (uncalibratable)' if result['export'] == 'tobii' else ' (none)')})",
         f"gaze-to-IMU time offset: {1000 * result['time_offset_s']:.1f} ms (sigma {1000 * result['time_offset_sigma_s']:.1f} ms, "
-        "block bootstrap); gaze stamps corrected by it for every method",
+        "block bootstrap); gaze stamps corrected by it for every method" if result["time_offset_sigma_s"] is not None else
+        "gaze-to-IMU time offset: not told by this recording (the head turned too little); none applied",
         f"{result['fixations']} fixations from {'the device' if result['fixation_source'] == 'device' else 'eye-in-head velocity (no IMU)'} "
         f"({result['fixation_samples']} samples, {100 * result['fixation_fraction']:.0f} % of the gaze; eye turn in the head median "
         f"{result['fixation_eye_turn_deg']['median'] or float('nan'):.1f} deg, max {result['fixation_eye_turn_deg']['max'] or float('nan'):.1f} deg)",

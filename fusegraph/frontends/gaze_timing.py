@@ -7,7 +7,9 @@ gaze ray IN THE WORLD stays still. The world-frame angular velocity of the gaze,
 * the **time offset** between the gaze stream and the IMU (``gaze_time_offset``): the delay d for which the gaze ray
   taken at stamp - d moves least in the world over the samples where the head turns (> ``HEAD_MIN_DEG_S``); each
   sample's squared speed is truncated at the fixation threshold (saccades are not fixations) and the mean minimised over
-  a grid of d; its sigma is the spread of the minimiser over a block bootstrap (2 s blocks);
+  a grid of d (+-0.3 s, doubled while the best lies at its edge, up to +-2.4 s); its sigma is the spread of the
+  minimiser over a block bootstrap (2 s blocks); with under a hundred samples of head turns the recording does not tell
+  it (``find_time_offset``: ``told`` False, none applied);
 The fixations that SCORE the methods read no IMU (the gyro is a scored method's input): the device's own detector
 where the export has one (``device_fixations``), else the intervals between saccades of the eye-in-head speed
 (``eye_velocity_fixations``, the saccade threshold from the data) in which the eye turned in the head (the reflex
@@ -40,8 +42,15 @@ SETTLE_S = 1.0
 to its last."""
 SACCADE_START_DEG_S = 100.0
 """Where the adaptive saccade threshold starts (Nystrom & Holmqvist's initial value), deg/s."""
-OFFSET_GRID_S = np.arange(-0.3, 0.3001, 0.0025)
-"""Candidate gaze-minus-IMU offsets, seconds."""
+OFFSET_STEP_S = 0.0025
+"""Step of the candidate gaze-minus-IMU offsets, seconds."""
+OFFSET_SEARCH_S = 0.3
+"""Half-width of the first search, seconds; doubled while the best lies within a step of its edge."""
+OFFSET_WIDEST_S = 2.4
+"""Widest search, seconds: beyond it the streams do not share a clock, which the import says."""
+OFFSET_MIN_SAMPLES = 100
+"""Gaze samples with the head turning faster than ``HEAD_MIN_DEG_S`` that the offset needs (about a second of head
+turns at 100 Hz); with fewer the recording does not tell the offset and none is estimated."""
 SMOOTH_SAMPLES = 9
 """Savitzky-Golay window (samples, ~90 ms at 100 Hz) for the gaze ray's rate: one-sample differences of a
 0.5 deg-noisy ray would be 70 deg/s of noise."""
@@ -90,37 +99,71 @@ def world_gaze_speed(session: GazeSession, offset_s: float,
     return speed, head, ok & (session.tracker_t - offset_s >= session.t[0]) & (session.tracker_t - offset_s <= session.t[-1])
 
 
-def _argmin_refined(costs: FloatArray) -> float:
+def _argmin_refined(costs: FloatArray, grid: FloatArray) -> float:
     i = int(np.argmin(costs))
     if 0 < i < len(costs) - 1:  # parabola through the minimum and its neighbours
         a, b, c = costs[i - 1 : i + 2]
         curvature = a - 2 * b + c
         if curvature > 0:
-            return float(OFFSET_GRID_S[i] + 0.5 * (a - c) / curvature * (OFFSET_GRID_S[1] - OFFSET_GRID_S[0]))
-    return float(OFFSET_GRID_S[i])
+            return float(grid[i] + 0.5 * (a - c) / curvature * (grid[1] - grid[0]))
+    return float(grid[i])
 
 
-def gaze_time_offset(session: GazeSession, bootstrap: int = 100, block_s: float = 2.0, seed: int = 0) -> tuple[float, float]:
-    """The gaze stream's delay behind the IMU (seconds, positive: gaze stamped late) and its bootstrap sigma."""
+@dataclass(frozen=True)
+class TimeOffset:
+    """The gaze stream's delay behind the IMU, as the data tell it."""
+
+    offset_s: float
+    """Seconds, positive: the gaze is stamped late. 0 when ``told`` is False."""
+    sigma_s: float
+    """Its block-bootstrap sigma, seconds (inf when not told)."""
+    told: bool
+    """False: the head turned too little (fewer than ``OFFSET_MIN_SAMPLES`` samples above ``HEAD_MIN_DEG_S``)."""
+    at_edge: bool
+    """The best offset lay at the widest search's edge (+-``OFFSET_WIDEST_S``): the streams may not share a clock."""
+    search_s: float
+    """Half-width of the search that found it, seconds."""
+
+
+def find_time_offset(session: GazeSession, bootstrap: int = 100, block_s: float = 2.0, seed: int = 0) -> TimeOffset:
+    """The gaze stream's delay behind the IMU: the offset whose gyro-compensated gaze moves least while the head turns,
+    searched over +-``OFFSET_SEARCH_S``, the range doubled while the best lies within a step of its edge (up to
+    ``OFFSET_WIDEST_S``); its sigma from a block bootstrap (``block_s`` blocks)."""
     smoothed = _ray_and_rate(session.tracker_t, session.config.camera.ray(session.gaze_px))
-    per_offset = [world_gaze_speed(session, float(o), smoothed) for o in OFFSET_GRID_S]
     t = session.tracker_t
     blocks = np.floor((t - t[0]) / block_s).astype(int)
     n_blocks = int(blocks.max()) + 1
-    # per block and offset: sum of truncated squared speeds and count of usable samples
-    sums = np.zeros((n_blocks, len(OFFSET_GRID_S)))
-    counts = np.zeros((n_blocks, len(OFFSET_GRID_S)))
-    for j, (speed, head, ok) in enumerate(per_offset):
-        use = ok & (head > HEAD_MIN_DEG_S)
-        np.add.at(sums[:, j], blocks[use], np.minimum(speed[use], FIXATION_MAX_DEG_S) ** 2)
-        np.add.at(counts[:, j], blocks[use], 1.0)
-    best = _argmin_refined(sums.sum(0) / np.maximum(counts.sum(0), 1))
+    search = OFFSET_SEARCH_S
+    while True:
+        grid = np.arange(-search, search + OFFSET_STEP_S / 2, OFFSET_STEP_S)
+        # per block and offset: sum of truncated squared speeds and count of usable samples
+        sums = np.zeros((n_blocks, len(grid)))
+        counts = np.zeros((n_blocks, len(grid)))
+        for j, offset in enumerate(grid):
+            speed, head, ok = world_gaze_speed(session, float(offset), smoothed)
+            use = ok & (head > HEAD_MIN_DEG_S)
+            np.add.at(sums[:, j], blocks[use], np.minimum(speed[use], FIXATION_MAX_DEG_S) ** 2)
+            np.add.at(counts[:, j], blocks[use], 1.0)
+        if counts.sum(0).min() < OFFSET_MIN_SAMPLES:
+            return TimeOffset(0.0, float("inf"), False, False, search)
+        best = _argmin_refined(sums.sum(0) / counts.sum(0), grid)
+        edge = abs(best) >= search - OFFSET_STEP_S
+        if not edge or search >= OFFSET_WIDEST_S:
+            break
+        search = min(2 * search, OFFSET_WIDEST_S)
     rng = np.random.default_rng(seed)
     draws = []
     for _ in range(bootstrap):
         pick = rng.integers(0, n_blocks, n_blocks)
-        draws.append(_argmin_refined(sums[pick].sum(0) / np.maximum(counts[pick].sum(0), 1)))
-    return best, float(np.std(draws))
+        draws.append(_argmin_refined(sums[pick].sum(0) / np.maximum(counts[pick].sum(0), 1), grid))
+    return TimeOffset(best, float(np.std(draws)), True, edge, search)
+
+
+def gaze_time_offset(session: GazeSession, bootstrap: int = 100, block_s: float = 2.0, seed: int = 0) -> tuple[float, float]:
+    """The gaze stream's delay behind the IMU (seconds, positive: gaze stamped late) and its bootstrap sigma
+    (``find_time_offset``; 0 and inf where the head turned too little to tell)."""
+    found = find_time_offset(session, bootstrap, block_s, seed)
+    return found.offset_s, found.sigma_s
 
 
 @dataclass(frozen=True)
