@@ -171,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
     imp = sub.add_parser("import", help="turn a real recording into a session directory (then run/view/ablate it)",
                          description="broad: a BROAD trial (.mat) or a folder of them -> attitude9 sessions (one per trial). "
                          "uwb: one UWB run's folder (UWB_<run>.csv + motion_capture_<run>.csv + SOURCE_README.md) -> an ultrasonic session "
-                         "(anchors as receivers, tags unlabelled on one rigid planar body, motion capture on the UWB clock as truth). "
+                         "(anchors as receivers, tags unlabelled on one rigid planar body, motion capture on the UWB clock as truth; a folder "
+                         "without the motion capture gives a session without truth: run tracks it, report and bench need the truth). "
                          "oxford: an Oxford step recording folder or the dataset folder -> walking "
                          "sessions with the phone accelerometer and the hand-counted steps (run --solver steps). hapt: UCI HAPT's raw folder -> "
                          "walking sessions, one per experiment (waist accel + gyro, hand labels as the scoring-only activity stream). "

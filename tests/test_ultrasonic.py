@@ -120,8 +120,37 @@ def test_uwb_loader_names_a_missing_file(tmp_path) -> None:  # type: ignore[no-u
     with pytest.raises(SessionError, match="one UWB run per folder .* found none"):
         load_uwb_lias(tmp_path)
     (tmp_path / "UWB_dynamic_exp_mid.csv").write_text("")
-    with pytest.raises(SessionError, match="motion_capture_dynamic_exp_mid.csv: the motion capture of UWB_dynamic_exp_mid.csv not found"):
+    with pytest.raises(SessionError, match="SOURCE_README.md: UWB recording file not found"):
         load_uwb_lias(tmp_path)
+
+
+@requires_shared_data("uwb_lias")
+def test_a_uwb_run_without_motion_capture_tracks_and_has_nothing_to_score(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A user's run has ranges but no motion capture: `import uwb` writes a session without truth, `run` tracks it
+    (the same tracks as with the truth beside; the first 5 s, to stay fast), and the bench, which needs the truth, says
+    so instead of failing."""
+    from dataclasses import replace
+
+    from fusegraph import SessionError
+    from fusegraph.datasets.importers import uwb_session
+    from fusegraph.datasets.uwb_lias import DEFAULT_DIR
+    from fusegraph.evaluation.runner import solve_session
+    from fusegraph.evaluation.uwb import bench_uwb
+
+    def first_seconds(session, seconds: float = 5.0):  # type: ignore[no-untyped-def]
+        ranges = session.stream("ranges")
+        keep = ranges.t < seconds
+        return replace(session, streams={"ranges": replace(ranges, t=ranges.t[keep], values=ranges.values[keep])})
+
+    for name in ("UWB_dynamic_exp_fast.csv", "calibration.csv", "SOURCE_README.md"):
+        (tmp_path / name).symlink_to(DEFAULT_DIR / name)
+    session = uwb_session(tmp_path)
+    assert session.truth is None and "no motion capture" in session.meta["session"]["description"]
+    alone, beside = solve_session(first_seconds(session), "online"), solve_session(first_seconds(uwb_session(DEFAULT_DIR)), "online")
+    assert alone.metrics is None and beside.metrics is not None
+    np.testing.assert_array_equal(alone.estimate.points, beside.estimate.points)
+    with pytest.raises(SessionError, match="no motion_capture_<run>.csv"):
+        bench_uwb(tmp_path)
 
 
 @requires_shared_data("uwb_lias")

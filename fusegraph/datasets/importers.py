@@ -17,7 +17,8 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
   session: the anchors as receivers, every tag's range per epoch UNLABELLED (the tag labels become
   the scoring-only ``truth_label`` column; ``labelled`` keeps them as a ``tag`` column), the tags as one
   rigid planar body (``tag_offsets_m``, ``planar``), the tags' motion-capture positions on the UWB clock as
-  truth. Times are seconds from the first UWB epoch.
+  truth (a folder without ``motion_capture_<run>.csv``: no truth, the run is tracked and not scored). Times are
+  seconds from the first UWB epoch.
 * ``hapt``: UCI HAPT's raw folder (``acc_expXX_userYY.txt``, ``gyro_...``, ``labels.txt``) -> one walking session per
   experiment (waist accel and gyro, the hand labels as the scoring-only ``activity`` stream; ``datasets.hapt``).
 * ``mobgap``: Mobilise-D laboratory recordings in mobgap's layout (``lab/<cohort>/<participant>/data.mat``) -> one walking
@@ -35,6 +36,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -235,14 +237,17 @@ def uwb_session(directory: Path, labelled: bool = False, calibration: Path | Non
     columns = (*KIND_COLUMNS["ranges"], "truth_label", "tag") if labelled else (*KIND_COLUMNS["ranges"], "truth_label")
     values = np.column_stack([table[:, 1:4], table[:, 3]]) if labelled else table[:, 1:4]
     ranges = Stream("ranges", "ranges", table[:, 0], values, columns, 0.0, meta)
+    header: dict[str, dict[str, Any]] = {"session": {"system": "ultrasonic", "dataset": "UWB", "trial": Path(directory).name,
+                                                     "world_frame": "motion-capture room frame"}}
+    if not len(rec.mocap_t):  # a run without motion capture: tracks, nothing to score them against
+        header["session"]["description"] = "no motion capture in the folder: no truth (run gives the tracks; report and bench need the truth)"
+        return Session("ultrasonic", {"ranges": ranges}, None, header)
     offset = clock_offset_from_ranges(rec)
     covered = (rec.t + offset >= rec.mocap_t[0]) & (rec.t + offset <= rec.mocap_t[-1])
     positions = rec.tags_truth(rec.t[covered] + offset)
     n = positions.shape[1]
     truth = Stream("truth", "tag_position", np.repeat(rec.t[covered] - t0, n),
                    np.column_stack([np.tile(np.arange(n, dtype=float), int(covered.sum())), positions.reshape(-1, 3)]), KIND_COLUMNS["tag_position"])
-    header = {"session": {"system": "ultrasonic", "dataset": "UWB", "trial": Path(directory).name,
-                          "world_frame": "motion-capture room frame",
-                          "truth_clock_offset_s": offset,
-                          "description": "truth: the motion capture moved onto the UWB clock by truth_clock_offset_s (found from the raw ranges)"}}
+    header["session"].update({"truth_clock_offset_s": offset,
+                              "description": "truth: the motion capture moved onto the UWB clock by truth_clock_offset_s (found from the raw ranges)"})
     return Session("ultrasonic", {"ranges": ranges}, truth, header)

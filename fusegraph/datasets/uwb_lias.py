@@ -3,7 +3,7 @@
 One run per folder (read in place, e.g. ``../shared/data/uwb_lias`` fast, ``uwb_lias_slow``): ``UWB_<run>.csv`` (no
 header: a wall-clock time, then 24 ranges in metres ordered a0-t0, a0-t1, a0-t2, a1-t0, ... a7-t2; some
 empty), ``motion_capture_<run>.csv`` (header ``time,x,y,z,rotation,,,``: centroid
-position in metres and a quaternion), ``SOURCE_README.md`` (anchor coordinates, tag offsets in the
+position in metres and a quaternion; optional: without it the run has no truth), ``SOURCE_README.md`` (anchor coordinates, tag offsets in the
 trolley frame, as Markdown tables).
 
 The quaternion is stored SCALAR FIRST (w, x, y, z), as SOURCE_README.md says; its rigid body frame
@@ -26,17 +26,16 @@ from ..geometry import FloatArray
 from ..session import SessionError
 
 DEFAULT_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "uwb_lias"
-def run_files(directory: Path) -> tuple[Path, Path]:
-    """The one run in a folder: its ``UWB_*.csv`` and the ``motion_capture_*.csv`` of the same run name."""
+def run_files(directory: Path) -> tuple[Path, Path | None]:
+    """The one run in a folder: its ``UWB_*.csv`` and the ``motion_capture_*.csv`` of the same run name (None: a run
+    without motion capture, which tracks but has no truth to score)."""
     ranges = sorted(directory.glob("UWB_*.csv"))
     if len(ranges) != 1:
         found = ", ".join(p.name for p in ranges) or "none"
         raise SessionError(f"{directory}: one UWB run per folder (UWB_<run>.csv with motion_capture_<run>.csv); found {found}")
     run = ranges[0].name.removeprefix("UWB_")
     mocap = directory / f"motion_capture_{run}"
-    if not mocap.is_file():
-        raise SessionError(f"{mocap}: the motion capture of {ranges[0].name} not found")
-    return ranges[0], mocap
+    return ranges[0], mocap if mocap.is_file() else None
 
 
 @dataclass(frozen=True)
@@ -93,7 +92,7 @@ def _table(text: str, label: str) -> FloatArray:
 
 
 def load_uwb_lias(directory: str | Path = DEFAULT_DIR) -> UwbRecording:
-    """One run (any speed): ranges, anchors and tag offsets, motion capture."""
+    """One run (any speed): ranges, anchors and tag offsets, motion capture (empty arrays when the folder has none)."""
     directory = Path(directory)
     ranges_file, mocap_file = run_files(directory)
     if not (directory / "SOURCE_README.md").is_file():
@@ -110,18 +109,21 @@ def load_uwb_lias(directory: str | Path = DEFAULT_DIR) -> UwbRecording:
                 raise SessionError(f"{ranges_file}: row {row}: {len(cells)} columns, expected 25 (time + 24 ranges)")
             t.append(_seconds(cells[0], ranges_file, row))
             ranges.append([float(c) if c.strip() not in ("", "nan", "NaN") else np.nan for c in cells[1:]])
-    mt, mp, mq = [], [], []
-    with open(mocap_file) as f:
-        next(f)
-        for row, line in enumerate(f, start=2):
-            cells = line.rstrip("\n").split(",")
-            if len(cells) < 8:
-                raise SessionError(f"{mocap_file}: row {row}: {len(cells)} columns, expected 8")
-            mt.append(_seconds(cells[0], mocap_file, row))
-            mp.append([float(c) for c in cells[1:4]])
-            mq.append([float(c) for c in cells[4:8]])  # w, x, y, z
+    mt: list[float] = []
+    mp: list[list[float]] = []
+    mq: list[list[float]] = []
+    if mocap_file is not None:
+        with open(mocap_file) as f:
+            next(f)
+            for row, line in enumerate(f, start=2):
+                cells = line.rstrip("\n").split(",")
+                if len(cells) < 8:
+                    raise SessionError(f"{mocap_file}: row {row}: {len(cells)} columns, expected 8")
+                mt.append(_seconds(cells[0], mocap_file, row))
+                mp.append([float(c) for c in cells[1:4]])
+                mq.append([float(c) for c in cells[4:8]])  # w, x, y, z
     return UwbRecording(
-        np.array(t), np.array(ranges).reshape(-1, 8, 3), anchors, tags, np.array(mt), np.array(mp), np.array(mq)
+        np.array(t), np.array(ranges).reshape(-1, 8, 3), anchors, tags, np.array(mt), np.array(mp).reshape(-1, 3), np.array(mq).reshape(-1, 4)
     )
 
 

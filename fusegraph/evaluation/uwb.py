@@ -19,7 +19,13 @@ def bench_uwb(directory: str | Path) -> dict[str, Any]:
     ms per epoch, the association the geometry alone allows (no truth; near chance: a warning), and ``assoc_oracle``: the
     association of the ranges assigned against the TRUE tag positions through the declared calibration (the ceiling any
     tracker meets: neighbouring tags' ranges at an anchor differ by less than the range noise; truth only scores it)."""
-    unlabelled = solve_session(uwb_session(Path(directory), labelled=False), "online")
+    from ..session import SessionError
+
+    session = uwb_session(Path(directory), labelled=False)
+    if session.truth is None:
+        raise SessionError(f"{directory}: no motion_capture_<run>.csv beside the UWB run: nothing to score against "
+                           "(`import uwb` + `run` track it without)")
+    unlabelled = solve_session(session, "online")
     labelled = solve_session(uwb_session(Path(directory), labelled=True), "online")
     assert unlabelled.metrics is not None and labelled.metrics is not None
     epochs = epochs_from_session(unlabelled.session)
