@@ -268,6 +268,12 @@ def check_streams(streams: Mapping[str, Any]) -> list[str]:
                 worst = int(gaps[np.argmax(steps[gaps])])
                 said.append(f"stream '{stream.name}': {len(gaps)} dropout(s) of more than {RANGES_GAP_S:g} s without a range, the longest "
                             f"{steps[worst]:.2f} s after t = {epochs[worst]:.2f} s (the tracks coast there)")
+        if stream.kind == "ranges" and "receivers_m" in stream.meta and len(stream) > 20:
+            declared_receivers = len(np.atleast_2d(np.asarray(stream.meta["receivers_m"], dtype=float)))
+            silent = sorted(set(range(declared_receivers)) - {int(r) for r in np.unique(stream.values[:, 0])})
+            if silent:
+                said.append(f"stream '{stream.name}': receiver(s) {', '.join(map(str, silent))} of receivers_m never heard a range "
+                            "(switched off or unplugged? the others track without them)")
         if stream.kind == "ranges" and "transmitters" in stream.meta and len(stream) > 20:
             heard = _most_heard_per_epoch(stream.t, stream.values[:, 0])
             declared = int(stream.meta["transmitters"])

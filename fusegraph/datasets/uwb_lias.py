@@ -144,7 +144,8 @@ def clock_offset_from_ranges(rec: UwbRecording, search_s: float = 1.0, step_s: f
             return np.inf
         tags = rec.tags_truth(t[inside])[:, None, :, :]  # (K, 1, T, 3)
         residual = rec.ranges[::every][inside] - np.linalg.norm(tags - anchors, axis=3)
-        residual = residual - np.nanmedian(residual, axis=0, keepdims=True)
+        heard = np.isfinite(residual).any(axis=0)  # an anchor-tag pair that never ranged has no bias to remove
+        residual = residual[:, heard] - np.nanmedian(residual[:, heard], axis=0, keepdims=True)
         return float(np.nanmedian(np.abs(residual)))
 
     span, costs = search_s, {}

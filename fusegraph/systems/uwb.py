@@ -117,9 +117,9 @@ class UwbTracker:
         tag is unknown); labelled, the columns say which tag each range is. Both against what each tag would MEASURE (a
         calibration's bias and scale on the prediction: an unlabelled range's bias is unknown; 0.1 m ones swamp the layout).
         """
-        ranges = np.nanmedian(first, axis=0) if labelled else first[0]
+        ranges = np.ma.median(np.ma.masked_invalid(first), axis=0).filled(np.nan) if labelled else first[0]  # a dead anchor: NaN, quietly
         bias = np.zeros((len(self.anchors), self.tags)) if self.calibration is None else np.asarray(self.calibration.bias_m, dtype=float)
-        mean = np.nanmean(first.reshape(-1, *first.shape[1:]), axis=(0, 2)) - bias.mean(axis=1)
+        mean = np.ma.masked_invalid(first).mean(axis=(0, 2)).filled(np.nan) - bias.mean(axis=1)
         ok = np.isfinite(mean)
         c = self.anchors[ok, :2].mean(0)
         common_bias = 0.0
