@@ -200,6 +200,26 @@ def test_an_export_whose_head_does_not_turn_imports_without_a_delay_and_says_why
     assert result["time_offset_sigma_s"] is None and "not told by this recording" in format_gaze_recorded(result)
 
 
+@requires_shared_data("gaze_pupil_invisible")
+@pytest.mark.filterwarnings("ignore:.*clipped, not trusted as measurements")  # the trampoline's landings, said by another test
+def test_an_imu_dropout_in_a_gaze_recording_is_said(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The Pupil export with 1 s of IMU rows removed: the gaze graph bridges the dropout and says so, as the 9-axis
+    system does (before, the gaze solvers bridged it silently)."""
+    from fusegraph.datasets.importers import pupil_session
+    from fusegraph.datasets.pupil import DEFAULT_DIR
+    from fusegraph.evaluation.runner import solve_session
+    from fusegraph.session import SessionWarning
+
+    lines = (DEFAULT_DIR / "imu.csv").read_text().splitlines()
+    (tmp_path / "imu.csv").write_text("\n".join([*lines[:3000], *lines[3200:]]) + "\n")  # ~200 rows at ~200 Hz
+    for name in ("gaze.csv", "blinks.csv"):
+        (tmp_path / name).symlink_to(DEFAULT_DIR / name)
+    session = pupil_session(tmp_path)
+    for solver in ("online", "batch"):
+        with pytest.warns(SessionWarning, match=r"no gyro/accel/mag sample for 1\.0\d s after t = 14\.9\d s: the gap is bridged"):
+            solve_session(session, solver)
+
+
 def test_counter_rotation_gain_tells_a_world_still_gaze_from_one_that_moves_with_the_head() -> None:
     """The reflex's gain in the scored fixations: about 1 when the eye holds the target still in the world, about 0 when
     the gaze stays put in the head (the same fixations, the eye no longer counter-rotating)."""

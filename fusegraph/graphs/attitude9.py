@@ -678,8 +678,9 @@ class Attitude9Builder:
     def notes(self) -> list[str]:
         """What a user is told about the run: each dropout bridged, each new field taken as the reference (a user sees where
         the estimate changed its mind about the room)."""
+        after = "gravity and the field after it" if self.model.use_mag else "gravity after it (no magnetometer: the heading across it is not observed)"
         gaps = [f"no gyro/accel/mag sample for {length_s:.2f} s after t = {after_s:.2f} s: the gap is bridged (the attitude across it "
-                "comes from gravity and the field after it, not from the gyro)" for after_s, length_s in self.gaps]
+                f"comes from {after}, not from the gyro)" for after_s, length_s in self.gaps]
         fields = [f"from t = {t_s:.1f} s the magnetometer's reference field is one of norm {field.norm:.1f} (the readings' unit) and dip "
                   f"{math.degrees(field.dip_rad):.1f} deg: a field off the start's that held steady while the sensor turned (another "
                   "place's Earth field, or a disturbance that did not change; MagNoise.new_field_s)" for t_s, field in self.new_fields]

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import gtsam
@@ -165,15 +165,15 @@ def run_online(session: Session, model: Attitude9Model | None = None, config: On
         solver.update()
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), np.array(builder.posterior_quat), np.array(builder.posterior_gyro_bias), False)
     runtime = time.perf_counter() - start
-    _say(session, builder)
+    say_notes(session.where, builder.notes())
     extras = {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors, "in_place": solver.in_place_marginalisations, **builder.extras()}
     return Estimate("online", data.t.copy(), quats, None, runtime, extras)
 
 
-def _say(session: Session, builder: Attitude9Builder) -> None:
-    """One warning per note of the run (``Attitude9Builder.notes``: the dropouts bridged, the new fields taken)."""
-    for note in builder.notes():
-        warnings.warn(f"{session.where}: {note}", SessionWarning, stacklevel=3)
+def say_notes(where: str, notes: Iterable[str]) -> None:
+    """One warning per note of a run (``Attitude9Builder.notes``: the dropouts bridged, the new fields taken)."""
+    for note in notes:
+        warnings.warn(f"{where}: {note}", SessionWarning, stacklevel=3)
 
 
 def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: gtsam.Ordering, max_iterations: int) -> gtsam.Values:
@@ -259,7 +259,7 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
         residual = again
     quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), kq, kb, True)
     runtime = time.perf_counter() - start
-    _say(session, builder)
+    say_notes(session.where, builder.notes())
     extras = {"keyframes": len(builder.keyframe_t), "check": check, "heading_residual_median_deg": residual, **builder.extras()}
     return Estimate("batch", data.t.copy(), quats, None, runtime, extras)
 

@@ -281,6 +281,8 @@ class GazeEstimate:
     """Head attitude at each gaze sample's time (quaternion w, x, y, z), shape (M, 4); NaN where none."""
     runtime_s: float
     """Wall time of the run, seconds."""
+    notes: tuple[str, ...] = ()
+    """What the head's graph says about the run (``Attitude9Builder.notes``: the IMU dropouts bridged, new fields taken)."""
 
 
 def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEstimate:
@@ -304,7 +306,7 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEsti
             if kj >= 0:  # a sample before the first keyframe has no factor and no estimate
                 out[j] = (point if kj == k else solver.isam.calculateEstimatePoint3(G(kj)))[1:]
         graph.sample_attitudes(lambda kj: solver.isam.calculateEstimatePose3(X(kj)).rotation(), added, attitude)
-    return GazeEstimate(out, attitude, time.perf_counter() - start)
+    return GazeEstimate(out, attitude, time.perf_counter() - start, tuple(graph.builder.notes()))
 
 
 def batch_model() -> GazeModel:
@@ -348,7 +350,7 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstim
     out[attached] = points[graph.sample_keyframe[attached]][:, 1:]
     at_samples = np.full((len(session.tracker_t), 4), np.nan)
     graph.sample_attitudes(lambda k: values.atPose3(X(k)).rotation(), range(len(session.tracker_t)), at_samples)
-    return GazeEstimate(out, at_samples, time.perf_counter() - start)
+    return GazeEstimate(out, at_samples, time.perf_counter() - start, tuple(graph.builder.notes()))
 
 
 def run_ekf(session: GazeSession, config: GazeEkfConfig | None = None) -> GazeEstimate:

@@ -184,7 +184,7 @@ def _gaze_run(session: Session, solver: str) -> Result:
     from ..baselines.ekf_gaze import GazeEkfConfig
     from ..consistency import stream_range
     from ..frontends.gaze_timing import gyro_attitude
-    from . import gaze
+    from . import attitude9, gaze
 
     data = gaze.from_session(session)
     use_mag = bool(session.meta.get("session", {}).get("use_mag", True))
@@ -202,6 +202,7 @@ def _gaze_run(session: Session, solver: str) -> Result:
         model = gaze.GazeModel() if solver == "online" else gaze.batch_model()
         model = replace(model, head=replace(model.head, use_mag=use_mag, accel_range_m_s2=stream_range(session.stream("accel"))))
         result = gaze.RUNNERS[solver](data, model)  # type: ignore[operator]
+        attitude9.say_notes(session.where, result.notes)
     return PointEstimate(solver, data.tracker_t.copy(), np.asarray(result.points_xz_m)[:, None, :], ("X_m", "Z_m"), float(result.runtime_s),
                          {"world_R_head": result.world_R_head})
 

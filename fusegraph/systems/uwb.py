@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from ..frontends.association import assign_ranges, association_self_check, share_swaps
 from ..geometry import FloatArray
@@ -59,11 +60,7 @@ class UwbConfig:
 def _state_motion(dt: float, psd: float, psd_turn: float, bias_walk: float, biases: int) -> tuple[FloatArray, FloatArray]:
     """Constant velocity in (x, y, heading) and random-walk biases: transition and whitening."""
     F_cv, Q_cv = constant_velocity(dt, [psd, psd, psd_turn])
-    F = np.eye(6 + biases)
-    F[:6, :6] = F_cv
-    Q = np.eye(6 + biases) * bias_walk**2 * dt
-    Q[:6, :6] = Q_cv
-    return F, whitening(Q)
+    return block_diag(F_cv, np.eye(biases)), whitening(block_diag(Q_cv, np.eye(biases) * bias_walk**2 * dt))
 
 
 @dataclass(frozen=True)
