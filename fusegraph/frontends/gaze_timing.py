@@ -101,7 +101,7 @@ def world_gaze_speed(session: GazeSession, offset_s: float,
 
 def _argmin_refined(costs: FloatArray, grid: FloatArray) -> float:
     i = int(np.argmin(costs))
-    if 0 < i < len(costs) - 1:  # parabola through the minimum and its neighbours
+    if 0 < i < len(costs) - 1 and np.all(np.isfinite(costs[i - 1 : i + 2])):  # parabola through the minimum and its neighbours
         a, b, c = costs[i - 1 : i + 2]
         curvature = a - 2 * b + c
         if curvature > 0:
@@ -144,9 +144,10 @@ def find_time_offset(session: GazeSession, bootstrap: int = 100, block_s: float 
             use = ok & (head > HEAD_MIN_DEG_S)
             np.add.at(sums[:, j], blocks[use], np.minimum(speed[use], FIXATION_MAX_DEG_S) ** 2)
             np.add.at(counts[:, j], blocks[use], 1.0)
-        if counts.sum(0).min() < OFFSET_MIN_SAMPLES:
+        usable = counts.sum(0) >= OFFSET_MIN_SAMPLES  # a wide offset of a short recording overlaps too little
+        if search == OFFSET_SEARCH_S and not usable.all():
             return TimeOffset(0.0, float("inf"), False, False, search)
-        best = _argmin_refined(sums.sum(0) / counts.sum(0), grid)
+        best = _argmin_refined(np.where(usable, sums.sum(0) / np.maximum(counts.sum(0), 1), np.inf), grid)
         edge = abs(best) >= search - OFFSET_STEP_S
         if not edge or search >= OFFSET_WIDEST_S:
             break
@@ -155,7 +156,7 @@ def find_time_offset(session: GazeSession, bootstrap: int = 100, block_s: float 
     draws = []
     for _ in range(bootstrap):
         pick = rng.integers(0, n_blocks, n_blocks)
-        draws.append(_argmin_refined(sums[pick].sum(0) / np.maximum(counts[pick].sum(0), 1), grid))
+        draws.append(_argmin_refined(np.where(usable, sums[pick].sum(0) / np.maximum(counts[pick].sum(0), 1), np.inf), grid))
     return TimeOffset(best, float(np.std(draws)), True, edge, search)
 
 
