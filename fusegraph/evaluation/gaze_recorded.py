@@ -37,7 +37,6 @@ from ..frontends.gaze_timing import (
     counter_rotation_gain,
     dispersions_deg,
     fixation_angles,
-    gyro_attitude,
     saccade_threshold_deg_s,
     scoring_fixations,
     turn_beyond_gyro_deg,
@@ -112,7 +111,7 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
     turns = [f.eye_turn_deg for f in found]
     gaze = run.session.stream("gaze").meta
     header = run.session.meta["session"]
-    gyro = gyro_attitude(data)
+    gyro = run.estimates["gyro"].extras["world_R_head"]  # the gyro row's attitude: the raw gyro integrated
     return {
         "dispersion_deg": {"device": None, **{name: m["dispersion_deg"] for name, m in run.metrics.items()}},
         "dispersion_mean_deg": {"device": None, **{name: m["dispersion_mean_deg"] for name, m in run.metrics.items()}},

@@ -9,7 +9,7 @@ from typing import Any
 
 from ..datasets.importers import uwb_session
 from ..metrics import oracle_labels, score_run
-from ..records import epochs_from_session
+from ..session import SessionError
 from .runner import solve_session
 
 
@@ -19,8 +19,6 @@ def bench_uwb(directory: str | Path) -> dict[str, Any]:
     ms per epoch, the association the geometry alone allows (no truth; near chance: a warning), and ``assoc_oracle``: the
     association of the ranges assigned against the TRUE tag positions through the declared calibration (the ceiling any
     tracker meets: neighbouring tags' ranges at an anchor differ by less than the range noise; truth only scores it)."""
-    from ..session import SessionError
-
     session = uwb_session(Path(directory), labelled=False)
     if session.truth is None:
         raise SessionError(f"{directory}: no motion_capture_<run>.csv beside the UWB run: nothing to score against "
@@ -28,7 +26,7 @@ def bench_uwb(directory: str | Path) -> dict[str, Any]:
     unlabelled = solve_session(session, "online")
     labelled = solve_session(uwb_session(Path(directory), labelled=True), "online")
     assert unlabelled.metrics is not None and labelled.metrics is not None
-    epochs = epochs_from_session(unlabelled.session)
+    epochs = unlabelled.estimate.extras["epochs"]  # the run's own epochs, as its scorer reads them
     oracle = score_run(epochs, oracle_labels(epochs, gate_chi2=1e12), None)  # no gate: every UWB range is some tag's
     expected = float(unlabelled.estimate.extras.get("assoc_expected_geometry", float("nan")))
     tags = int(unlabelled.session.streams_of_kind("ranges")[0].meta["transmitters"])

@@ -133,17 +133,22 @@ def find_time_offset(session: GazeSession, bootstrap: int = 100, block_s: float 
     t = session.tracker_t
     blocks = np.floor((t - t[0]) / block_s).astype(int)
     n_blocks = int(blocks.max()) + 1
+    per_step: dict[int, tuple[FloatArray, FloatArray]] = {}  # per offset (in steps): each block's sum of truncated squared
+    # speeds and count of usable samples; a widened search reuses the narrower one's
+
+    def block_sums(step: int) -> tuple[FloatArray, FloatArray]:
+        if step not in per_step:
+            speed, head, ok = world_gaze_speed(session, step * OFFSET_STEP_S, smoothed)
+            use = ok & (head > HEAD_MIN_DEG_S)
+            per_step[step] = (np.bincount(blocks[use], np.minimum(speed[use], FIXATION_MAX_DEG_S) ** 2, n_blocks).astype(float),
+                              np.bincount(blocks[use], minlength=n_blocks).astype(float))
+        return per_step[step]
+
     search = OFFSET_SEARCH_S
     while True:
-        grid = np.arange(-search, search + OFFSET_STEP_S / 2, OFFSET_STEP_S)
-        # per block and offset: sum of truncated squared speeds and count of usable samples
-        sums = np.zeros((n_blocks, len(grid)))
-        counts = np.zeros((n_blocks, len(grid)))
-        for j, offset in enumerate(grid):
-            speed, head, ok = world_gaze_speed(session, float(offset), smoothed)
-            use = ok & (head > HEAD_MIN_DEG_S)
-            np.add.at(sums[:, j], blocks[use], np.minimum(speed[use], FIXATION_MAX_DEG_S) ** 2)
-            np.add.at(counts[:, j], blocks[use], 1.0)
+        steps = np.arange(-round(search / OFFSET_STEP_S), round(search / OFFSET_STEP_S) + 1)
+        grid: FloatArray = steps.astype(float) * OFFSET_STEP_S
+        sums, counts = (np.stack(part, axis=1) for part in zip(*(block_sums(int(k)) for k in steps), strict=True))
         usable = counts.sum(0) >= OFFSET_MIN_SAMPLES  # a wide offset of a short recording overlaps too little
         if search == OFFSET_SEARCH_S and not usable.all():
             return TimeOffset(0.0, float("inf"), False, False, search)
