@@ -179,8 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "mobgap: Mobilise-D lab recordings in mobgap's layout -> walking sessions per test and trial (lower-back IMU; "
                          "the INDIP reference's bouts, steps, stride lengths in [truth_extra]). plaza: Plaza1|Plaza2 (shipped with gtsam) "
                          "-> a walking session driven by wheel odometry with beacon ranges (start found from the ranges). tobii: a Tobii Pro Glasses 3 "
-                         "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth). pupil: a Pupil Invisible export "
-                         "folder (imu.csv, gaze.csv) -> a gaze session without a magnetometer, the device's fixations for scoring. csv: one stream of a "
+                         "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth). pupil: a Pupil Labs Pupil Invisible "
+                         "or Neon export folder (imu.csv, gaze.csv; which device from its info.json or its quaternion columns, or --device) -> "
+                         "a gaze session without a magnetometer, the device's fixations (and a Neon's own attitude) for scoring. csv: one stream of a "
                          "vendor's CSV export mapped onto a kind (--kind, --columns, --units, --time-units), into a new session "
                          "(--system) or added to one. xdf: a Lab Streaming Layer recording (LabRecorder), its streams mapped "
                          "with --map onto session streams.",
@@ -216,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--truth", action="store_true", help="csv: the stream is the session's truth (kind attitude, position, ...)")
     imp.add_argument("--calibration", type=Path, metavar="FILE", help="uwb: a range calibration per anchor and tag "
                      "(anchor,tag,bias_m,slope,sigma_m; default: the folder's calibration.csv when there is one)")
+    imp.add_argument("--device", choices=["invisible", "neon"], help="pupil: which Pupil Labs device made the export (IMU axes, "
+                     "camera; default: the export's info.json, else a Neon when imu.csv's quaternion columns hold numbers)")
     imp.add_argument("--labelled", action="store_true", help="uwb: keep each range's tag as the ranging system reports it (a tag column); "
                      "default: unlabelled, each receiver's distances in arrival order")
 
@@ -288,10 +291,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "tracker, Method II (noise chosen leaving the trial out), the paper's values, iSAM2 online, batch; RMS per axis in "
                          "movement, Euler-angle domain exits listed.\n"
                          "gaze-recorded: the head-worn eye tracker's export in DIR (default ../shared/data/gaze_tobii; a Tobii Pro Glasses 3 "
-                         "folder with imudata.gz or a Pupil Invisible one with imu.csv, told apart by their files): the gaze-to-IMU "
+                         "folder with imudata.gz or a Pupil Labs Pupil Invisible or Neon one with imu.csv, told apart by their files): the gaze-to-IMU "
                          "time offset found from the data, fixations that read no IMU (the device's own, else eye-in-head velocity), and "
                          "the dispersion of the world gaze ray in them (median over fixations) for the head-frame gaze, the raw gyro, the "
-                         "paper's EKF, fusegraph online and batch (and the device's own attitude where the export has a whole one).\n"
+                         "paper's EKF, fusegraph online and batch, and the device's own attitude where the export has a whole one (a Neon's).\n"
                          "soak: the online head tracker over an hour of data (--duration, default 3600 s here): speed per 10 minutes and peak memory.\n"
                          "activity: every walking cycle the waist front end detects in DIR (UCI HAPT's raw folder, default ../shared/data/hapt, "
                          "or sessions from `import hapt`) against the hand label of its segment: fusegraph's classifier (leave-one-user-out "
@@ -313,7 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak", "head-recorded", "gaze-recorded", "activity", "gait"])
     ben.add_argument("directory", nargs="?", type=Path, help="broad, head-recorded: directory of BROAD trials (*.mat; default ../shared/data/broad) "
                      "or, head-recorded, of the head sessions `import broad --system head` wrote; "
-                     "gaze-recorded: the eye-tracker export (Tobii or Pupil Invisible; default ../shared/data/gaze_tobii); "
+                     "gaze-recorded: the eye-tracker export (Tobii, Pupil Invisible or Neon; default ../shared/data/gaze_tobii); "
                      "activity: HAPT's raw folder or imported sessions")
     ben.add_argument("--duration", type=float, default=600.0, help="head: seconds of data (default 600); ultrasonic: seconds per run (default 20)")
     ben.add_argument("--repeat", type=int, default=3, help="head: repeats; the median is printed (default 3)")
@@ -331,6 +334,8 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("--oxford", default="default", metavar="DIR", help="walking: Oxford step recordings (default ../shared/data/steps_oxford; 'none' skips)")
     ben.add_argument("--no-plaza", action="store_true", help="walking: skip the Plaza runs")
     ben.add_argument("--use-mag", action="store_true", help="gaze-recorded: use the magnetometer as recorded (default: not; it cannot be calibrated)")
+    ben.add_argument("--device", choices=["invisible", "neon"], help="gaze-recorded: which Pupil Labs device made a Pupil export (default: what "
+                     "the export says, as import pupil)")
     ben.add_argument("--workers", type=int, default=2,
                      help="head-recorded: trials run side by side in processes; activity: leave-one-user-out folds (default 2)")
     ben.add_argument("--json", action="store_true", help="print JSON")
@@ -507,7 +512,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
         raise ValueError(f"{', '.join(given)}: for import csv / xdf")
     if args.calibration and args.format != "uwb":
         raise ValueError("--calibration applies to import uwb only")
-    for path in import_recording(args.format, args.source, args.out, labelled=args.labelled, calibration=args.calibration, system=args.system):
+    for path in import_recording(args.format, args.source, args.out, labelled=args.labelled, calibration=args.calibration, system=args.system,
+                                 device=args.device):
         print(f"wrote {path}/")
     return 0
 
@@ -717,7 +723,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "gaze-recorded":
         from .evaluation import gaze_recorded
 
-        recorded = gaze_recorded.analyse_gaze_recording(args.directory, use_mag=args.use_mag)
+        recorded = gaze_recorded.analyse_gaze_recording(args.directory, use_mag=args.use_mag, device=args.device)
         found = gaze_recorded.gaze_recorded_json(recorded)
         print(_dump(found) if args.json else gaze_recorded.format_gaze_recorded(found))
         if args.plot:

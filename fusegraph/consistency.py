@@ -50,13 +50,14 @@ never repeats a float extreme; 1,302 accelerometer samples at 1.99994 g in the P
 
 def saturation_level(values: FloatArray) -> float | None:
     """The magnitude at which a stream clips (its range), or None: the largest absolute value of an axis when at least
-    ``CLIPPED_MIN_SAMPLES`` samples of that axis sit at it (within 1e-6 of it, relative)."""
+    ``CLIPPED_MIN_SAMPLES`` samples of that axis sit at it (within 1e-6 of it, relative) and no axis reads beyond it (a
+    range bounds every axis: a smooth periodic motion sampled in step with its period repeats its peak, and is no range)."""
     magnitude = np.abs(np.asarray(values, dtype=float))
     if magnitude.size == 0 or not np.isfinite(magnitude).any():
         return None
     top = np.nanmax(magnitude, axis=0)
     at_top = (magnitude >= top * (1.0 - 1e-6)) & (top > 0)
-    clipped = at_top.sum(axis=0) >= CLIPPED_MIN_SAMPLES
+    clipped = (at_top.sum(axis=0) >= CLIPPED_MIN_SAMPLES) & (top >= np.max(top) * (1.0 - 1e-6))
     return float(top[clipped].min()) if clipped.any() else None
 
 

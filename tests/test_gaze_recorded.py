@@ -356,3 +356,88 @@ def test_a_pupil_export_with_repeated_stamps_drops_them_said_and_too_many_is_an_
     (tmp_path / "imu.csv").write_text("\n".join([*lines, *lines[1:200]]) + "\n")
     with pytest.raises(SessionError, match="imu.csv: 199 rows whose timestamp repeats or goes back.*two recordings in one file"):
         load_pupil(tmp_path)
+
+
+def _write_neon_export(folder, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+    """A Neon export (Pupil Cloud's columns) of a head turning in yaw and pitch while the eyes hold a world target still
+    (perfect reflex), a saccade every 2 s: the IMU in Neon's axes (x right, y forward, z up) with its quaternion, the gaze
+    as azimuth/elevation in the scene camera (the IMU rotated by -102 deg about x). Returns the IMU times (s), the head's
+    rate in the head frame (rad/s) and the head's attitude (wxyz)."""
+    from scipy.spatial.transform import Rotation
+
+    from fusegraph.datasets.pupil import HEAD_FROM_CAMERA, NEON
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 12.0, 1 / 110)
+    yaw, yaw_rate = np.deg2rad(20.0) * np.sin(2 * np.pi * 0.3 * t), np.deg2rad(20.0) * 2 * np.pi * 0.3 * np.cos(2 * np.pi * 0.3 * t)
+    pitch, pitch_rate = np.deg2rad(8.0) * np.sin(2 * np.pi * 0.5 * t), np.deg2rad(8.0) * 2 * np.pi * 0.5 * np.cos(2 * np.pi * 0.5 * t)
+    world_R_head = Rotation.from_euler("ZY", np.stack([yaw, pitch], axis=1))  # yaw about the world's z, then pitch about the head's y
+    rate_head = np.stack([-np.sin(pitch) * yaw_rate, pitch_rate, np.cos(pitch) * yaw_rate], axis=1)
+    imu_from_head = NEON.head_from_imu.T
+    # white noise of a MEMS IMU (0.05 deg/s, 2 mg); standing in place, the specific force is gravity
+    gyro_dps = np.rad2deg(rate_head @ imu_from_head.T) + rng.normal(0, 0.05, (t.size, 3))
+    accel_g = world_R_head.inv().apply([0.0, 0.0, 1.0]) @ imu_from_head.T + rng.normal(0, 0.002, (t.size, 3))
+    quat_xyzw = (world_R_head * Rotation.from_matrix(NEON.head_from_imu)).as_quat()  # IMU -> world
+    ns0 = 1_650_000_000_000_000_000
+    with (folder / "imu.csv").open("w") as out:
+        out.write("section id,recording id,timestamp [ns],gyro x [deg/s],gyro y [deg/s],gyro z [deg/s],acceleration x [g],acceleration y [g],"
+                  "acceleration z [g],roll [deg],pitch [deg],yaw [deg],quaternion w,quaternion x,quaternion y,quaternion z\n")
+        for k in range(t.size):
+            out.write(f"s,r,{ns0 + round(t[k] * 1e9)},{','.join(f'{v:.9g}' for v in gyro_dps[k])},{','.join(f'{v:.9g}' for v in accel_g[k])},"
+                      f"0,0,0,{quat_xyzw[k, 3]:.12g},{quat_xyzw[k, 0]:.12g},{quat_xyzw[k, 1]:.12g},{quat_xyzw[k, 2]:.12g}\n")
+    taken = np.arange(0.0, 11.95, 1 / 200)
+    targets = np.deg2rad(np.stack([rng.uniform(-10, 10, 6), rng.uniform(-8, 8, 6)], axis=1))
+    az_w, el_w = targets[(taken // 2).astype(int)].T
+    world_dir = np.stack([np.cos(el_w) * np.cos(az_w), np.cos(el_w) * np.sin(az_w), np.sin(el_w)], axis=1)
+    at_gaze = Rotation.from_euler("ZY", np.stack([np.interp(taken, t, yaw), np.interp(taken, t, pitch)], axis=1))
+    cam = at_gaze.inv().apply(world_dir) @ HEAD_FROM_CAMERA  # head -> camera (x right, y down, z forward)
+    az = np.rad2deg(np.arctan2(cam[:, 0], cam[:, 2])) + rng.normal(0, 0.05, taken.size)
+    el = np.rad2deg(np.arctan2(-cam[:, 1], np.hypot(cam[:, 0], cam[:, 2]))) + rng.normal(0, 0.05, taken.size)
+    fixation = np.where(taken % 2 > 0.1, taken // 2 + 1, 0).astype(int)
+    with (folder / "gaze.csv").open("w") as out:
+        out.write("section id,recording id,timestamp [ns],gaze x [px],gaze y [px],worn,fixation id,blink id,azimuth [deg],elevation [deg]\n")
+        for k in range(taken.size):
+            out.write(f"s,r,{ns0 + round(taken[k] * 1e9)},800,600,1,{fixation[k] or ''},,{az[k]:.9g},{el[k]:.9g}\n")
+    return t, rate_head, world_R_head.as_quat()[:, [3, 0, 1, 2]]
+
+
+def test_a_neon_export_is_told_apart_read_in_its_own_axes_and_its_attitude_scored(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """`import pupil` of a Neon export: the device told from the quaternion columns (or info.json, or --device), the IMU
+    rotated from Neon's axes into the scene camera's head frame, the export's quaternion kept as the scoring-only
+    ``device_attitude`` (the head's attitude exactly), and the bench's ``device`` row scores it; read as a Pupil
+    Invisible (its axes) the gyro turns the head against the gaze, which the session's check says."""
+    import json
+
+    from fusegraph.cli import main
+    from fusegraph.datasets.pupil import load_pupil
+    from fusegraph.evaluation.gaze_recorded import bench_gaze_recorded
+    from fusegraph.evaluation.runner import solve_session
+    from fusegraph.session import SessionError, load_session
+
+    t, rate_head, world_R_head = _write_neon_export(tmp_path)
+    session = load_pupil(tmp_path)
+    header = session.meta["session"]
+    assert (header["device"], header["device_from"], header["dataset"]) == ("neon", "imu.csv: quaternion columns filled", "Pupil Labs Neon")
+    np.testing.assert_allclose(session.stream("gyro").values, rate_head, atol=0.006)  # the 0.05 deg/s noise's 7 sigma
+    device = session.stream("device_attitude")
+    assert device.kind == "attitude"
+    np.testing.assert_allclose(np.abs(np.sum(device.values * world_R_head, axis=1)), 1.0, atol=1e-9)  # the same rotation (q or -q)
+    (tmp_path / "info.json").write_text(json.dumps({"glasses_serial_number": "abcde"}))
+    assert load_pupil(tmp_path).meta["session"]["device"] == "invisible"  # the export's own word first
+    (tmp_path / "info.json").write_text(json.dumps({"module_serial_number": "123456"}))
+    assert load_pupil(tmp_path).meta["session"]["device_from"] == "info.json: module_serial_number"
+    as_invisible = load_pupil(tmp_path, device="invisible")
+    assert "device_attitude" not in as_invisible.streams and as_invisible.meta["session"]["device_from"] == "told"
+
+    assert main(["import", "pupil", str(tmp_path), "--out", str(tmp_path / "neon")]) == 0
+    capsys.readouterr()
+    written = load_session(tmp_path / "neon")
+    np.testing.assert_allclose(written.stream("device_attitude").values, device.values, atol=1e-9)
+    bench = bench_gaze_recorded(tmp_path)
+    d = bench["dispersion_deg"]
+    # the gaze noise is 0.05 deg per axis (RMS angle ~0.07); the reflex is perfect, so the head frame's spread is the head's turn
+    assert bench["device"] == "Pupil Labs Neon" and bench["fixation_source"] == "device" and bench["fixations"] == 6
+    assert d["device"] < 0.15 and d["gyro"] < 0.15 and d["head_frame"] > 10 * d["device"]
+    assert all(np.isfinite(v) for v in d.values())  # the last fixation reaches past the last keyframe: carried from it by the gyro
+    with pytest.raises(SessionError, match="moves against the head's yaw"):  # Neon's IMU read in the Invisible's axes
+        solve_session(as_invisible, "gyro")

@@ -27,9 +27,10 @@ A session written here runs through ``run``, ``view`` and ``ablate`` like a simu
 * ``tobii``: a Tobii Pro Glasses 3 export folder (``imudata.gz``, ``gazedata.gz``) -> one gaze session
   (gyro in rad/s and head axes, accel, mag on the IMU times, gaze pixels; no wall: ``target_depth_m``);
   no truth (``bench gaze-recorded`` scores fixations). See ``datasets.tobii``.
-* ``pupil``: a Pupil Labs Pupil Invisible export folder (``imu.csv``, ``gaze.csv``) -> one gaze session (gyro in rad/s
-  and head axes, accel in m/s^2, no magnetometer, the gaze rays as pinhole pixels, the device's fixations as the
-  scoring-only ``fixation`` stream). See ``datasets.pupil``.
+* ``pupil``: a Pupil Labs Pupil Invisible or Neon export folder (``imu.csv``, ``gaze.csv``) -> one gaze session (gyro
+  in rad/s and head axes, accel in m/s^2, no magnetometer, the gaze rays as pinhole pixels, the device's fixations as
+  the scoring-only ``fixation`` stream, a Neon's own attitude as the scoring-only ``device_attitude``). See
+  ``datasets.pupil``.
 """
 
 from __future__ import annotations
@@ -44,9 +45,12 @@ from ..session import KIND_COLUMNS, Session, SessionError, Stream, save_session
 
 
 def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bool = False, calibration: Path | None = None,
-                     system: str | None = None) -> list[Path]:
+                     system: str | None = None, device: str | None = None) -> list[Path]:
     """Write the recording at ``source`` as session directories under ``out``; returns them. ``system``: whose sessions
-    a dataset that serves two systems becomes (BROAD: ``attitude9``, the default, or ``head``)."""
+    a dataset that serves two systems becomes (BROAD: ``attitude9``, the default, or ``head``). ``device``: pupil only,
+    which Pupil Labs device made the export (``invisible``/``neon``; default: what the export says)."""
+    if device is not None and fmt != "pupil":
+        raise SessionError(f"--device {device}: for import pupil only")
     if system is not None and not (fmt == "broad" and system in ("head", "attitude9")):
         raise SessionError(f"--system {system}: import {fmt} writes {'head or attitude9' if fmt == 'broad' else 'its own system'}'s sessions")
     if fmt == "plaza":
@@ -69,7 +73,7 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
     if fmt == "tobii":
         return [save_session(tobii_session(source), out)]
     if fmt == "pupil":
-        return [save_session(pupil_session(source), out)]
+        return [save_session(pupil_session(source, device), out)]
     if fmt == "hapt":
         from .hapt import hapt_sessions
 
@@ -172,12 +176,13 @@ def tobii_session(directory: Path) -> Session:
     return replace(session, meta={**session.meta, "session": header})
 
 
-def pupil_session(directory: Path) -> Session:
-    """A Pupil Invisible export as a gaze session (``datasets.pupil``), the gaze stream's delay behind the IMU declared as
-    for the Tobii (``time_offset_s``, from the gaze and the gyro alone). It has no magnetometer (``use_mag = false``)."""
+def pupil_session(directory: Path, device: str | None = None) -> Session:
+    """A Pupil Invisible or Neon export as a gaze session (``datasets.pupil``; ``device`` overrides what the export says
+    of itself), the gaze stream's delay behind the IMU declared as for the Tobii (``time_offset_s``, from the gaze and the
+    gyro alone). It has no magnetometer (``use_mag = false``)."""
     from .pupil import load_pupil
 
-    return _with_gaze_offset(_portable(load_pupil(directory)))
+    return _with_gaze_offset(_portable(load_pupil(directory, device)))
 
 
 def _with_gaze_offset(session: Session) -> Session:

@@ -6,15 +6,16 @@ detector where the export has one, else eye-in-head velocity: ``frontends.gaze_t
 over fixations of each one's RMS angle to its mean direction.
 
 Rows: ``head_frame`` (no head attitude: the gaze in the head frame), ``gyro`` (the raw gyro integrated, no bias
-estimate), ``device`` (the device's own head attitude: null, with the reason in ``device_attitude``, when the export has
-no whole one: the Tobii export has none, the Pupil Invisible's has roll and pitch without a heading), the paper's
+estimate), ``device`` (the device's own head attitude, the session's scoring-only ``device_attitude`` stream at the gaze
+samples: a Neon export's; null, with the reason in ``device_attitude``, when the export has no whole one: the Tobii
+export has none, the Pupil Invisible's has roll and pitch without a heading), the paper's
 ``ekf``, fusegraph ``online`` and ``batch``. Beside them ``fixation_turn_beyond_gyro_deg`` (``ekf``, ``online``,
 ``batch``): per fixation the largest angle by which the method turned the head beyond its raw gyro, the median over
 fixations (``frontends.gaze_timing.turn_beyond_gyro_deg``; it says why a method disperses more than the raw gyro).
 
 Either export is read, told apart by its files (``export_kind``): a Tobii Pro Glasses 3 folder (``imudata.gz``:
-``import tobii``) or a Pupil Labs Pupil Invisible one (``imu.csv`` + ``gaze.csv``: ``import pupil``, the device's own
-fixations and no magnetometer).
+``import tobii``) or a Pupil Labs Pupil Invisible or Neon one (``imu.csv`` + ``gaze.csv``: ``import pupil``, the
+device's own fixations and no magnetometer).
 
 The magnetometer of the shipped recording reads 110-131 uT (the Earth's field is ~50): a constant part from the
 glasses themselves that 65 s of turning +-70 deg about one axis cannot calibrate (a sphere fit gives 31 uT and an
@@ -48,7 +49,7 @@ from .runner import solve_session
 ROWS = ("head_frame", "gyro", "ekf", "online", "batch")
 """The table's rows: the gaze preset's solvers, no fusion first."""
 DEVICE_ATTITUDE = {"tobii": "the export has no head attitude", "pupil": "the export's roll and pitch (the cloud's Madgwick filter) have no heading"}
-"""Why the ``device`` row is null, per export."""
+"""Why the ``device`` row is null, per export (a Pupil export with its quaternions, a Neon's, has the row)."""
 
 
 def export_kind(directory: Path) -> str:
@@ -60,7 +61,7 @@ def export_kind(directory: Path) -> str:
     if (directory / "imu.csv").is_file() and (directory / "gaze.csv").is_file():
         return "pupil"
     raise SessionError(f"{directory}: not an eye-tracker export fusegraph reads (a Tobii Pro Glasses 3 folder has imudata.gz and "
-                       "gazedata.gz; a Pupil Invisible export has imu.csv and gaze.csv)")
+                       "gazedata.gz; a Pupil Invisible or Neon export has imu.csv and gaze.csv)")
 
 
 @dataclass(frozen=True)
@@ -83,15 +84,19 @@ class RecordedGaze:
     """``tobii`` or ``pupil`` (``export_kind``)."""
 
 
-def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = False) -> RecordedGaze:
-    """The eye-tracker export in ``directory`` imported and run by every row's solver."""
+def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = False, device: str | None = None) -> RecordedGaze:
+    """The eye-tracker export in ``directory`` imported and run by every row's solver; ``device``: a Pupil export's
+    device (``invisible``/``neon``), as ``import pupil --device``."""
     from ..datasets.importers import pupil_session, tobii_session
     from ..datasets.tobii import DEFAULT_DIR
+    from ..session import SessionError
     from ..systems.gaze import from_session
 
     directory = Path(directory or DEFAULT_DIR)
     export = export_kind(directory)
-    session = tobii_session(directory) if export == "tobii" else pupil_session(directory)
+    if device is not None and export != "pupil":
+        raise SessionError(f"--device {device}: {directory} is a {export} export, not a Pupil Labs one")
+    session = tobii_session(directory) if export == "tobii" else pupil_session(directory, device)
     if use_mag:
         session = replace(session, meta={**session.meta, "session": {**session.meta["session"], "use_mag": True}})
     estimates, metrics = {}, {}
@@ -112,11 +117,16 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
     gaze = run.session.stream("gaze").meta
     header = run.session.meta["session"]
     gyro = run.estimates["gyro"].extras["world_R_head"]  # the gyro row's attitude: the raw gyro integrated
+    device = device_attitude_at_gaze(run)
+    spread = dispersions_deg(device, data, found) if device is not None and found else None
     return {
-        "dispersion_deg": {"device": None, **{name: m["dispersion_deg"] for name, m in run.metrics.items()}},
-        "dispersion_mean_deg": {"device": None, **{name: m["dispersion_mean_deg"] for name, m in run.metrics.items()}},
-        "device_attitude": DEVICE_ATTITUDE[run.export],
+        "dispersion_deg": {"device": None if spread is None else float(np.median(spread)),
+                           **{name: m["dispersion_deg"] for name, m in run.metrics.items()}},
+        "dispersion_mean_deg": {"device": None if spread is None else float(np.mean(spread)),
+                                **{name: m["dispersion_mean_deg"] for name, m in run.metrics.items()}},
+        "device_attitude": "the export's own attitude (device_attitude)" if device is not None else DEVICE_ATTITUDE[run.export],
         "export": run.export,
+        "device": header.get("dataset", run.export),
         "fixation_source": run.fixation_source,
         "fixation_fraction": float(sum(len(f.rows) for f in found) / max(len(data.tracker_t), 1)),
         "time_offset_s": float(gaze["time_offset_s"]),
@@ -139,9 +149,26 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
     }
 
 
-def bench_gaze_recorded(directory: str | Path | None = None, use_mag: bool = False) -> dict[str, Any]:
+def device_attitude_at_gaze(run: RecordedGaze) -> np.ndarray | None:
+    """The session's ``device_attitude`` (the export's own head attitude) at each gaze sample's IMU time, quaternions
+    wxyz interpolated along the shortest arc; NaN outside its span. None without the stream."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    if "device_attitude" not in run.session.streams:
+        return None
+    stream = run.session.stream("device_attitude")
+    at = run.data.tracker_t
+    inside = (at >= stream.t[0]) & (at <= stream.t[-1])
+    out = np.full((len(at), 4), np.nan)
+    if inside.any():
+        wxyz = Slerp(stream.t, Rotation.from_quat(stream.values[:, [1, 2, 3, 0]]))(at[inside]).as_quat()
+        out[inside] = wxyz[:, [3, 0, 1, 2]]
+    return out
+
+
+def bench_gaze_recorded(directory: str | Path | None = None, use_mag: bool = False, device: str | None = None) -> dict[str, Any]:
     """``fusegraph bench gaze-recorded``: the JSON (see the module docstring)."""
-    return gaze_recorded_json(analyse_gaze_recording(directory, use_mag))
+    return gaze_recorded_json(analyse_gaze_recording(directory, use_mag, device))
 
 
 def format_gaze_recorded(result: dict[str, Any]) -> str:
@@ -156,7 +183,8 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         "batch": "fusegraph batch",
     }
     lines = [
-        f"gaze on a recorded head-worn eye tracker ({result['export']}; {result['duration_s']:.0f} s; {result['gaze_samples']} gaze samples, "
+        f"gaze on a recorded head-worn eye tracker ({result.get('device', result['export'])}; {result['duration_s']:.0f} s; "
+        f"{result['gaze_samples']} gaze samples, "
         f"{result['gaze_untracked']} untracked; magnetometer "
         f"{'used' if result['use_mag'] else 'not used' + (' (uncalibratable)' if result['export'] == 'tobii' else ' (none)')})",
         f"gaze-to-IMU time offset: {1000 * result['time_offset_s']:.1f} ms (sigma {1000 * result['time_offset_sigma_s']:.1f} ms, "
@@ -218,8 +246,11 @@ def plot_gaze_recorded(run: RecordedGaze, path: str | Path) -> Path:
     axes[0].set(ylabel="deg/s", ylim=(0, 300), title=f"fixations scored ({run.fixation_source}, shaded: {len(found)})")
     axes[0].legend(fontsize=8, loc="upper right")
     rays = run.data.config.camera.ray(run.data.gaze_px)
-    for name, estimate in run.estimates.items():
-        quat = estimate.extras["world_R_head"]
+    attitudes = {name: estimate.extras["world_R_head"] for name, estimate in run.estimates.items()}
+    device = device_attitude_at_gaze(run)
+    if device is not None:
+        attitudes["device"] = device
+    for name, quat in attitudes.items():
         if found:
             angles = np.rad2deg(np.concatenate([fixation_angles(quat, rays, f) for f in found]))
             label = f"{name} (median {np.median(dispersions_deg(quat, run.data, found)):.2f} deg)"

@@ -114,8 +114,8 @@ class GazeGraph:
             self.sample_keyframe = np.r_[self.sample_keyframe, np.full(extra, -1)]
             self.keyframe_R_sample = np.concatenate([self.keyframe_R_sample, np.tile(np.eye(3), (extra, 1, 1))])
 
-    def push(self, i0: int, i1: int) -> range:
-        """IMU samples [i0, i1), then every gaze sample up to the newest keyframe; returns the gaze samples added."""
+    def push(self, i0: int, i1: int, final: bool = False) -> range:
+        """IMU samples [i0, i1), then the gaze samples up to the newest keyframe (``final``: up to the last IMU sample); returns those added."""
         first = self._next_gaze
         s = self.session
         self.builder.add_samples(s.t[i0:i1], s.gyro_rad_s[i0:i1], s.accel_m_s2[i0:i1], s.mag[i0:i1])
@@ -127,7 +127,7 @@ class GazeGraph:
         while self._points < len(kf_t):
             self._add_point(self._points)
             self._points += 1
-        last = kf_t[-1]
+        last = s.t[-1] if final else kf_t[-1]
         tt = s.tracker_t
         self._grow()
         while self._next_gaze < len(tt) and tt[self._next_gaze] <= last:
@@ -294,9 +294,9 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEsti
     out = np.full((len(session.tracker_t), 2), np.nan)
     attitude = np.full((len(session.tracker_t), 4), np.nan)
     block = block_size(session, model)
-    for i in range(0, len(session.t), block):
-        added = graph.push(i, i + block)
-        if not solver.update():
+    for i in [*range(0, len(session.t), block), len(session.t)]:  # last, the gaze after the last keyframe in an update of its own
+        added = graph.push(i, i + block, final=i >= len(session.t))
+        if not solver.update(force=i >= len(session.t)):
             continue
         k = graph.builder.latest_keyframe
         point = solver.isam.calculateEstimatePoint3(G(k))
@@ -328,7 +328,7 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstim
     graph = GazeGraph(session, model, deferred_mag=True)
     block = block_size(session, model)
     for i in range(0, len(session.t), block):
-        graph.push(i, i + block)
+        graph.push(i, i + block, final=i + block >= len(session.t))
     increment = graph.builder.take()
     keyframes = len(graph.builder.keyframe_t)
     values = graph.builder.tracker_seeded(increment.values)

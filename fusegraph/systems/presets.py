@@ -63,7 +63,7 @@ class Preset:
         """Top-level keys of session.toml against this preset's (a misspelled key names the nearest)."""
         where = session.where
         tables: dict[str, list[str]] = {"session": ["system", "description", "world_frame", "scenario", "seed", "profile", "dataset", "trial",
-                                                  "time_origin_s", "subject"]}
+                                                  "time_origin_s", "subject", "device", "device_from"]}
         for spec in self.session_keys:
             table, _, key = spec.name.rpartition(".")
             tables.setdefault(table or "session", []).append(key)
