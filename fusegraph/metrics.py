@@ -10,7 +10,7 @@ import numpy as np
 
 from .estimate import Estimate
 from .geometry import FloatArray, euler_zyx_from_quat, quat_conjugate, quat_multiply, quat_normalize, rotvec_from_quat, wrap_angle
-from .records import RangeEpochs
+from .records import GazeSession, RangeEpochs
 
 AXES = ("azimuth", "elevation", "roll")
 
@@ -441,6 +441,13 @@ def gait_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "step_precision": tp / (tp + fp) if tp + fp else None, "step_recall": tp / (tp + fn) if tp + fn else None,
             "stride_length_mae_m": float(np.mean(lengths)) if lengths else None, "walking_speed_mae_m_s": float(np.mean(speeds)) if speeds else None,
             "bouts_scored": len(lengths), "bouts": sum(r["bouts"] for r in counts)}
+
+
+def gaze_rms_mm(estimate: FloatArray, session: GazeSession, skip_s: float = 1.0) -> dict[str, float]:
+    """RMS of the gaze point error on the wall, X and Z, millimetres (after the first ``skip_s``)."""
+    keep = (session.tracker_t >= skip_s) & np.all(np.isfinite(estimate), axis=1) & np.all(np.isfinite(session.truth_gaze_xz_m), axis=1)
+    err = (estimate[keep] - session.truth_gaze_xz_m[keep]) * 1000.0
+    return {"x_mm": float(np.sqrt(np.mean(err[:, 0] ** 2))), "z_mm": float(np.sqrt(np.mean(err[:, 1] ** 2)))}
 
 
 def track_errors(t: FloatArray, xyz: FloatArray, truth_t: FloatArray, truth_xyz_m: FloatArray) -> dict[str, float]:

@@ -404,7 +404,7 @@ def _simulated(scenario: str, seed: int) -> Any:
 def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
     from ..baselines.ekf9 import Ekf9Config
     from ..baselines.ekf_gaze import GazeEkfConfig, run_gaze_ekf
-    from ..systems.gaze import rms_mm
+    from ..metrics import gaze_rms_mm as rms_mm
 
     s = _simulated("gaze", seed)
     config = GazeEkfConfig(head=Ekf9Config.from_setting(setting), gaze_walk_m_per_sqrt_s=setting["gaze_walk_m_per_sqrt_s"])
@@ -415,7 +415,8 @@ def _gaze_ekf_score(setting: dict[str, Any], seed: int) -> float:
 
 def _gaze_fixation_score(setting: dict[str, Any], seed: int, solver: str = "online") -> float:
     from ..factors.gaze import FixationNoise
-    from ..systems.gaze import GazeModel, rms_mm, run_batch, run_online
+    from ..metrics import gaze_rms_mm as rms_mm
+    from ..systems.gaze import GazeModel, run_batch, run_online
 
     s = _simulated("gaze", seed)
     fixation = FixationNoise(drift_m_per_sqrt_s=setting["drift_m_per_sqrt_s"], cauchy_k=setting["cauchy_k"])

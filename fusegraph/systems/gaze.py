@@ -124,15 +124,15 @@ class GazeGraph:
         if not self.builder.started:
             return range(first, first)
         kf_t = self.builder.keyframe_t
-        while self._points < len(kf_t):
-            self._add_point(self._points)
-            self._points += 1
         last = s.t[-1] if final else kf_t[-1]
         tt = s.tracker_t
         self._grow()
         while self._next_gaze < len(tt) and tt[self._next_gaze] <= last:
             j = self._next_gaze
             k = int(np.searchsorted(kf_t, tt[j], side="right") - 1)
+            while self._points <= k:  # a point once its keyframe's gaze has come, started where that gaze looks
+                self._add_point(self._points, float(kf_t[self._points + 1]) if self._points + 1 < len(kf_t) else last)
+                self._points += 1
             if k >= self.builder.oldest_allowed_keyframe:
                 self._add_gaze(j, k)
             elif k >= 0:
@@ -140,28 +140,33 @@ class GazeGraph:
             self._next_gaze += 1
         return range(first, self._next_gaze)
 
-    def _initial_point(self, k: int) -> FloatArray:
-        """Where the newest gaze ray meets the wall, seen with keyframe k's predicted attitude.
+    def _initial_point(self, k: int, until: float) -> FloatArray:
+        """Where keyframe k's own gaze rays (up to ``until``, its next keyframe) meet the wall, their median carried by the
+        gyro to k and seen with k's predicted attitude (the newest keyframe's dead reckoning, carried back); without gaze
+        of its own, the newest ray before k.
 
-        Starting g(k) there (not at g(k-1)) matters after a saccade: linearised at the old point the
-        random walk's Cauchy kernel would give the jump full weight and iSAM2 would follow it over a
-        second of relinearisations.
+        Starting g(k) there matters after a saccade: linearised at the old point the random walk's Cauchy kernel would
+        give the jump full weight, and iSAM2 would turn the head by part of the saccade before it followed (1.9 deg of
+        yaw over a keyframe on a simulated 10 deg saccade when g(k) started at the ray before the keyframe).
         """
-        s = self.session
-        j = int(np.searchsorted(s.tracker_t, self.builder.keyframe_t[k], side="right") - 1)
+        s, kf_t = self.session, self.builder.keyframe_t
+        lo, hi = np.searchsorted(s.tracker_t, [kf_t[k], until], side="right")
         depth = self.session.config.target_depth_m
-        if j < 0:
+        if hi <= lo and lo == 0:
             return np.array([depth or self.wall_m, 0.0, 0.0])
-        world_R_head = self.builder.predicted_attitude.matrix() if k == self.builder.latest_keyframe else np.eye(3)
-        ray = world_R_head @ self.camera.ray(s.gaze_px[j])[0]
+        own = range(lo, hi) if hi > lo else range(lo - 1, lo)
+        rays = [self._rotation_since_keyframe(k, max(float(s.tracker_t[j]), kf_t[k])).matrix() @ self.camera.ray(s.gaze_px[j])[0] for j in own]
+        world_R_head = self.builder.predicted_attitude.compose(self._rotation_since_keyframe(k, kf_t[self.builder.latest_keyframe]).inverse())
+        ray = world_R_head.matrix() @ np.median(rays, axis=0)
+        ray /= np.linalg.norm(ray)
         if depth is not None:
             return ray * depth
         if ray[0] <= 1e-3:
             return np.array([self.wall_m, 0.0, 0.0])
         return ray * (self.wall_m / ray[0])
 
-    def _add_point(self, k: int) -> None:
-        point = self._initial_point(k)
+    def _add_point(self, k: int, until: float) -> None:
+        point = self._initial_point(k, until)
         self.builder.add_variable(G(k), point, per_keyframe=True)
         if self.session.config.target_depth_m is None:
             self.builder.add_factor(k, wall_plane_prior(G(k), self.wall_m, self.model.fixation))
@@ -299,12 +304,12 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEsti
         if not solver.update(force=i >= len(session.t)):
             continue
         k = graph.builder.latest_keyframe
-        point = solver.isam.calculateEstimatePoint3(G(k))
+        points: dict[int, FloatArray] = {}
         graph.gyro_bias = graph.builder.posterior_gyro_bias[k] if graph.builder.posterior_gyro_bias else graph.gyro_bias
         for j in added:
-            kj = graph.sample_keyframe[j]
+            kj = int(graph.sample_keyframe[j])
             if kj >= 0:  # a sample before the first keyframe has no factor and no estimate
-                out[j] = (point if kj == k else solver.isam.calculateEstimatePoint3(G(kj)))[1:]
+                out[j] = (points[kj] if kj in points else points.setdefault(kj, solver.isam.calculateEstimatePoint3(G(kj))))[1:]
         graph.sample_attitudes(lambda kj: solver.isam.calculateEstimatePose3(X(kj)).rotation(), added, attitude)
     return GazeEstimate(out, attitude, time.perf_counter() - start, tuple(graph.builder.notes()))
 
@@ -343,7 +348,7 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstim
             factors.add(factor)
         values = gtsam.LevenbergMarquardtOptimizer(factors, values, params).optimize()
         attitude = [values.atPose3(X(k)).rotation() for k in range(keyframes)]
-    points = np.array([values.atPoint3(G(k)) for k in range(keyframes)])
+    points = np.array([values.atPoint3(G(k)) for k in range(graph._points)])  # keyframes after the last gaze have none
     # each sample's own keyframe point (what its factor saw): interpolating across a saccade smears the jump
     out = np.full((len(session.tracker_t), 2), np.nan)
     attached = graph.sample_keyframe >= 0
@@ -362,13 +367,6 @@ def run_ekf(session: GazeSession, config: GazeEkfConfig | None = None) -> GazeEs
         s.t, s.gyro_rad_s, s.accel_m_s2, s.mag, s.tracker_t, s.gaze_px, wall_m, s.config.camera, config, wall_facing_start=s.config.target_depth_m is not None
     )
     return GazeEstimate(out, attitude, time.perf_counter() - start)
-
-
-def rms_mm(estimate: FloatArray, session: GazeSession, skip_s: float = 1.0) -> dict[str, float]:
-    """RMS of the gaze point error on the wall, X and Z, millimetres (after the first ``skip_s``)."""
-    keep = (session.tracker_t >= skip_s) & np.all(np.isfinite(estimate), axis=1) & np.all(np.isfinite(session.truth_gaze_xz_m), axis=1)
-    err = (estimate[keep] - session.truth_gaze_xz_m[keep]) * 1000.0
-    return {"x_mm": float(np.sqrt(np.mean(err[:, 0] ** 2))), "z_mm": float(np.sqrt(np.mean(err[:, 1] ** 2)))}
 
 
 RUNNERS = {"ekf": run_ekf, "online": run_online, "batch": run_batch}

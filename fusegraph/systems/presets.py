@@ -212,13 +212,14 @@ def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     fixations that no scored method's input picked (``frontends.gaze_timing.scoring_fixations``: the device's own where
     the session has a ``fixation`` stream, else eye-in-head velocity), degrees: the median over fixations (and the mean)."""
     from ..frontends.gaze_timing import dispersions_deg, scoring_fixations
+    from ..metrics import gaze_rms_mm
     from . import gaze
 
     data = gaze.from_session(session)
     if not isinstance(estimate, PointEstimate):
         return None
     if np.isfinite(data.truth_gaze_xz_m).any():
-        return {"rms": gaze.rms_mm(estimate.points[:, 0, :], data)}
+        return {"rms": gaze_rms_mm(estimate.points[:, 0, :], data)}
     if "world_R_head" not in estimate.extras:
         return None
     ids = session.stream("fixation").values[:, 0] if "fixation" in session.streams else None
