@@ -255,10 +255,12 @@ def check_streams(streams: Mapping[str, Any]) -> list[str]:
                 slopes = pixels_against_gyro(gyro.t, gyro.values, stream.t, values, float(stream.meta.get("focal_px", 500.0)))
                 if slopes is not None and slopes[0] > FOLLOWS and slopes[1] < -FOLLOWS:
                     raise ConsistencyError(f"stream '{stream.name}': its v moves against the head's pitch on '{gyro.name}' (slope {slopes[1]:.2f}, "
-                                           f"u {slopes[0]:.2f}): v pointing down? write v up (v = image centre row - row)")
+                                           f"u {slopes[0]:.2f}): v pointing down? write v up (v = image centre row - row); or the gyro is in "
+                                           "other axes than the camera's head frame (an import for another device: import pupil --device)")
                 if slopes is not None and slopes[0] < -FOLLOWS and slopes[1] > FOLLOWS:
                     raise ConsistencyError(f"stream '{stream.name}': its u moves against the head's yaw on '{gyro.name}' (slope {slopes[0]:.2f}, "
-                                           f"v {slopes[1]:.2f}): u pointing left? write u right (u = column - image centre column)")
+                                           f"v {slopes[1]:.2f}): u pointing left? write u right (u = column - image centre column); or the "
+                                           "gyro is in other axes than the camera's head frame (an import for another device: import pupil --device)")
         if stream.kind == "ranges" and len(stream) > 20:
             from .factors.gyro import GAP_PERIODS
 
