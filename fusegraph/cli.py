@@ -122,6 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--latency-assumed", type=float, metavar="S",
                      help="latency the user believes; adds rows method2_wrong_d (Method II with it) and isam2_td/batch_td "
                      "(fusegraph estimating the latency from it as a prior); method2/isam2/batch get the true one")
+    rep.add_argument("--viewing", action="store_true", help="gaze: the scene-viewing scenario (the same head motion, a new mark "
+                     "every 0.33 s, the mean fixation in scene perception) instead of the paper's two marks")
     rep.add_argument("--gait", choices=["signature", "pendulum"], default=None,
                      help="walking seeds: the gait model simulated (default signature; pendulum: the one bench walking scores)")
     rep.add_argument("--json", action="store_true", help="print JSON instead of the table")
@@ -561,6 +563,8 @@ def _seeds_block(seeds: Any, system: str) -> dict[str, Any]:
 
 def _cmd_report(args: argparse.Namespace) -> int:
     solvers = [x.strip() for x in args.solvers.split(",") if x.strip()] if args.solvers else None
+    if args.viewing and (args.system != "gaze" or args.sessions):
+        raise ValueError("--viewing chooses the scenario of simulated gaze seeds (report gaze --seeds ...)")
     if args.gait is not None and (args.system != "walking" or args.sessions):
         raise ValueError("--gait chooses the gait of simulated walking seeds (report walking --seeds ...); recorded sessions have their own")
     if args.sessions:
@@ -579,7 +583,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
             raise ValueError(f"report {args.system}: its scenario is fixed (40 s, the realistic profile); --duration and --profile do not apply")
         make, table = {"bicycle": (bicycle.bicycle_report, format_bicycle_table), "gaze": (gaze.gaze_report, format_gaze_table)}[args.system]
         seeds = tuple(args.seeds)
-        found = make(seeds, plot=str(args.plot) if args.plot else None)
+        found = make(seeds, plot=str(args.plot) if args.plot else None, **({"viewing": True} if args.viewing else {}))
         found.update(_seeds_block(seeds, args.system))
         print(_dump(found) if args.json else table(found))
         if args.plot:

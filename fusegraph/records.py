@@ -13,6 +13,7 @@ estimator. ``truth.csv`` (kind ``tag_position``): ``t, tag, x, y, z`` per transm
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -60,6 +61,12 @@ class GazeScenarioConfig:
     """Nodding amplitude (pitch), degrees."""
     shake_deg: float = 20.0
     """Shaking amplitude (yaw), degrees."""
+    saccade_every_s: float | None = None
+    """None: the two marks (the second from ``switch_s``). Set (scene viewing): a new mark every this many seconds, each
+    uniform within +-``viewing_half_m`` of the wall's centre in X and Z (marks drawn apart from the other noise, so a
+    seed's head motion and sensor noise are the two-mark scenario's)."""
+    viewing_half_m: float = 0.3
+    """Half the side of the square the viewing marks are drawn in, metres (+-17 deg at 1 m)."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +88,34 @@ class GazeSession:
     config: GazeScenarioConfig
     head_tracker: AttitudeTrack | None = None
     """An optional head attitude tracker (its own room frame, possibly late)."""
+
+
+class GazeData(Protocol):
+    """What ``GazeGraph`` reads: a ``GazeSession``, or a live one whose arrays grow as samples arrive."""
+
+    @property
+    def t(self) -> FloatArray: ...  # IMU sample times, s
+
+    @property
+    def gyro_rad_s(self) -> FloatArray: ...
+
+    @property
+    def accel_m_s2(self) -> FloatArray: ...
+
+    @property
+    def mag(self) -> FloatArray: ...
+
+    @property
+    def tracker_t(self) -> FloatArray: ...  # gaze sample times, s
+
+    @property
+    def gaze_px(self) -> FloatArray: ...
+
+    @property
+    def config(self) -> GazeScenarioConfig: ...
+
+    @property
+    def head_tracker(self) -> AttitudeTrack | None: ...
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from ..baselines.ekf_gaze import GazeEkfConfig
 from ..geometry import FloatArray
 from ..metrics import gaze_rms_mm as rms_mm
 from ..report.gaze import plot_gaze
-from ..scenarios.gaze import GazeSession, simulate_gaze
+from ..scenarios.gaze import GazeSession, simulate_gaze, viewing_config
 from ..systems.gaze import METHODS, GazeEstimate, GazeModel, batch_model, run_batch, run_ekf, run_online
 
 NOISE_FACTORS = (0.5, 2.0)
@@ -45,15 +45,16 @@ def _report_runners(noise_rows: bool) -> dict[str, Callable[[GazeSession], GazeE
     return runners
 
 
-def gaze_report(seeds: tuple[int, ...] = (0,), plot: str | None = None, noise_rows: bool = True) -> dict[str, object]:
+def gaze_report(seeds: tuple[int, ...] = (0,), plot: str | None = None, noise_rows: bool = True, viewing: bool = False) -> dict[str, object]:
     """``fusegraph report gaze``: RMS of the wall point per method (mean over seeds) and speed; with ``noise_rows`` also
-    every method told its sensor sigmas x0.5 and x2 (``NOISE_FACTORS``)."""
+    every method told its sensor sigmas x0.5 and x2 (``NOISE_FACTORS``); ``viewing``: the scene-viewing scenario
+    (``scenarios.gaze.viewing_config``) instead of the two marks."""
     runners = _report_runners(noise_rows)
     sums: dict[str, dict[str, float]] = {m: {"x_mm": 0.0, "z_mm": 0.0, "seconds": 0.0, "duration": 0.0} for m in runners}
     first: dict[str, FloatArray] = {}
     session0 = None
     for seed in seeds:
-        session = simulate_gaze(seed)
+        session = simulate_gaze(seed, viewing_config() if viewing else None)
         session0 = session0 or session
         for name, run in runners.items():
             result = run(session)
@@ -69,4 +70,4 @@ def gaze_report(seeds: tuple[int, ...] = (0,), plot: str | None = None, noise_ro
                       "x_realtime": v["duration"] / v["seconds"]} for name, v in sums.items()}
     if plot is not None and session0 is not None:
         plot_gaze(session0, {m: first[m] for m in METHODS}, plot)
-    return {"methods": methods, "seeds": list(seeds)}
+    return {"methods": methods, "seeds": list(seeds), "scenario": "viewing" if viewing else "two_marks"}

@@ -376,10 +376,10 @@ def broad_grid(study: str, solver: str = "online") -> Mapping[str, Sequence[floa
 @functools.lru_cache(maxsize=32)
 def _simulated(scenario: str, seed: int) -> Any:
     """A tuning seed's simulation, made once for the whole grid (every cell scores the same sessions)."""
-    if scenario == "gaze":
-        from ..scenarios.gaze import simulate_gaze
+    if scenario in ("gaze", "gaze_viewing"):
+        from ..scenarios.gaze import simulate_gaze, viewing_config
 
-        return simulate_gaze(seed)
+        return simulate_gaze(seed, viewing_config() if scenario == "gaze_viewing" else None)
     if scenario == "bicycle":
         from ..scenarios.bicycle import simulate_bicycle
 
@@ -417,15 +417,41 @@ def _gaze_fixation_score(setting: dict[str, Any], seed: int, solver: str = "onli
     from ..factors.gaze import FixationNoise
     from ..metrics import gaze_rms_mm as rms_mm
     from ..systems.gaze import GazeModel, run_batch, run_online
+    from ..tuned import value
 
     s = _simulated("gaze", seed)
-    fixation = FixationNoise(drift_m_per_sqrt_s=setting["drift_m_per_sqrt_s"], cauchy_k=setting["cauchy_k"])
+    fixation = FixationNoise(drift_m_per_sqrt_s=setting["drift_m_per_sqrt_s"], cauchy_k=setting["cauchy_k"],
+                             sample_gate_sigmas=value("gaze_points" if solver == "online" else "gaze_points_batch", "gate_sigmas"))
     rms = rms_mm((run_online if solver == "online" else run_batch)(s, GazeModel(fixation=fixation)).points_xz_m, s)
     return float(np.hypot(rms["x_mm"], rms["z_mm"]))
 
 
 GAZE_FIXATION_GRID = {"drift_m_per_sqrt_s": (0.005, 0.01, 0.02, 0.04), "cauchy_k": (1.0, 2.0, 4.0, 8.0)}
 """The gaze graph's fixation model, one grid for each solver's study."""
+
+
+def _gaze_points_score(setting: dict[str, Any], seed: int, solver: str = "online") -> float:
+    from ..factors.gaze import FixationNoise
+    from ..metrics import gaze_rms_mm
+    from ..systems.gaze import GazeModel, run_batch, run_online
+    from ..tuned import value
+
+    chosen = "gaze_fixation" if solver == "online" else "gaze_fixation_batch"  # the solver's fixation model, as its study chose
+    model = GazeModel(fixation=FixationNoise(drift_m_per_sqrt_s=value(chosen, "drift_m_per_sqrt_s"), cauchy_k=value(chosen, "cauchy_k"),
+                                             sample_gate_sigmas=setting["gate_sigmas"]))
+    scores = []
+    for scenario in ("gaze", "gaze_viewing"):  # a long fixation while the head moves (the paper's), and scene viewing
+        s = _simulated(scenario, seed)
+        rms = gaze_rms_mm((run_online if solver == "online" else run_batch)(s, model).points_xz_m, s)
+        scores.append(float(np.hypot(rms["x_mm"], rms["z_mm"])))
+    return float(np.mean(scores))
+
+
+GAZE_POINTS_GRID = {"gate_sigmas": (0.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 1e6)}
+"""When a gaze sample takes its own ray's point instead of its keyframe's fixation point (``factors.gaze.sample_points``),
+in pixel sigmas; 1e6: never (each sample its keyframe's point, as before 2026-11-27). Scored on both gaze scenarios
+equally: scene viewing alone chose 0 (every sample its own ray: 19.1 mm there, but 14.6 mm on the two-mark scenario,
+whose long fixations the keyframe's point averages to 6.2)."""
 
 
 def _bicycle_ekf_score(setting: dict[str, Any], seed: int, method: str = "paper_pipeline") -> float:
@@ -501,6 +527,10 @@ STUDIES: dict[str, Study] = {
                       _gaze_ekf_score, "mm, hypot of X and Z RMS on the wall"),
     "gaze_fixation": Study("gaze_fixation", GAZE_FIXATION_GRID, _gaze_fixation_score,
                            "mm, hypot of X and Z RMS on the wall of fusegraph online (the graph's fixation model)"),
+    "gaze_points": Study("gaze_points", GAZE_POINTS_GRID, _gaze_points_score,
+                         "mm, hypot of X and Z RMS on the wall of fusegraph online, mean of the two-mark scenario and scene viewing (a saccade every 0.33 s)"),
+    "gaze_points_batch": Study("gaze_points_batch", GAZE_POINTS_GRID, lambda s, seed: _gaze_points_score(s, seed, "batch"),
+                               "mm, hypot of X and Z RMS on the wall of fusegraph batch, mean of the two-mark scenario and scene viewing"),
     "gaze_fixation_batch": Study("gaze_fixation_batch", GAZE_FIXATION_GRID, lambda s, seed: _gaze_fixation_score(s, seed, "batch"),
                                  "mm, hypot of X and Z RMS on the wall of fusegraph batch (the graph's fixation model)"),
     "bicycle_ekf": Study("bicycle_ekf", BICYCLE_EKF_GRID, _bicycle_ekf_score, "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),

@@ -13,7 +13,7 @@ per sample.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import gtsam
@@ -76,18 +76,53 @@ class FixationNoise:
     """Cauchy kernel width in sigmas: a saccade (a jump of centimetres to metres) is absorbed (``tune gaze_fixation``)."""
     plane_sigma_m: float = 0.002
     """How well the point is known to lie on the wall plane, metres."""
+    sample_gate_sigmas: float = field(default_factory=lambda: float(value("gaze_points", "gate_sigmas")))
+    """A gaze sample whose own ray misses its keyframe's fixation point by more than this many pixel sigmas takes its
+    own ray's point, not the keyframe's (``sample_points``; ``tune gaze_points`` / ``gaze_points_batch``, seeds 100-119 of
+    both gaze scenarios)."""
 
 
 def fixation_tuned(study: str = "gaze_fixation") -> FixationNoise:
     """The fixation model chosen by ``fusegraph tune`` for one solver (``gaze_fixation``: online,
-    ``gaze_fixation_batch``: batch; each solver's RMS on seeds 100-119)."""
-    return FixationNoise(drift_m_per_sqrt_s=value(study, "drift_m_per_sqrt_s"), cauchy_k=value(study, "cauchy_k"))
+    ``gaze_fixation_batch``: batch; each solver's RMS on seeds 100-119), with that solver's sample gate (``gaze_points``,
+    ``gaze_points_batch``)."""
+    gate = value(study.replace("fixation", "points"), "gate_sigmas")
+    return FixationNoise(drift_m_per_sqrt_s=value(study, "drift_m_per_sqrt_s"), cauchy_k=value(study, "cauchy_k"), sample_gate_sigmas=gate)
 
 
 def fixation_walk(prev_key: int, next_key: int, dt_s: float, noise: FixationNoise) -> gtsam.BetweenFactorPoint3:
     sigma = noise.drift_m_per_sqrt_s * np.sqrt(max(dt_s, 1e-6))
     model = robust(gtsam.noiseModel.Isotropic.Sigma(3, sigma), noise.cauchy_k)
     return gtsam.BetweenFactorPoint3(prev_key, next_key, np.zeros(3), model)
+
+
+def sample_points(points_m: FloatArray, world_R_head: FloatArray, rays: FloatArray, camera: SceneCamera, on_wall: bool,
+                  gate_sigmas: float) -> FloatArray:
+    """Each gaze sample's point (M, 3) from its keyframe's fixation point ``points_m`` (M, 3) and its own ray (``rays`` in
+    the head frame, turned by ``world_R_head``, quaternions w, x, y, z): the fixation point where the ray sees it within
+    ``gate_sigmas`` pixel sigmas, else where the ray meets the point's plane (``on_wall``:
+    the wall x = const through it; else the plane through it facing the eye at the origin). One point holds per 0.2 s
+    keyframe; a saccade inside it leaves the samples on its other side looking elsewhere, and the keyframe's point put
+    them up to the saccade's size away (`report gaze --viewing`, a saccade every 0.33 s, seeds 0-9: X / Z RMS online
+    119.7 / 120.8 mm, batch 116.2 / 117.8; with this 20.4 / 11.8 and 8.7 / 7.0). NaN rows stay NaN; a sample without an
+    attitude keeps its keyframe's point."""
+    from ..geometry import matrix_from_quat
+
+    out = np.array(points_m, dtype=float, copy=True)
+    has = np.all(np.isfinite(out), axis=1) & np.all(np.isfinite(world_R_head), axis=1)
+    if not has.any():
+        return out
+    world = np.einsum("nij,nj->ni", matrix_from_quat(world_R_head[has]), rays[has])
+    point = out[has]
+    along = point / np.linalg.norm(point, axis=1, keepdims=True)
+    outlier = np.einsum("ni,ni->n", world, along) < np.cos(gate_sigmas * camera.pixel_sigma / camera.focal_px)
+    normal = np.tile([1.0, 0.0, 0.0], (len(point), 1)) if on_wall else along
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.einsum("ni,ni->n", normal, point) / np.einsum("ni,ni->n", normal, world)
+    moved = outlier & np.isfinite(reach) & (reach > 0)
+    rows = np.flatnonzero(has)[moved]
+    out[rows] = world[moved] * reach[moved, None]
+    return out
 
 
 def wall_plane_prior(point_key: int, wall_x_m: float, noise: FixationNoise) -> gtsam.PriorFactorPoint3:

@@ -22,6 +22,16 @@ from ..records import GazeScenarioConfig, GazeSession
 from ..session import KIND_COLUMNS, Session, Stream
 from .attitude9 import _noisy_readings, attitude_tracker_stream
 
+VIEWING_SACCADE_EVERY_S = 0.33
+"""Scene viewing's fixation length, seconds: the mean fixation in scene perception is ~330 ms (Rayner 1998, Psychol.
+Bull. 124(3), Table 1)."""
+
+
+def viewing_config() -> GazeScenarioConfig:
+    """The scenario while the subject views a scene: the head moves as in the two-mark scenario, the eyes fixate a new
+    mark every ``VIEWING_SACCADE_EVERY_S`` (``report gaze --viewing``, ``tune gaze_points``)."""
+    return replace(GazeScenarioConfig(), saccade_every_s=VIEWING_SACCADE_EVERY_S)
+
 
 def head_motion(t: FloatArray, config: GazeScenarioConfig, rng: np.random.Generator) -> FloatArray:
     """Yaw, pitch, roll (rad): nodding, then shaking, then both, at varying rates, calm at the switch."""
@@ -47,6 +57,9 @@ def simulate_gaze(seed: int = 0, config: GazeScenarioConfig | None = None) -> Ga
                                        math.radians(config.gyro_bias_deg_s), config.gyro_sigma_rad_s, config.accel_sigma_m_s2, config.mag_sigma)
     tt = np.arange(0.0, config.duration_s - 1.0 / config.imu_rate_hz, 1.0 / config.tracker_rate_hz)
     marks = np.where((tt < config.switch_s)[:, None], np.array(config.first_mark_xz_m), np.array(config.second_mark_xz_m))
+    if config.saccade_every_s is not None:  # scene viewing: a new mark per fixation, from a stream of its own
+        drawn = np.random.default_rng([seed, 3]).uniform(-config.viewing_half_m, config.viewing_half_m, (int(tt[-1] // config.saccade_every_s) + 1, 2))
+        marks = drawn[(tt // config.saccade_every_s).astype(int)]
     # a fixation wanders slowly (a random walk of a few mm), the saccade is instantaneous
     jitter = np.cumsum(rng.normal(0.0, config.jitter_m / np.sqrt(config.tracker_rate_hz), (len(tt), 2)), axis=0)
     gaze_xz = marks + np.clip(jitter, -3 * config.jitter_m, 3 * config.jitter_m)

@@ -18,19 +18,18 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import gtsam
 import numpy as np
 
 from ..baselines.ekf_gaze import GazeEkfConfig, run_gaze_ekf_full
-from ..factors.attitude import AttitudeTrack
-from ..factors.gaze import FixationNoise, SceneCamera, depth_prior, fixation_tuned, fixation_walk, gaze_factor, wall_plane_prior
+from ..factors.gaze import FixationNoise, SceneCamera, depth_prior, fixation_tuned, fixation_walk, gaze_factor, sample_points, wall_plane_prior
 from ..factors.imu import MotionPriors
 from ..factors.mag import MagNoise
 from ..geometry import FloatArray, quat_wxyz_from_rot3
 from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
-from ..records import GazeScenarioConfig, GazeSession
+from ..records import GazeData, GazeScenarioConfig, GazeSession
 from ..session import Session, SessionError
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from .attitude9 import attitude_tracker
@@ -53,34 +52,6 @@ class GazeModel:
     """How the fixated point moves."""
     online: OnlineConfig = field(default_factory=lambda: OnlineConfig(1.0, 10, 0.05, covariance=False, in_place=False))
     """iSAM2 settings (the 9-axis system's, re-anchored by rebuilding: in place, the fixation walk's Cauchy factors kept stale linearisations)."""
-
-
-class GazeData(Protocol):
-    """What ``GazeGraph`` reads: a ``GazeSession``, or a live one whose arrays grow as samples arrive."""
-
-    @property
-    def t(self) -> FloatArray: ...  # IMU sample times, s
-
-    @property
-    def gyro_rad_s(self) -> FloatArray: ...
-
-    @property
-    def accel_m_s2(self) -> FloatArray: ...
-
-    @property
-    def mag(self) -> FloatArray: ...
-
-    @property
-    def tracker_t(self) -> FloatArray: ...  # gaze sample times, s
-
-    @property
-    def gaze_px(self) -> FloatArray: ...
-
-    @property
-    def config(self) -> GazeScenarioConfig: ...
-
-    @property
-    def head_tracker(self) -> AttitudeTrack | None: ...
 
 
 class GazeGraph:
@@ -296,7 +267,7 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEsti
     start = time.perf_counter()
     graph = GazeGraph(session, model)
     solver = OnlineSmoother(graph.builder, model.online)
-    out = np.full((len(session.tracker_t), 2), np.nan)
+    out = np.full((len(session.tracker_t), 3), np.nan)
     attitude = np.full((len(session.tracker_t), 4), np.nan)
     block = block_size(session, model)
     for i in [*range(0, len(session.t), block), len(session.t)]:  # last, the gaze after the last keyframe in an update of its own
@@ -309,9 +280,11 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEsti
         for j in added:
             kj = int(graph.sample_keyframe[j])
             if kj >= 0:  # a sample before the first keyframe has no factor and no estimate
-                out[j] = (points[kj] if kj in points else points.setdefault(kj, solver.isam.calculateEstimatePoint3(G(kj))))[1:]
+                out[j] = points[kj] if kj in points else points.setdefault(kj, solver.isam.calculateEstimatePoint3(G(kj)))
         graph.sample_attitudes(lambda kj: solver.isam.calculateEstimatePose3(X(kj)).rotation(), added, attitude)
-    return GazeEstimate(out, attitude, time.perf_counter() - start, tuple(graph.builder.notes()))
+    out = sample_points(out, attitude, session.config.camera.ray(session.gaze_px), session.config.camera, session.config.target_depth_m is None,
+                        model.fixation.sample_gate_sigmas)
+    return GazeEstimate(out[:, 1:], attitude, time.perf_counter() - start, tuple(graph.builder.notes()))
 
 
 def batch_model() -> GazeModel:
@@ -349,13 +322,15 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstim
         values = gtsam.LevenbergMarquardtOptimizer(factors, values, params).optimize()
         attitude = [values.atPose3(X(k)).rotation() for k in range(keyframes)]
     points = np.array([values.atPoint3(G(k)) for k in range(graph._points)])  # keyframes after the last gaze have none
-    # each sample's own keyframe point (what its factor saw): interpolating across a saccade smears the jump
-    out = np.full((len(session.tracker_t), 2), np.nan)
+    # each sample's own keyframe point (what its factor saw; interpolating across a saccade smears the jump), or its own ray
+    out = np.full((len(session.tracker_t), 3), np.nan)
     attached = graph.sample_keyframe >= 0
-    out[attached] = points[graph.sample_keyframe[attached]][:, 1:]
+    out[attached] = points[graph.sample_keyframe[attached]]
     at_samples = np.full((len(session.tracker_t), 4), np.nan)
     graph.sample_attitudes(lambda k: values.atPose3(X(k)).rotation(), range(len(session.tracker_t)), at_samples)
-    return GazeEstimate(out, at_samples, time.perf_counter() - start, tuple(graph.builder.notes()))
+    out = sample_points(out, at_samples, session.config.camera.ray(session.gaze_px), session.config.camera, session.config.target_depth_m is None,
+                        model.fixation.sample_gate_sigmas)
+    return GazeEstimate(out[:, 1:], at_samples, time.perf_counter() - start, tuple(graph.builder.notes()))
 
 
 def run_ekf(session: GazeSession, config: GazeEkfConfig | None = None) -> GazeEstimate:
