@@ -141,8 +141,9 @@ def test_pupil_invisible_export_loads_in_head_axes_and_its_bench_is_the_report(t
     """`import pupil`: gyro in rad/s and accel in m/s^2 in the head frame (standing still at the start: +g up), the gaze
     rays as pinhole pixels, blinks dropped and counted, the device's fixations; `report gaze` gives the bench's figures."""
     from fusegraph.consistency import check_streams
-    from fusegraph.datasets.pupil import DEFAULT_DIR, FOCAL_PX, load_pupil
+    from fusegraph.datasets.pupil import DEFAULT_DIR, INVISIBLE, load_pupil
 
+    FOCAL_PX = INVISIBLE.focal_px
     session = load_pupil(DEFAULT_DIR)
     accel, gaze = session.stream("accel"), session.stream("gaze")
     still = accel.t < 2.0

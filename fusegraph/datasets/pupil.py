@@ -122,11 +122,6 @@ DEVICES = {device.key: device for device in (INVISIBLE, NEON)}
 QUATERNION_COLUMNS = ("quaternion w", "quaternion x", "quaternion y", "quaternion z")
 """A Neon export's IMU attitude (IMU -> world), scalar first."""
 
-# the Pupil Invisible's figures under their earlier names
-WIDTH_PX, HEIGHT_PX, FIELD_OF_VIEW_DEG = INVISIBLE.width_px, INVISIBLE.height_px, INVISIBLE.field_of_view_deg
-FOCAL_PX, PIXEL_SIGMA = INVISIBLE.focal_px, INVISIBLE.pixel_sigma
-HEAD_FROM_IMU = INVISIBLE.head_from_imu
-
 
 def pupil_device(directory: Path, imu: dict[str, np.ndarray], told: str | None = None) -> tuple[PupilDevice, str]:
     """Which device made the export, and how that was decided: ``told`` (``invisible``/``neon``) if given; else the
@@ -269,7 +264,7 @@ def _in_time_order(path: Path, table: dict[str, np.ndarray]) -> dict[str, np.nda
     return {column: values[keep] for column, values in table.items()}
 
 
-def pinhole_pixels(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, focal_px: float = FOCAL_PX) -> np.ndarray:
+def pinhole_pixels(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, focal_px: float) -> np.ndarray:
     """The gaze rays (azimuth to the right, elevation up) as pixels of a pinhole camera (u right, v up from the centre)."""
     az, el = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
     return focal_px * np.stack([np.tan(az), np.tan(el) / np.cos(az)], axis=1)
@@ -361,7 +356,7 @@ def _device_attitude(path: Path, imu: dict[str, np.ndarray], t: np.ndarray, head
         row = int(np.flatnonzero(held)[np.argmax(np.abs(norm - 1.0))]) + 2
         raise SessionError(f"{path}: row {row}: quaternion norm {norm.max():.3f}, not a rotation (columns w, x, y, z?)")
     imu_R_head = quat_wxyz_from_rot3(gtsam.Rot3(head_from_imu.T))
-    world_R_head = quat_multiply(quat[held] / norm[:, None], np.broadcast_to(imu_R_head, (int(held.sum()), 4)))  # head -> IMU -> world
+    world_R_head = quat_multiply(quat[held] / norm[:, None], imu_R_head)  # head -> IMU -> world
     return Stream("device_attitude", "attitude", t[held].copy(), world_R_head, KIND_COLUMNS["attitude"], 0.0,
                   {"description": "the device's own head attitude (its IMU's fused quaternion through the camera's axes); read by no "
                                   "solver, scored as the bench's device row"})

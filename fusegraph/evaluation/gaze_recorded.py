@@ -82,6 +82,8 @@ class RecordedGaze:
     """``device`` or ``eye_velocity``."""
     export: str
     """``tobii`` or ``pupil`` (``export_kind``)."""
+    device_R_head: np.ndarray | None
+    """The device's own head attitude at the gaze samples (``device_attitude_at_gaze``), or None: the export has none."""
 
 
 def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = False, device: str | None = None) -> RecordedGaze:
@@ -106,7 +108,7 @@ def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = 
         estimates[row], metrics[row] = outcome.estimate, outcome.metrics
     data = from_session(session)
     found, source = scoring_fixations(data, session.stream("fixation").values[:, 0] if "fixation" in session.streams else None)
-    return RecordedGaze(session, data, estimates, metrics, found, source, export)
+    return RecordedGaze(session, data, estimates, metrics, found, source, export, device_attitude_at_gaze(session, data.tracker_t))
 
 
 def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
@@ -117,7 +119,7 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
     gaze = run.session.stream("gaze").meta
     header = run.session.meta["session"]
     gyro = run.estimates["gyro"].extras["world_R_head"]  # the gyro row's attitude: the raw gyro integrated
-    device = device_attitude_at_gaze(run)
+    device = run.device_R_head
     spread = dispersions_deg(device, data, found) if device is not None and found else None
     return {
         "dispersion_deg": {"device": None if spread is None else float(np.median(spread)),
@@ -149,21 +151,16 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
     }
 
 
-def device_attitude_at_gaze(run: RecordedGaze) -> np.ndarray | None:
-    """The session's ``device_attitude`` (the export's own head attitude) at each gaze sample's IMU time, quaternions
-    wxyz interpolated along the shortest arc; NaN outside its span. None without the stream."""
-    from scipy.spatial.transform import Rotation, Slerp
+def device_attitude_at_gaze(session: Session, at_t: np.ndarray) -> np.ndarray | None:
+    """The session's ``device_attitude`` (the export's own head attitude) at the gaze samples' IMU times ``at_t``
+    (``metrics.on_truth_times``: slerped, NaN outside its span and in its dropouts). None without the stream."""
+    from ..estimate import Estimate
+    from ..metrics import on_truth_times
 
-    if "device_attitude" not in run.session.streams:
+    if "device_attitude" not in session.streams:
         return None
-    stream = run.session.stream("device_attitude")
-    at = run.data.tracker_t
-    inside = (at >= stream.t[0]) & (at <= stream.t[-1])
-    out = np.full((len(at), 4), np.nan)
-    if inside.any():
-        wxyz = Slerp(stream.t, Rotation.from_quat(stream.values[:, [1, 2, 3, 0]]))(at[inside]).as_quat()
-        out[inside] = wxyz[:, [3, 0, 1, 2]]
-    return out
+    stream = session.stream("device_attitude")
+    return on_truth_times(Estimate("device", stream.t, stream.values), at_t).quat_wxyz
 
 
 def bench_gaze_recorded(directory: str | Path | None = None, use_mag: bool = False, device: str | None = None) -> dict[str, Any]:
@@ -247,9 +244,8 @@ def plot_gaze_recorded(run: RecordedGaze, path: str | Path) -> Path:
     axes[0].legend(fontsize=8, loc="upper right")
     rays = run.data.config.camera.ray(run.data.gaze_px)
     attitudes = {name: estimate.extras["world_R_head"] for name, estimate in run.estimates.items()}
-    device = device_attitude_at_gaze(run)
-    if device is not None:
-        attitudes["device"] = device
+    if run.device_R_head is not None:
+        attitudes["device"] = run.device_R_head
     for name, quat in attitudes.items():
         if found:
             angles = np.rad2deg(np.concatenate([fixation_angles(quat, rays, f) for f in found]))
