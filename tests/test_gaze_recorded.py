@@ -445,3 +445,19 @@ def test_a_neon_export_is_told_apart_read_in_its_own_axes_and_its_attitude_score
     assert d["online"] < 0.15 and d["batch"] < 0.15 and bench["fixation_turn_beyond_gyro_deg"]["online"] < 0.3
     with pytest.raises(SessionError, match="moves against the head's yaw.*--device"):  # Neon's IMU read in the Invisible's axes
         solve_session(as_invisible, "gyro")
+
+
+def test_the_median_ratio_interval_resamples_both_rows_alike() -> None:
+    """Paired: a row twice another on every fixation is x2 on every draw, however the fixations spread; unpaired draws
+    would scatter it. Two unrelated rows of the same spread: an interval that holds 1 and the ratio of the medians."""
+    from fusegraph.evaluation.gaze_recorded import median_ratio_ci
+
+    rng = np.random.default_rng(3)
+    base = rng.lognormal(0.5, 0.6, 40)  # per-fixation dispersions, deg, spread as the recordings' (0.2-16 deg)
+    assert median_ratio_ci(2 * base, base) == pytest.approx((2.0, 2.0))
+    low, high = median_ratio_ci(rng.permutation(base), base)  # type: ignore[misc]
+    assert low < 1.0 < high
+    assert median_ratio_ci(base, base, seed=1) == median_ratio_ci(base, base, seed=1)
+    with_gap = base.copy()
+    with_gap[4] = np.nan  # a row without an attitude on one fixation: no interval, as its median is none
+    assert median_ratio_ci(with_gap, base) is None and median_ratio_ci(base[:1], base[:1]) is None

@@ -12,6 +12,9 @@ export has none, the Pupil Invisible's has roll and pitch without a heading), th
 ``ekf``, fusegraph ``online`` and ``batch``. Beside them ``fixation_turn_beyond_gyro_deg`` (``ekf``, ``online``,
 ``batch``): per fixation the largest angle by which the method turned the head beyond its raw gyro, the median over
 fixations (``frontends.gaze_timing.turn_beyond_gyro_deg``; it says why a method disperses more than the raw gyro).
+``dispersion_ratio_ci95`` (``online`` and ``batch`` against ``ekf``, ``gyro`` and ``head_frame``): the ratio of the two
+medians with its 95 % interval over the fixations resampled together for both rows (``median_ratio_ci``): an interval
+that holds 1 says that these fixations do not tell the two rows apart.
 
 Either export is read, told apart by its files (``export_kind``): a Tobii Pro Glasses 3 folder (``imudata.gz``:
 ``import tobii``) or a Pupil Labs Pupil Invisible or Neon one (``imu.csv`` + ``gaze.csv``: ``import pupil``, the
@@ -48,6 +51,8 @@ from .runner import solve_session
 
 ROWS = ("head_frame", "gyro", "ekf", "online", "batch")
 """The table's rows: the gaze preset's solvers, no fusion first."""
+RATIO_DRAWS = 2000
+"""Bootstrap draws of ``median_ratio_ci`` (its interval's ends move by ~0.01 between seeds at 2000 on ../shared's recordings)."""
 DEVICE_ATTITUDE = {"tobii": "the export has no head attitude", "pupil": "the export's roll and pitch (the cloud's Madgwick filter) have no heading"}
 """Why the ``device`` row is null, per export (a Pupil export with its quaternions, a Neon's, has the row)."""
 
@@ -140,6 +145,7 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
         # the key earlier versions printed: the head's turn, now read as the eye's counter-rotation (no gyro)
         "fixation_head_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
         "fixation_counter_rotation_gain": counter_rotation_gain(data, found),
+        "dispersion_ratio_ci95": _ratio_cis(run),
         "fixation_turn_beyond_gyro_deg": {name: _median_or_none(turn_beyond_gyro_deg(e.extras["world_R_head"], gyro, found))
                                           for name, e in run.estimates.items() if name in ("ekf", "online", "batch")},
         "gaze_samples": len(data.tracker_t),
@@ -149,6 +155,31 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
         "x_realtime": {name: duration / max(e.runtime_s, 1e-9) for name, e in run.estimates.items() if name in ("ekf", "online", "batch")},
         "camera": {"focal_px": data.config.camera.focal_px, "pixel_sigma": data.config.camera.pixel_sigma},
     }
+
+
+def median_ratio_ci(of: np.ndarray, to: np.ndarray, draws: int = RATIO_DRAWS, seed: int = 0) -> tuple[float, float] | None:
+    """95 % interval of median(``of``) / median(``to``), two rows' per-fixation dispersions, by a paired bootstrap: the
+    fixations are resampled with replacement, the same draw for both rows (a fixation hard for one is hard for the other).
+    None with fewer than two fixations or a NaN (a row without an attitude somewhere)."""
+    of, to = np.asarray(of, float), np.asarray(to, float)
+    if len(of) < 2 or not (np.all(np.isfinite(of)) and np.all(np.isfinite(to))):
+        return None
+    pick = np.random.default_rng(seed).integers(0, len(of), size=(draws, len(of)))
+    ratio = np.median(of[pick], axis=1) / np.median(to[pick], axis=1)
+    low, high = np.percentile(ratio, [2.5, 97.5])
+    return float(low), float(high)
+
+
+def _ratio_cis(run: RecordedGaze) -> dict[str, dict[str, list[float] | None]]:
+    """``dispersion_ratio_ci95``: online and batch against the EKF, the raw gyro and the head frame."""
+    per = {name: dispersions_deg(e.extras.get("world_R_head"), run.data, run.fixations) for name, e in run.estimates.items()}
+    out: dict[str, dict[str, list[float] | None]] = {}
+    for name in ("online", "batch"):
+        out[name] = {}
+        for other in ("ekf", "gyro", "head_frame"):
+            ci = median_ratio_ci(per[name], per[other])
+            out[name][other] = None if ci is None else list(ci)
+    return out
 
 
 def device_attitude_at_gaze(session: Session, at_t: np.ndarray) -> np.ndarray | None:
@@ -199,15 +230,24 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
             continue
         speed = result["x_realtime"].get(name)
         lines.append(f"{labels.get(name, name):<36} {value:26.3f} {result['dispersion_mean_deg'][name]:8.3f} {'' if speed is None else f'{speed:12.0f}'}")
+    cis = result.get("dispersion_ratio_ci95", {})
     for name in ("online", "batch"):
-        lines.append(f"{name}: x{d[name] / d['ekf']:.2f} the EKF's dispersion, x{d[name] / d['gyro']:.2f} the integrated gyro's, "
-                 f"x{d[name] / d['head_frame']:.2f} the head-frame gaze's")
+        parts = [f"x{d[name] / d[other]:.2f}{_interval(cis.get(name, {}).get(other))} {what}"
+                 for other, what in (("ekf", "the EKF's dispersion"), ("gyro", "the integrated gyro's"), ("head_frame", "the head-frame gaze's"))]
+        lines.append(f"{name}: " + ", ".join(parts))
+    if cis:
+        lines.append("(in brackets the ratio's 95 % interval over the fixations resampled, both rows alike; one that holds 1: these "
+                     "fixations do not tell the two apart)")
     beyond = result.get("fixation_turn_beyond_gyro_deg")
     if beyond:
         lines.append("inside a fixation each method turned the head beyond its raw gyro by (median over fixations of the largest angle; "
                      "a bias correction is tenths of a degree, more is an update's correction or a saturated gyro's recovery): "
                      + ", ".join(f"{name} {value:.2f} deg" for name, value in beyond.items() if value is not None))
     return "\n".join(lines)
+
+
+def _interval(ci: list[float] | None) -> str:
+    return "" if ci is None else f" ({ci[0]:.2f}-{ci[1]:.2f})"
 
 
 def _median_or_none(values: np.ndarray) -> float | None:
