@@ -235,7 +235,7 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         parts = [f"x{d[name] / d[other]:.2f}{_interval(cis.get(name, {}).get(other))} {what}"
                  for other, what in (("ekf", "the EKF's dispersion"), ("gyro", "the integrated gyro's"), ("head_frame", "the head-frame gaze's"))]
         lines.append(f"{name}: " + ", ".join(parts))
-    if cis:
+    if any(ci is not None for row in cis.values() for ci in row.values()):
         lines.append("(in brackets the ratio's 95 % interval over the fixations resampled, both rows alike; one that holds 1: these "
                      "fixations do not tell the two apart)")
     beyond = result.get("fixation_turn_beyond_gyro_deg")
