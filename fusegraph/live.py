@@ -312,14 +312,12 @@ class _GazeSolver:
     channels, stream_type, rate_of = GAZE_CHANNELS, "Gaze", "gaze"
 
     def __init__(self, declared: Session) -> None:
-        from .factors.gaze import sample_points
         from .graphs.attitude9 import X
         from .solvers.online import OnlineSmoother
         from .systems.attitude9 import attitude_tracker
         from .systems.gaze import NEEDS_WALL, G, GazeGraph, GazeModel, block_size, declared_config
 
         self._keys = (G, X)  # imported once, not per sample
-        self._sample_points = sample_points
 
         header = declared.meta.get("session", {})
         if "wall_m" not in header and "target_depth_m" not in header:
@@ -370,9 +368,7 @@ class _GazeSolver:
                 points[kj] = isam.calculateEstimatePoint3(G(kj))
                 rotations[kj] = isam.calculateEstimatePose3(X(kj)).rotation()
             attitude = self.graph.sample_attitude(rotations[kj], j)
-            camera = self.data.config.camera  # the sample's own point where it looks away from its keyframe's (as the replay)
-            point = self._sample_points(points[kj][None], attitude[None], camera.ray(self.data.gaze_px[j]), camera,
-                                        self.data.config.target_depth_m is None, self.model.fixation.sample_gate_sigmas)[0]
+            point = self.graph.own_points(points[kj][None], attitude[None], np.array([j]))[0]  # as the replay
             out.append((float(self.data.tracker_t[j]), [*point, *attitude]))
         return out
 

@@ -438,12 +438,14 @@ up by two steps (0.02 dropped): 0.5 chosen, 15.03 mm."""
 
 
 def _gaze_fixation_score(setting: dict[str, Any], seed: int, solver: str = "online") -> float:
-    from ..factors.gaze import FixationNoise
-    from ..systems.gaze import GazeModel, run_batch, run_online
-    from ..tuned import value
+    from dataclasses import replace
 
-    fixation = FixationNoise(drift_m_per_sqrt_s=setting["drift_m_per_sqrt_s"], cauchy_k=setting["cauchy_k"],
-                             sample_gate_sigmas=value("gaze_points" if solver == "online" else "gaze_points_batch", "gate_sigmas"))
+    from ..factors.gaze import fixation_tuned
+    from ..systems.gaze import GazeModel, run_batch, run_online
+
+    # the solver's sample gate as its study chose (fixation_tuned reads it beside the fixation model this study replaces)
+    fixation = replace(fixation_tuned("gaze_fixation" if solver == "online" else "gaze_fixation_batch"),
+                       drift_m_per_sqrt_s=setting["drift_m_per_sqrt_s"], cauchy_k=setting["cauchy_k"])
     run = run_online if solver == "online" else run_batch
     return _gaze_scenarios_mm(seed, lambda s: run(s, GazeModel(fixation=fixation)).points_xz_m)
 
@@ -458,13 +460,13 @@ drifted (scene viewing 101: 85 mm) decided its choice."""
 
 
 def _gaze_points_score(setting: dict[str, Any], seed: int, solver: str = "online") -> float:
-    from ..factors.gaze import FixationNoise
-    from ..systems.gaze import GazeModel, run_batch, run_online
-    from ..tuned import value
+    from dataclasses import replace
 
-    chosen = "gaze_fixation" if solver == "online" else "gaze_fixation_batch"  # the solver's fixation model, as its study chose
-    model = GazeModel(fixation=FixationNoise(drift_m_per_sqrt_s=value(chosen, "drift_m_per_sqrt_s"), cauchy_k=value(chosen, "cauchy_k"),
-                                             sample_gate_sigmas=setting["gate_sigmas"]))
+    from ..factors.gaze import fixation_tuned
+    from ..systems.gaze import GazeModel, run_batch, run_online
+
+    chosen = fixation_tuned("gaze_fixation" if solver == "online" else "gaze_fixation_batch")  # the solver's fixation model, as its study chose
+    model = GazeModel(fixation=replace(chosen, sample_gate_sigmas=setting["gate_sigmas"]))
     run = run_online if solver == "online" else run_batch
     return _gaze_scenarios_mm(seed, lambda s: run(s, model).points_xz_m)
 

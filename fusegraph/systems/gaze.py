@@ -171,6 +171,12 @@ class GazeGraph:
         self.sample_keyframe[j] = k
         self.keyframe_R_sample[j] = keyframe_R_sample.matrix()
 
+    def own_points(self, points_m: FloatArray, world_R_head: FloatArray, samples: slice | np.ndarray = slice(None)) -> FloatArray:
+        """``factors.gaze.sample_points`` for the given gaze samples (rows of ``points_m`` and ``world_R_head``): each its
+        keyframe's fixation point, or its own ray's point where it looks away from it by more than the model's gate."""
+        return sample_points(points_m, world_R_head, self.camera.ray(self.session.gaze_px[samples]), self.camera,
+                             self.session.config.target_depth_m is None, self.model.fixation.sample_gate_sigmas)
+
     def sample_attitudes(self, keyframe_attitude: Callable[[int], gtsam.Rot3], samples: Iterable[int], out: FloatArray) -> None:
         """Fill ``out`` (M, 4) at the given gaze samples with world_R_head (w, x, y, z): their keyframe's attitude
         (read once per keyframe) carried by the gyro; samples without a keyframe stay as they are."""
@@ -280,11 +286,11 @@ def run_online(session: GazeSession, model: GazeModel | None = None) -> GazeEsti
         for j in added:
             kj = int(graph.sample_keyframe[j])
             if kj >= 0:  # a sample before the first keyframe has no factor and no estimate
-                out[j] = points[kj] if kj in points else points.setdefault(kj, solver.isam.calculateEstimatePoint3(G(kj)))
+                if kj not in points:
+                    points[kj] = solver.isam.calculateEstimatePoint3(G(kj))
+                out[j] = points[kj]
         graph.sample_attitudes(lambda kj: solver.isam.calculateEstimatePose3(X(kj)).rotation(), added, attitude)
-    out = sample_points(out, attitude, session.config.camera.ray(session.gaze_px), session.config.camera, session.config.target_depth_m is None,
-                        model.fixation.sample_gate_sigmas)
-    return GazeEstimate(out[:, 1:], attitude, time.perf_counter() - start, tuple(graph.builder.notes()))
+    return GazeEstimate(graph.own_points(out, attitude)[:, 1:], attitude, time.perf_counter() - start, tuple(graph.builder.notes()))
 
 
 def batch_model() -> GazeModel:
@@ -329,9 +335,7 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstim
     out[attached] = points[graph.sample_keyframe[attached]]
     at_samples = np.full((len(session.tracker_t), 4), np.nan)
     graph.sample_attitudes(lambda k: values.atPose3(X(k)).rotation(), range(len(session.tracker_t)), at_samples)
-    out = sample_points(out, at_samples, session.config.camera.ray(session.gaze_px), session.config.camera, session.config.target_depth_m is None,
-                        model.fixation.sample_gate_sigmas)
-    return GazeEstimate(out[:, 1:], at_samples, time.perf_counter() - start, tuple(graph.builder.notes()))
+    return GazeEstimate(graph.own_points(out, at_samples)[:, 1:], at_samples, time.perf_counter() - start, tuple(graph.builder.notes()))
 
 
 def run_ekf(session: GazeSession, config: GazeEkfConfig | None = None) -> GazeEstimate:
