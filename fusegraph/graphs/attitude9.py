@@ -208,6 +208,12 @@ class Attitude9Model:
     """The accelerometer's range (``consistency.saturation_level`` of the stream): a sample at it is clipped, a bound and not
     a measurement. An interval holding one gets ``CLIPPED_ACCEL_DENSITY`` (its velocity change unknown, the gyro's rotation
     kept) and a clipped keyframe sample no gravity factor."""
+    unmodelled_acceleration: bool = False
+    """Take the accelerometer's departure from gravity as acceleration the motion priors do not model: an interval whose
+    readings' norms differ from g by an RMS of e (m/s^2) over T seconds gets the accelerometer density sqrt(d^2 + e^2 T)
+    in its IMU factor (d declared): a velocity change of e T left unexplained, the least acceleration such readings imply,
+    so zero-mean position and velocity priors cannot tilt the body to explain it. No constant to choose; where it applies
+    is each system's: on for the gaze head (``systems.gaze``), off for the 9-axis system (``broad_model``; see there)."""
 
     def with_noise_scaled(self, factor: float) -> Attitude9Model:
         """The model told every sensor sigma ``factor`` times what it declares (gyro and accelerometer densities and
@@ -587,16 +593,23 @@ class Attitude9Builder:
         """The interval's samples, with a gyro noise that grows with the rotation rate (``rate_rad_s``, the interval's RMS:
         scale errors)."""
         params = self._params
-        clipped = self._clipped(accel)
-        if params is None or clipped:
+        density = CLIPPED_ACCEL_DENSITY if self._clipped(accel) else self._unmodelled_density(accel, float(dt.sum()))
+        if params is None or density is not None:
             params = preintegration_params(self.model.imu, rate_rad_s, float(dt.sum()))
-        if clipped:
-            params.setAccelerometerCovariance(CLIPPED_ACCEL_DENSITY**2 * np.eye(3))
+        if density is not None:
+            params.setAccelerometerCovariance(density**2 * np.eye(3))
         pim = gtsam.PreintegratedImuMeasurements(params, self._bias)
         integrate = pim.integrateMeasurement
         for a, w, d in zip(accel, gyro, dt.tolist(), strict=True):
             integrate(a, w, d)
         return pim
+
+    def _unmodelled_density(self, accel: FloatArray, interval_s: float) -> float | None:
+        """The accelerometer density of an interval under ``Attitude9Model.unmodelled_acceleration``; None: the declared one."""
+        if not self.model.unmodelled_acceleration:
+            return None
+        excess_sq = float(np.mean((np.linalg.norm(accel, axis=1) - self.model.imu.gravity_m_s2) ** 2))
+        return math.sqrt(self.model.imu.accel_noise_m_s2_sqrt_hz**2 + excess_sq * interval_s)
 
     def _close_keyframe(self, accel: FloatArray, mag: FloatArray | None) -> None:
         k = len(self.keyframe_t)
