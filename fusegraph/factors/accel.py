@@ -71,7 +71,8 @@ CATALOGUE = (
         units=("m/s^2", "m/s^2", "m/s^2"),
         frame="body (sensor) axes; at rest it reads +g along the body's up axis",
         factors="gravity direction (Rot3/Pose3 AttitudeFactor) per keyframe, sigma widened as |a| departs from g, Cauchy kernel; "
-        "attitude9/gaze/bicycle: also the IMU factor's specific force",
+        "attitude9/gaze/bicycle: also the IMU factor's specific force (gaze: its departure from g widens that factor's "
+        "accelerometer density, acceleration the head's motion priors do not model)",
         keys=(
             KeySpec("sigma_deg", 3.0, "head, attitude9: gravity direction sigma at rest, degrees (attitude9 default: chosen on BROAD)"),
             KeySpec("inflation_deg_per_m_s2", 15.0, "head, attitude9: extra sigma per m/s^2 that |a| departs from g, degrees"),
