@@ -51,9 +51,9 @@ class GazeModel:
     """The head's 9-axis graph; its position prior holds the eye within centimetres of its rest place, and what the
     accelerometer reads beyond gravity is acceleration those priors do not model (``unmodelled_acceleration``): a head
     that translates (walking, a trampoline) then keeps the gyro's rotation instead of being tilted to explain it. Without
-    it the trampoline recording's batch sat 40-80 deg off the accelerometer's tilt at rest and the online turned 45 deg
-    beyond its gyro inside one 0.9 s fixation; on the simulated scenarios (no translation) it scores 9.02 / 6.49 mm against
-    9.05 / 6.66 (online / batch, seeds 100-119, the gaze studies' objective)."""
+    it the trampoline recording's batch sat 37-40 deg off the accelerometer's tilt where the wearer stood (the first and
+    last seconds) and the online turned 45 deg beyond its gyro inside one 0.9 s fixation; on the simulated scenarios (no
+    translation) it scores 9.02 / 6.49 mm against 9.05 / 6.66 (online / batch, seeds 100-119, the gaze studies' objective)."""
     fixation: FixationNoise = field(default_factory=FixationNoise)
     """How the fixated point moves."""
     online: OnlineConfig = field(default_factory=lambda: OnlineConfig(1.0, 10, 0.05, covariance=False, in_place=False))
