@@ -110,6 +110,7 @@ def test_the_recorded_gaze_bench_is_the_report_of_the_imported_session(tmp_path,
 
     bench = _bench_is_the_report("tobii", DEFAULT_DIR, tmp_path, capsys)
     assert not bench["use_mag"] and 0.0 < bench["time_offset_s"] < 0.05
+    assert bench["accel_beyond_gravity"]["rms_m_s2"] < 1.0 and bench["accel_beyond_gravity"]["free_fall_fraction"] == 0.0  # a head that stays put
 
 
 def test_a_clipping_sensor_is_found_and_its_samples_are_not_trusted() -> None:
@@ -154,6 +155,9 @@ def test_pupil_invisible_export_loads_in_head_axes_and_its_bench_is_the_report(t
     assert any("clipped" in line and "'accel'" in line for line in check_streams(session.streams))
     bench = _bench_is_the_report("pupil", DEFAULT_DIR, tmp_path, capsys)
     assert bench["export"] == "pupil" and bench["fixation_source"] == "device" and bench["dispersion_deg"]["device"] is None
+    # the trampoline: free fall 37 % of the time (the README's count), |f| - g 8.9 m/s^2 RMS
+    assert bench["accel_beyond_gravity"]["free_fall_fraction"] == pytest.approx(0.37, abs=0.01)
+    assert bench["accel_beyond_gravity"]["rms_m_s2"] > 5.0
 
 
 def test_the_gaze_delay_is_found_beyond_the_first_search_and_not_invented_for_a_still_head() -> None:

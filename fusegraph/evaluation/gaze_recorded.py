@@ -12,6 +12,8 @@ export has none, the Pupil Invisible's has roll and pitch without a heading), th
 ``ekf``, fusegraph ``online`` and ``batch``. Beside them ``fixation_turn_beyond_gyro_deg`` (``ekf``, ``online``,
 ``batch``): per fixation the largest angle by which the method turned the head beyond its raw gyro, the median over
 fixations (``frontends.gaze_timing.turn_beyond_gyro_deg``; it says why a method disperses more than the raw gyro).
+``accel_beyond_gravity``: how much the head translated, from the accelerometer alone (``rms_m_s2`` of |f| - g and
+``free_fall_fraction``; ``accel_beyond_gravity``).
 ``dispersion_ratio_ci95`` (``online`` and ``batch`` against ``ekf``, ``gyro`` and ``head_frame``): the ratio of the two
 medians with its 95 % interval over the fixations resampled together for both rows (``median_ratio_ci``): an interval
 that holds 1 says that these fixations do not tell the two rows apart.
@@ -145,6 +147,7 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
         # the key earlier versions printed: the head's turn, now read as the eye's counter-rotation (no gyro)
         "fixation_head_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
         "fixation_counter_rotation_gain": counter_rotation_gain(data, found),
+        "accel_beyond_gravity": accel_beyond_gravity(data),
         "dispersion_ratio_ci95": _ratio_cis(run),
         "fixation_turn_beyond_gyro_deg": {name: _median_or_none(turn_beyond_gyro_deg(e.extras["world_R_head"], gyro, found))
                                           for name, e in run.estimates.items() if name in ("ekf", "online", "batch")},
@@ -155,6 +158,23 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
         "x_realtime": {name: duration / max(e.runtime_s, 1e-9) for name, e in run.estimates.items() if name in ("ekf", "online", "batch")},
         "camera": {"focal_px": data.config.camera.focal_px, "pixel_sigma": data.config.camera.pixel_sigma},
     }
+
+
+FREE_FALL_G = 0.3
+"""A reading under this many g is free fall (a flight), as the README's trampoline figure counts it."""
+
+
+def accel_beyond_gravity(session: GazeSession) -> dict[str, float]:
+    """How much the head translated, read from the accelerometer alone: the RMS of |f| - g over the recording (m/s^2) and
+    the fraction of readings in free fall (under ``FREE_FALL_G``): the Tobii recording's head 0.3 m/s^2 and none, the
+    Pupil trampoline 8.9 m/s^2 and 37 %. A translating head moves a fixated near point's direction in the world whatever
+    the attitude, which the dispersion does not separate from a wrong attitude. A description: it selects and scores
+    nothing."""
+    from ..factors.imu import GRAVITY_M_S2
+
+    norm = np.linalg.norm(session.accel_m_s2, axis=1)
+    return {"rms_m_s2": float(np.sqrt(np.mean((norm - GRAVITY_M_S2) ** 2))),
+            "free_fall_fraction": float(np.mean(norm < FREE_FALL_G * GRAVITY_M_S2))}
 
 
 def median_ratio_ci(of: np.ndarray, to: np.ndarray, draws: int = RATIO_DRAWS, seed: int = 0) -> tuple[float, float] | None:
@@ -222,6 +242,7 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         f"({result['fixation_samples']} samples, {100 * result['fixation_fraction']:.0f} % of the gaze; eye turn in the head median "
         f"{result['fixation_eye_turn_deg']['median'] or float('nan'):.1f} deg, max {result['fixation_eye_turn_deg']['max'] or float('nan'):.1f} deg)",
         _counter_rotation_text(result.get("fixation_counter_rotation_gain")),
+        *_translation_text(result.get("accel_beyond_gravity")),
         f"{'method':<36} {'dispersion [deg]: median':>26} {'mean':>8} {'x real time':>12}",
     ]
     for name, value in d.items():
@@ -253,6 +274,14 @@ def _interval(ci: list[float] | None) -> str:
 def _median_or_none(values: np.ndarray) -> float | None:
     finite = values[np.isfinite(values)]
     return float(np.median(finite)) if len(finite) else None
+
+
+def _translation_text(beyond: dict[str, float] | None) -> list[str]:
+    if not beyond:
+        return []
+    return [f"head translation: the accelerometer departs from g by {beyond['rms_m_s2']:.1f} m/s^2 RMS, in free fall (under "
+            f"{FREE_FALL_G:g} g) {100 * beyond['free_fall_fraction']:.0f} % of the time (a seated or standing head: tenths of a m/s^2, "
+            "none); a translating head moves a near target's direction in the world whatever the attitude"]
 
 
 def _counter_rotation_text(gain: float | None) -> str:
