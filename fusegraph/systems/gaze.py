@@ -187,11 +187,11 @@ class GazeGraph:
         """Carry every attached gaze sample from its keyframe again, with that keyframe's gyro bias (``gyro_bias(k)``, rad/s):
         the batch knows the bias only once solved, and its samples were pushed with none (a 3 deg/s bias left a sawtooth
         of up to 0.6 deg between keyframes in every attitude it reported)."""
-        self._cumulative_k = -1
+        current = -1
         for j in np.flatnonzero(self.sample_keyframe >= 0):
             k = int(self.sample_keyframe[j])
-            if k != self._cumulative_k:
-                self.gyro_bias = gyro_bias(k)
+            if k != current:  # a new bias: the cached rotations since the keyframe were carried with the old one
+                current, self.gyro_bias, self._cumulative_k = k, gyro_bias(k), -1
             self.keyframe_R_sample[j] = self._rotation_since_keyframe(k, float(self.session.tracker_t[j])).matrix()
 
     def sample_attitudes(self, keyframe_attitude: Callable[[int], gtsam.Rot3], samples: Iterable[int], out: FloatArray) -> None:
