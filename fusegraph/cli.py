@@ -231,7 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "to fusegraph/tuned.toml (with the seeds or trials and the score), which the reports and benches read. "
                          f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag, broad_motion, broad_bias, broad_online "
                          "(BROAD trials; broad_mag, broad_motion, broad_bias per --solver, written as broad_mag / broad_mag_batch ...; "
-                         "broad_online: the online solver's relinearisation checks); activity (the waist activity classifier on "
+                         "broad_online: the online solver's relinearisation checks; each trial scored by its total RMSE, except "
+                         "broad_motion and broad_bias, whose settings level the sensor: its total over VQF's plus its inclination over "
+                         "VQF's, the offline VQF for the batch); activity (the waist activity classifier on "
                          "../shared/data/hapt or --sessions: feature set, boosting stages and context by grouped cross-validation over the "
                          "subjects, checked on the pendulum gait's simulated walks of seeds 100-119 (a pace change must not pass for "
                          "stairs); --write makes it the model on main, fusegraph/models/activity_waist.json).",

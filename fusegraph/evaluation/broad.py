@@ -80,16 +80,21 @@ def peer_ratios(bench: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 def tuning_provenance() -> dict[str, dict[str, Any]]:
     """How the settings on main were chosen (``tuned.toml``): per BROAD study, the trials, the in-sample and the
-    leave-one-trial-out (cross-validated) mean total RMSE, deg. On a folder of other trials the bench runs these settings
-    unchanged: its figures are out of sample."""
+    leave-one-trial-out (cross-validated) mean total RMSE, deg (``in_sample``, ``cross_validated``); a study chosen by
+    another score (``tuning.BROAD_OBJECTIVES``) gives that score as ``score_in_sample`` / ``score_cross_validated`` with its
+    ``unit``. On a folder of other trials the bench runs these settings unchanged: its figures are out of sample."""
     from ..tuned import SYSTEM_STUDIES, tuned
 
     out = {}
     for study in SYSTEM_STUDIES["attitude9"]:
         table = tuned(study)
         trials = table.get("trials", [])
-        out[study] = {"in_sample": table.get("in_sample"), "cross_validated": table.get("cross_validated"),
-                      "trials": len(trials) if isinstance(trials, list) else trials}
+        row = {"in_sample": table.get("in_sample"), "cross_validated": table.get("cross_validated"),
+               "trials": len(trials) if isinstance(trials, list) else trials}
+        if "total_in_sample" in table:  # chosen by another score: the total is filed beside it
+            row.update(score_in_sample=row["in_sample"], score_cross_validated=row["cross_validated"], unit=table.get("unit"),
+                       in_sample=table["total_in_sample"], cross_validated=table.get("total_cross_validated"))
+        out[study] = row
     return out
 
 

@@ -77,13 +77,13 @@ CATALOGUE = (
             KeySpec("sigma_deg", 3.0, "head, attitude9: gravity direction sigma at rest, degrees (attitude9 default: chosen on BROAD)"),
             KeySpec("inflation_deg_per_m_s2", 15.0, "head, attitude9: extra sigma per m/s^2 that |a| departs from g, degrees"),
             KeySpec("velocity_sigma_m_s", None, "attitude9: zero-mean velocity prior per keyframe, m/s (default: chosen on BROAD's "
-                    "hand-held trials, 0.18 online; a sensor that travels, e.g. on a walker's belt, needs ~2); with sigma_deg and "
+                    "hand-held trials, 0.25 for both estimates; a sensor that travels, e.g. on a walker's belt, needs ~2); with sigma_deg and "
                     "inflation_deg_per_m_s2 it replaces the 9-axis system's gravity settings too"),
             KeySpec("noise_m_s2_sqrt_hz", None, "attitude9: accelerometer white-noise density, m/s^2/sqrt(Hz) (default: chosen on BROAD, "
-                    "0.005 online, 0.02 batch); with a wide velocity prior declare the wider 0.02 too: stiff specific force and a "
+                    "0.02 online, 0.005 batch); with a wide velocity prior declare the wider 0.02 too: stiff specific force and a "
                     "loose velocity make a near-singular system that the solver must rebuild again and again"),
             KeySpec("bias_rw_m_s2_sqrt_s", None, "attitude9: accelerometer bias random walk, m/s^2/sqrt(s) (default: chosen on BROAD, "
-                    "1e-5 online, 1e-3 batch; a data sheet's bias instability belongs here)"),
+                    "1e-5 for both estimates; a data sheet's bias instability belongs here)"),
         ),
         magnitude=(Magnitude("median", 4.0, 20.0, "the median |a| should be near g = 9.81 m/s^2: in g? set units = 'g' or convert"),),
         unit_conversions={"m/s^2": 1.0, "g": 9.80665},

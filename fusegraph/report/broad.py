@@ -25,6 +25,7 @@ def format_broad_table(result: dict[str, Any]) -> str:
                  f"inclination {f['inclination']:.2f}" for name, f in result.get("published", {}).items()]
     settings = ["settings on main (tuned.toml; the mean total RMSE of the trials they were chosen on, in-sample / leave-one-trial-out):"] + [
         f"  {study:<20} {row['in_sample']:.3f} / {row['cross_validated']:.3f} deg over {row['trials']} trials"
+        + (f" (chosen by {row['unit']}: {row['score_in_sample']:.3f} / {row['score_cross_validated']:.3f})" if "score_in_sample" in row else "")
         for study, row in result.get("settings", {}).items() if row.get("in_sample") is not None and row.get("cross_validated") is not None]
     return "\n".join(lines + ["RMSE in degrees (BROAD metric, movement phases, no alignment); x rt = times faster than real time"] + ratios + published
                      + (settings if len(settings) > 1 else []))
