@@ -230,16 +230,26 @@ def test_counter_rotation_gain_tells_a_world_still_gaze_from_one_that_moves_with
     the gaze stays put in the head (the same fixations, the eye no longer counter-rotating)."""
     from dataclasses import replace
 
-    from fusegraph.frontends.gaze_timing import counter_rotation_gain
+    from fusegraph.frontends.gaze_timing import counter_rotation_gain, counter_rotation_gain_by_axis
 
     session, _ = _vor_session(0.0)
     found, _ = eye_velocity_fixations(session)
     # the gyro's noise (0.002 rad/s) and the smoothed ray's rate leave a few percent
     assert counter_rotation_gain(session, found) == pytest.approx(1.0, abs=0.1)
+    assert counter_rotation_gain_by_axis(session, found) == {"pitch": None, "yaw": pytest.approx(1.0, abs=0.1)}  # it only shook
+    # the same head and eyes seen 45 deg rolled: the head turns in pitch as much as in yaw, and the eye holds both
+    c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    roll = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    camera = session.config.camera
+    rolled = replace(session, gyro_rad_s=session.gyro_rad_s @ roll.T, gaze_px=camera.project(camera.ray(session.gaze_px) @ roll.T))
+    by_axis = counter_rotation_gain_by_axis(rolled, found)
+    assert by_axis is not None and by_axis["pitch"] == pytest.approx(1.0, abs=0.1) and by_axis["yaw"] == pytest.approx(1.0, abs=0.1)
     rng = np.random.default_rng(1)
-    still_in_head = replace(session, gaze_px=np.tile(session.gaze_px[0], (len(session.gaze_px), 1)) + rng.normal(0, 2.0, session.gaze_px.shape))
+    still_in_head = replace(rolled, gaze_px=np.tile(rolled.gaze_px[0], (len(rolled.gaze_px), 1)) + rng.normal(0, 2.0, rolled.gaze_px.shape))
     assert abs(counter_rotation_gain(still_in_head, found)) < 0.1
-    assert counter_rotation_gain(session, []) is None
+    by_axis = counter_rotation_gain_by_axis(still_in_head, found)
+    assert by_axis is not None and abs(by_axis["pitch"] or 1.0) < 0.1 and abs(by_axis["yaw"] or 1.0) < 0.1
+    assert counter_rotation_gain(session, []) is None and counter_rotation_gain_by_axis(session, []) is None
 
 
 def test_the_turn_beyond_the_gyro_is_what_an_attitude_adds_to_the_gyros_rotation_inside_a_fixation() -> None:

@@ -41,6 +41,7 @@ from ..frontends.gaze_timing import (
     Fixation,
     _ray_and_rate,
     counter_rotation_gain,
+    counter_rotation_gain_by_axis,
     dispersions_deg,
     fixation_angles,
     saccade_threshold_deg_s,
@@ -147,6 +148,7 @@ def gaze_recorded_json(run: RecordedGaze) -> dict[str, Any]:
         # the key earlier versions printed: the head's turn, now read as the eye's counter-rotation (no gyro)
         "fixation_head_turn_deg": {"median": float(np.median(turns)) if turns else None, "max": float(np.max(turns)) if turns else None},
         "fixation_counter_rotation_gain": counter_rotation_gain(data, found),
+        "fixation_counter_rotation_gain_by_axis": counter_rotation_gain_by_axis(data, found),
         "accel_beyond_gravity": accel_beyond_gravity(data),
         "dispersion_ratio_ci95": _ratio_cis(run),
         "fixation_turn_beyond_gyro_deg": {name: _median_or_none(turn_beyond_gyro_deg(e.extras["world_R_head"], gyro, found))
@@ -241,7 +243,7 @@ def format_gaze_recorded(result: dict[str, Any]) -> str:
         f"{result['fixations']} fixations from {'the device' if result['fixation_source'] == 'device' else 'eye-in-head velocity (no IMU)'} "
         f"({result['fixation_samples']} samples, {100 * result['fixation_fraction']:.0f} % of the gaze; eye turn in the head median "
         f"{result['fixation_eye_turn_deg']['median'] or float('nan'):.1f} deg, max {result['fixation_eye_turn_deg']['max'] or float('nan'):.1f} deg)",
-        _counter_rotation_text(result.get("fixation_counter_rotation_gain")),
+        _counter_rotation_text(result.get("fixation_counter_rotation_gain"), result.get("fixation_counter_rotation_gain_by_axis")),
         *_translation_text(result.get("accel_beyond_gravity")),
         f"{'method':<36} {'dispersion [deg]: median':>26} {'mean':>8} {'x real time':>12}",
     ]
@@ -284,12 +286,14 @@ def _translation_text(beyond: dict[str, float] | None) -> list[str]:
             "none); a translating head moves a near target's direction in the world whatever the attitude"]
 
 
-def _counter_rotation_text(gain: float | None) -> str:
+def _counter_rotation_text(gain: float | None, by_axis: dict[str, float | None] | None = None) -> str:
     if gain is None:
         return "the head did not turn in the fixations: their dispersion does not test a head attitude"
-    return (f"in the fixations the eye counter-rotated {100 * gain:.0f} % of the head's rotation (gyro; 100 % = the gaze held still in "
-            "the world)" + ("" if gain > 0.7 else "; well below: the gaze moved with the head (pursuit, or the head translating "
-                                                   "towards a near target), and the head frame can be the stiller gaze whatever the attitude"))
+    axes = ", ".join(f"{axis} {100 * value:.0f} %" for axis, value in (by_axis or {}).items() if value is not None)
+    return (f"in the fixations the eye counter-rotated {100 * gain:.0f} % of the head's rotation ({axes + '; ' if axes else ''}gyro; 100 % = "
+            "the gaze held still in the world)" + ("" if gain > 0.7 else "; well below: the gaze moved with the head (pursuit, or the head "
+                                     "translating towards a near target, which moves it in pitch), and the head frame can be the "
+                                     "stiller gaze whatever the attitude"))
 
 
 def plot_gaze_recorded(run: RecordedGaze, path: str | Path) -> Path:

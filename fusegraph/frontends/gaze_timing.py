@@ -261,6 +261,20 @@ def device_fixations(session: GazeSession, fixation_id: FloatArray) -> list[Fixa
     return out
 
 
+def _reflex_samples(session: GazeSession, found: list[Fixation]) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """The scored fixations' samples with the head turning faster than ``HEAD_MIN_DEG_S``: the gaze ray's rate in the
+    head (1/s), the ray, the gyro's rate (rad/s); None without such samples."""
+    if not found:
+        return None
+    rays, rate, ok = _ray_and_rate(session.tracker_t, session.config.camera.ray(session.gaze_px))
+    rows = np.concatenate([f.rows for f in found])
+    omega = _gyro_at(session, session.tracker_t[rows])
+    use = ok[rows] & (np.rad2deg(np.linalg.norm(omega, axis=1)) > HEAD_MIN_DEG_S)
+    if not use.any() or not np.any(np.cross(rays[rows][use], omega[use])):
+        return None
+    return rate[rows][use], rays[rows][use], omega[use]
+
+
 def counter_rotation_gain(session: GazeSession, found: list[Fixation]) -> float | None:
     """How much of the head's rotation the eye counter-rotated in the scored fixations: the least-squares slope of the
     gaze ray's rate in the head on ``d x omega`` (the rate that holds the gaze still in the world while the head turns at
@@ -269,16 +283,28 @@ def counter_rotation_gain(session: GazeSession, found: list[Fixation]) -> float 
     head (pursuit, or a head translating towards a near target), and the gaze in the head frame can be the stiller one
     whatever the attitude. A description of the recording that reads the gyro: it selects and scores nothing. None
     without such samples."""
-    if not found:
+    samples = _reflex_samples(session, found)
+    if samples is None:
         return None
-    rays, rate, ok = _ray_and_rate(session.tracker_t, session.config.camera.ray(session.gaze_px))
-    rows = np.concatenate([f.rows for f in found])
-    omega = _gyro_at(session, session.tracker_t[rows])
-    use = ok[rows] & (np.rad2deg(np.linalg.norm(omega, axis=1)) > HEAD_MIN_DEG_S)
-    holding = np.cross(rays[rows][use], omega[use])
-    if not use.any() or not np.any(holding):
+    rate, rays, omega = samples
+    holding = np.cross(rays, omega)
+    return float(np.sum(rate * holding) / np.sum(holding * holding))
+
+
+def counter_rotation_gain_by_axis(session: GazeSession, found: list[Fixation]) -> dict[str, float | None] | None:
+    """``counter_rotation_gain`` per head axis: one least-squares fit of the gaze ray's rate on ``d x (omega_k e_k)`` for
+    roll, pitch and yaw together (the head's axes: x forward, y left, z up), pitch and yaw returned where the head turned
+    about that axis at ``HEAD_MIN_DEG_S`` / 2 RMS or more (else None; a turn about the line of sight hardly moves the ray:
+    roll's gain is not determined). A head bouncing towards a near target moves the target in pitch; a gaze that falls
+    short in yaw as well turned with the head. A description, as the overall gain."""
+    samples = _reflex_samples(session, found)
+    if samples is None:
         return None
-    return float(np.sum(rate[rows][use] * holding) / np.sum(holding * holding))
+    rate, rays, omega = samples
+    columns = np.stack([np.cross(rays, omega * (np.arange(3) == k)).ravel() for k in range(3)], axis=1)
+    gains = np.linalg.lstsq(columns, rate.ravel(), rcond=None)[0]
+    turned = np.rad2deg(np.sqrt(np.mean(omega**2, axis=0))) >= HEAD_MIN_DEG_S / 2
+    return {axis: float(gains[k]) if turned[k] else None for k, axis in ((1, "pitch"), (2, "yaw"))}
 
 
 def fixation_angles(world_R_head: FloatArray | None, rays: FloatArray, fixation: Fixation) -> FloatArray:
