@@ -120,6 +120,7 @@ def test_a_broad_study_chooses_by_leave_one_trial_out_in_one_or_two_processes(tm
     # figure is the mean of the held-out scores (scored against VQF on each trial, these two alone prefer 2 m/s: a slow
     # translation's tilt and a carried magnet's heading; the thirteen trials do not)
     assert one["chosen"] == min(one["all"], key=one["all"].get)
+    assert one["total_in_sample"] > 0.0 and np.isfinite(one["total_cross_validated"])  # degrees, filed beside the peer-ratio score
     assert one["cross_validated"] == pytest.approx(float(np.mean([h["score"] for h in one["held_out"].values()])))
     assert one["cross_validated"] >= one["in_sample"] - 1e-9
 
@@ -177,4 +178,5 @@ def test_a_broad_study_on_imported_sessions_chooses_as_on_the_trial_files(tmp_pa
     on_sessions = broad_graph_logo("broad_online", sessions=[tmp_path / "sessions"])
     assert on_sessions["chosen"] == on_files["chosen"] and on_sessions["all"] == on_files["all"]
     assert on_sessions["cross_validated"] == on_files["cross_validated"]
+    assert "total_in_sample" not in on_files  # scored by the total RMSE itself: nothing to file beside it
     assert set(on_sessions["held_out"]) == {t.stem for t in trials}

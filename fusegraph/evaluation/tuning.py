@@ -322,8 +322,9 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     ``broad_rest``: the zero-rate update at rest)
     chosen by leave-one-trial-out on the BROAD trials for ``solver`` (online or batch), the other study's settings as
     tuned (``sessions``: imported session directories instead of the trial files), by the study's objective
-    (``BROAD_OBJECTIVES``; else the total RMSE, degrees). ``total_in_sample`` / ``total_cross_validated``: the chosen
-    settings' mean total RMSE (deg) on the trials, and each held-out trial's under the settings its fold chose."""
+    (``BROAD_OBJECTIVES``; else the total RMSE, degrees). A study scored otherwise also gives ``total_in_sample`` /
+    ``total_cross_validated``: the chosen settings' mean total RMSE (deg) on the trials, and each held-out trial's under
+    the settings its fold chose."""
     paths = [str(p) for p in recordings(directory, sessions)]
     per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers)
     names = list(grid_settings(broad_grid(study, solver)))
@@ -334,8 +335,9 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
             scores[name][Path(path).stem] = figures["score"]
             totals[name][Path(path).stem] = figures["total"]
     result = leave_one_group_out(scores)
-    result["total_in_sample"] = float(np.mean(list(totals[result["chosen"]].values())))
-    result["total_cross_validated"] = float(np.mean([totals[h["chosen"]][group] for group, h in result["held_out"].items()]))
+    if _broad_objective(study) != "total":
+        result["total_in_sample"] = float(np.mean(list(totals[result["chosen"]].values())))
+        result["total_cross_validated"] = float(np.mean([totals[h["chosen"]][group] for group, h in result["held_out"].items()]))
     return result
 
 
@@ -625,7 +627,7 @@ def _main_recorded(args: argparse.Namespace, result: dict[str, Any], grid: Mappi
         print(f"{setting:<44} in-sample mean {score:9.4f}")
     print(f"chosen: {result['chosen']}; in-sample {result['in_sample']:.4f}, leave-one-out {result['cross_validated']:.4f} ({unit})")
     totals: dict[str, float] = {}  # a study chosen by another score files its total RMSE beside it
-    if not unit.startswith("deg") and "total_in_sample" in result:
+    if "total_in_sample" in result:
         totals = {key: round(result[key], 4) for key in ("total_in_sample", "total_cross_validated")}
         print(f"  its mean total RMSE: in-sample {totals['total_in_sample']:.4f}, leave-one-out {totals['total_cross_validated']:.4f} deg")
     for held_name, held in result["held_out"].items():
