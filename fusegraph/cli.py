@@ -30,7 +30,7 @@ def _seeds_arg(text: str) -> list[int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .evaluation.tuning import STUDIES
+    from .evaluation.tuning import BROAD_GRIDS, BROAD_OBJECTIVES, BROAD_PER_SOLVER, STUDIES
     from .systems.presets import PRESETS
 
     parser = argparse.ArgumentParser(
@@ -229,12 +229,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "the same rule: the grid printed here, scored on TUNING seeds 100-119 (reports score 0-9), or on real data by "
                          "leave-one-trial-out with the cross-validated figure beside the in-sample one. With --write the chosen values go "
                          "to fusegraph/tuned.toml (with the seeds or trials and the score), which the reports and benches read. "
-                         f"Studies: {', '.join(STUDIES)} (simulated); broad_ekf, broad_mag, broad_motion, broad_bias, broad_hard_iron, broad_field, "
-                         "broad_rest, broad_online (BROAD trials; all but broad_ekf and broad_online per --solver, written as broad_mag / "
-                         "broad_mag_batch ...; "
-                         "broad_online: the online solver's relinearisation checks; each trial scored by its total RMSE, except "
-                         "broad_motion and broad_bias, whose settings level the sensor: its total over VQF's plus its inclination over "
-                         "VQF's, the offline VQF for the batch); uwb_calibrated (the UWB tracker's range noise, leave-one-run-out over the LIAS "
+                         f"Studies: {', '.join(STUDIES)} (simulated); {', '.join(BROAD_GRIDS)} (BROAD trials; {', '.join(BROAD_PER_SOLVER)} "
+                         "per --solver, written as broad_mag / broad_mag_batch ...; broad_online: the online solver's relinearisation "
+                         f"checks; each trial scored by its total RMSE, except {' and '.join(BROAD_OBJECTIVES)}, whose settings level the "
+                         "sensor: its total over VQF's plus its inclination over VQF's, the offline VQF for the batch); "
+                         "uwb_calibrated (the UWB tracker's range noise, leave-one-run-out over the LIAS "
                          "runs or --sessions); activity (the waist activity classifier on "
                          "../shared/data/hapt or --sessions: feature set, boosting stages and context by grouped cross-validation over the "
                          "subjects, checked on the pendulum gait's simulated walks of seeds 100-119 (a pace change must not pass for "
@@ -246,7 +245,7 @@ def build_parser() -> argparse.ArgumentParser:
     tun.add_argument("study", help="the study's name (see above)")
     tun.add_argument("--seeds", type=_seeds_arg, help="tuning seeds (default 100-119; test seeds 0-9 are refused)")
     tun.add_argument("--solver", default="online", choices=["online", "batch"],
-                     help="the BROAD studies but broad_ekf and broad_online: which estimate they tune")
+                     help=f"{', '.join(BROAD_PER_SOLVER)}: which estimate they tune")
     tun.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml, which the reports and benches read")
     tun.add_argument("--sessions", nargs="+", type=Path, default=[], metavar="DIR",
                      help="BROAD studies: choose on these sessions (or folders of them, e.g. imported trials) by leave-one-recording-out")
