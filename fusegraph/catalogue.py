@@ -36,7 +36,9 @@ class Magnitude:
     """A plausibility check on the norm of each sample (all value columns)."""
 
     statistic: str
-    """``max`` (every sample's norm must stay below ``high``) or ``median`` (the median norm must lie in [low, high])."""
+    """``max`` (every sample's norm must stay below ``high``), ``median`` (the median norm must lie in [low, high]) or
+    ``still median`` (the same over the samples at rest, ``session.still_norms``: free fall and bouncing are motion, not a
+    unit; without a still part it is a warning)."""
     low: float
     """Lowest plausible value (``median`` checks), in the kind's SI unit."""
     high: float
@@ -97,6 +99,8 @@ COMMON_KEYS: tuple[KeySpec, ...] = (
     KeySpec("role", None, "free text; attitude9 reads role = 'calibration recording' on a mag_cal stream"),
     KeySpec("units", None, "the units the CSV is written in when not SI (see the kind's accepted units); converted on loading"),
     KeySpec("unit", None, "free text: the unit the values are in when the kind leaves it open (the magnetometer)"),
+    KeySpec("frame_R_sensor", None, "gyro, accel, mag: the rotation from this stream's axes into the body frame (the gyro's), "
+            "3 rows of 3 (a signed permutation for axes swapped or negated); applied on loading, so every solver reads body axes"),
 )
 """Keys every stream may carry."""
 

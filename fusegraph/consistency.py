@@ -11,8 +11,9 @@ declared image size (normalised) are named too.
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -48,16 +49,25 @@ CLIPPED_MIN_SAMPLES = 5
 never repeats a float extreme; 1,302 accelerometer samples at 1.99994 g in the Pupil Invisible trampoline recording)."""
 
 
+CLIPPED_RUN = 3
+"""...and at least this many of them in a row on one axis: a clipped signal stays at its rail while the motion is beyond it;
+the largest value of a long recording met ten times apart (a 30-minute recording: +-30.83 m/s^2) is no rail."""
+
+
 def saturation_level(values: FloatArray) -> float | None:
     """The magnitude at which a stream clips (its range), or None: the largest absolute value of an axis when at least
-    ``CLIPPED_MIN_SAMPLES`` samples of that axis sit at it (within 1e-6 of it, relative) and no axis reads beyond it (a
+    ``CLIPPED_MIN_SAMPLES`` samples of that axis sit at it (within 1e-6 of it, relative), ``CLIPPED_RUN`` of them in a
+    row, and no axis reads beyond it (a
     range bounds every axis: a smooth periodic motion sampled in step with its period repeats its peak, and is no range)."""
     magnitude = np.abs(np.asarray(values, dtype=float))
     if magnitude.size == 0 or not np.isfinite(magnitude).any():
         return None
     top = np.nanmax(magnitude, axis=0)
     at_top = (magnitude >= top * (1.0 - 1e-6)) & (top > 0)
-    clipped = (at_top.sum(axis=0) >= CLIPPED_MIN_SAMPLES) & (top >= np.max(top) * (1.0 - 1e-6))
+    held = np.zeros(at_top.shape[1], dtype=bool)  # the signal runs into the rail and stays: samples in a row at it
+    if len(at_top) >= CLIPPED_RUN:
+        held = np.lib.stride_tricks.sliding_window_view(at_top, CLIPPED_RUN, axis=0).all(axis=-1).any(axis=0)
+    clipped = (at_top.sum(axis=0) >= CLIPPED_MIN_SAMPLES) & held & (top >= np.max(top) * (1.0 - 1e-6))
     return float(top[clipped].min()) if clipped.any() else None
 
 
@@ -129,7 +139,7 @@ def gyro_against_gravity(t: FloatArray, gyro: FloatArray, accel: FloatArray) -> 
     return out
 
 
-def tracker_against_gyro(gyro_t: FloatArray, gyro: FloatArray, tracker_t: FloatArray, quat: FloatArray) -> dict[str, float] | None:
+def tracker_against_gyro(gyro_t: FloatArray, gyro: FloatArray, tracker_t: FloatArray, quat: FloatArray, conjugated: bool = False) -> dict[str, float] | None:
     """Median misfit (deg) between the rotation the tracker shows over 0.2 s and the one the gyro integrates (both in the
     body frame, which the head preset requires to be the same), for the quaternion columns as written (w, x, y, z:
     ``as written``), read as (x, y, z, w) (``scalar last``) and with two gyro columns swapped (``SWAPS``' keys); None
@@ -152,14 +162,31 @@ def tracker_against_gyro(gyro_t: FloatArray, gyro: FloatArray, tracker_t: FloatA
     if moving.sum() < 10:
         return None
     out = {}
-    for name, order in (("as written", (0, 1, 2, 3)), ("scalar last", (3, 0, 1, 2))):
-        q = quat_normalize(quat[:, order])
+    readings = [("as written", quat_normalize(quat)), ("scalar last", quat_normalize(quat[:, (3, 0, 1, 2)]))]
+    if conjugated:
+        readings.append(("conjugated", quat_conjugate(quat_normalize(quat))))
+    for name, q in readings:
         turned = np.rad2deg(rotvec_from_quat(quat_multiply(quat_conjugate(q[i[moving]]), q[j[moving]])))
         out[name] = float(np.median(np.linalg.norm(turned - by_gyro[moving], axis=1)))
-        if name == "as written":  # a small turn's rotation vector takes the gyro's column order
+        if name == "as written" and not conjugated:  # a small turn's rotation vector takes the gyro's column order (a tracker's)
             for swap, columns in SWAPS.items():
                 out[swap] = float(np.median(np.linalg.norm(turned - by_gyro[moving][:, columns], axis=1)))
+            for k, matrix in enumerate(m for pair in signed_permutations() for m in (pair, -pair)):  # the gyro in another frame
+                out[f"frame {k}"] = float(np.median(np.linalg.norm(turned - by_gyro[moving] @ matrix, axis=1)))
     return out
+
+
+def gyro_frame_against_tracker(fit: Mapping[str, float]) -> FloatArray | None:
+    """The signed permutation S with the tracker's turn = S^T (the gyro's), when it fits far better than the gyro as
+    written and better than any other (``MISTAKE_FITS``, ``FRAME_UNIQUE``): the gyro's axes read the tracker's body
+    axes as S says. None otherwise."""
+    frames = sorted(((float(v), k) for k, v in fit.items() if k.startswith("frame ")))
+    every = [m for pair in signed_permutations() for m in (pair, -pair)]
+    (best, k), (second, _) = frames[0], frames[1]
+    matrix = every[int(k.split()[1])]
+    if np.allclose(matrix, np.eye(3)) or fit["as written"] < MIN_MISFIT_DEG:
+        return None
+    return matrix if best <= MISTAKE_FITS * fit["as written"] and best <= FRAME_UNIQUE * second else None
 
 
 def pixels_against_gyro(gyro_t: FloatArray, gyro: FloatArray, pixel_t: FloatArray, uv: FloatArray, focal_px: float) -> tuple[float, float] | None:
@@ -216,23 +243,66 @@ def _name_mistake(fit: Mapping[str, float], mistake: str | None, stream: str, fi
                                "axes written in each other's place? (or the other sensor's)")
 
 
-def check_streams(streams: Mapping[str, Any]) -> list[str]:
+def _body_stream(gyro: Any, candidates: list[Any], kind: str) -> Any | None:
+    """The stream of ``kind`` on the gyro's body: the one named alike (``thigh_gyro`` -> ``thigh_mag``), else the only one."""
+    named = [s for s in candidates if s.name == gyro.name.replace("gyro", kind)]
+    if named or gyro.name != "gyro":  # a gyro named for its body (thigh_gyro) has its own streams or none
+        return named[0] if named else None
+    return candidates[0] if len(candidates) == 1 else None
+
+
+def check_streams(streams: Mapping[str, Any], truth: Any | None = None) -> list[str]:
     """Every consistency check the streams allow; a ``ConsistencyError`` names the stream and the likely cause. Returns
-    what a check could not decide (one line per warning, naming the stream)."""
-    said: list[str] = []
+    what a check could not decide or a solver leaves out (one line per warning, naming the stream)."""
+    said: list[str] = [message for message, _ in repairs(streams).values()]
+    live = {}
+    for name, stream in streams.items():
+        reason = dead_reason(stream)
+        if reason is not None and stream.kind not in DROPPABLE_KINDS:
+            raise ConsistencyError(f"stream '{name}': {reason}: nothing can be solved without it")
+        if reason is None:
+            live[name] = stream
+            stuck = stuck_span(stream)
+            if stuck is not None:
+                said.append(f"stream '{name}': one reading repeated by {stuck[2]} samples from t = {stuck[0]:.2f} to {stuck[1]:.2f} s: "
+                            "the sensor stuck there (its samples read nothing of the motion)")
+    streams = live
     gyros = [s for s in streams.values() if s.kind == "gyro" and len(s) > 20]
     accels = [s for s in streams.values() if s.kind == "accel" and len(s) > 20]
     for gyro in gyros:
+        mag = _body_stream(gyro, [s for s in streams.values() if s.kind == "mag" and len(s) > 20
+                                  and s.meta.get("role") != "calibration recording"], "mag")
+        if mag is not None and not _declared_units(gyro.meta):
+            still = field_against_still_gyro(gyro, _body_stream(gyro, accels, "accel"), mag)
+            if still is not None:
+                _name_mistake(still, "deg/s", gyro.name, f"the gyro turns the field {still['as written']:.1f} deg (median) away from where "
+                              f"'{mag.name}' sees it a second later on a sensor that gravity shows at rest")
+        check_frames(gyro, _body_stream(gyro, _same_body(gyro, accels), "accel"), mag)  # after its units, before the gyro's own columns are blamed
         for accel in _same_body(gyro, accels):
             fit = gyro_against_gravity(gyro.t, gyro.values, accel.values)
             if fit is not None:
                 _name_mistake(fit, "deg/s" if not _declared_units(gyro.meta) else None, gyro.name,
                               f"the gyro turns gravity {fit['as written']:.1f} deg away from where '{accel.name}' sees it a second later")
+        if truth is not None and truth.kind == "attitude" and len(truth) > 20:
+            truth_against_gyro(gyro, truth)
+    if truth is not None and len(truth) and streams:
+        start, end = min(float(s.t[0]) for s in streams.values()), max(float(s.t[-1]) for s in streams.values())
+        if truth.t[-1] < start or truth.t[0] > end:
+            raise ConsistencyError(f"truth ({truth.t[0]:.3f} .. {truth.t[-1]:.3f} s) does not overlap the streams ({start:.3f} .. {end:.3f} s): on "
+                                   f"another clock (about {float(np.median(truth.t)) - 0.5 * (start + end):+.4g} s off)? write it on the sensors' "
+                                   "clock; nothing could be scored")
         for tracker in (s for s in streams.values() if s.kind == "attitude" and len(s) > 20 and s.meta.get("role") != "truth"):
             fit = tracker_against_gyro(gyro.t, gyro.values, tracker.t, tracker.values)
             if fit is not None:
                 _name_mistake(fit, "scalar last", tracker.name,
                               f"the rotation over 0.2 s of '{tracker.name}' is {fit['as written']:.1f} deg (median) from the gyro's", swapped=gyro.name)
+                frame = gyro_frame_against_tracker(fit)
+                if frame is not None:
+                    raise ConsistencyError(
+                        f"stream '{gyro.name}': the rotation over 0.2 s of '{tracker.name}' is {fit['as written']:.1f} deg (median) from the "
+                        f"gyro's, which reads the tracked body's axes as {describe_axes(frame)}: the gyro in another frame than the tracker's "
+                        f"body? declare frame_R_sensor = {_matrix_toml(frame.T)} in [streams.{gyro.name}] (its axes into the body's), "
+                        "or write its columns in the body's axes")
     for stream in (*gyros, *accels):
         level = saturation_level(stream.values)
         if level is not None:
@@ -291,3 +361,372 @@ def check_streams(streams: Mapping[str, Any]) -> list[str]:
                 raise ConsistencyError(f"stream '{cal.name}': its field is {ratio:.3g}x that of '{mag.name}' (median norm): another unit? "
                                        "write both in one unit")
     return said
+
+
+# ------------------------------------------------------------------------------------------------ one frame for every IMU stream
+
+AXIS_NAMES = ("x", "y", "z")
+FRAME_LAG_S = 1.0
+"""Two instants compared by the frame checks are this far apart (the gyro's drift over it is far below the misfits sought)."""
+FRAME_TURN_DEG = 5.0
+"""...and the gyro turned at least this much between them (less tells no axis from another)."""
+FRAME_UNIQUE = 0.6
+"""A frame is named alone when it fits with at most this fraction of the misfit of the next best; a motion that turns
+mostly about one axis (a head that looks around) leaves several frames that fit alike..."""
+FRAME_CLEAR = 0.25
+"""...and then the axes as written are said to be wrong only when the best fits with at most this fraction of their misfit
+(the frames that fit are listed). On BROAD's translation trials, which hardly turn, the best frame fits with 0.6-0.7 of
+the misfit of the axes as written, from the translation's acceleration, not the axes."""
+
+
+def signed_permutations() -> list[FloatArray]:
+    """The 24 signed permutation matrices up to an overall sign (M and -M carry a direction alike: the checks cannot tell
+    them apart), each as the one of its pair with fewer minus signs: how axes are mislaid (swapped, negated, turned 90 deg)."""
+    every = [np.eye(3)[list(order)] * np.asarray(signs)[:, None]
+             for order in itertools.permutations(range(3)) for signs in itertools.product((1.0, -1.0), repeat=3)]
+    out: list[FloatArray] = []
+    for matrix in sorted(every, key=lambda m: int((m < 0).sum())):
+        if not any(np.array_equal(-matrix, kept) for kept in out):
+            out.append(matrix)
+    return out
+
+
+def describe_axes(stream_from_body: FloatArray) -> str:
+    """``(+y, +x, +z)``: the body (gyro) axis each of a stream's x, y, z reads."""
+    parts = []
+    for row in np.asarray(stream_from_body):
+        c = int(np.argmax(np.abs(row)))
+        parts.append(f"{'+' if row[c] > 0 else '-'}{AXIS_NAMES[c]}")
+    return "(" + ", ".join(parts) + ")"
+
+
+def _smoothed(t: FloatArray, values: FloatArray, window_s: float = 0.2) -> FloatArray:
+    """A moving mean over ``window_s`` (0.2 s takes the jolts out of gravity and the noise out of the field)."""
+    return np.asarray(_moving_mean(values, max(1, int(round(window_s / float(np.median(np.diff(t))))))))
+
+
+def _moving_mean(values: np.ndarray, width: int) -> np.ndarray:
+    """Centred moving mean along the first axis (``width`` samples; the ends average what there is)."""
+    flat = values.reshape(len(values), -1)
+    total = np.vstack([np.zeros((1, flat.shape[1])), np.cumsum(flat, axis=0)])
+    lo = np.clip(np.arange(len(flat)) - width // 2, 0, len(flat))
+    hi = np.clip(lo + width, 0, len(flat))
+    return ((total[hi] - total[lo]) / (hi - lo)[:, None]).reshape(values.shape)
+
+
+FRAME_SETTINGS = ((1.0, 2.0), (2.0, 2.0))
+"""(averaging window, lag) in seconds tried in turn by the frame checks: chosen on the shipped BROAD trials and the six
+simulators for no false alarm (none in either) and the most signed permutations named (82 and 80 of 102 damages; 10 and
+15, translations, hardly turn: nothing tells there). A longer window averages more of the body's own acceleration out,
+a shorter one keeps a quick turn."""
+
+
+def _frame_scorer(gyro_t: FloatArray, gyro: FloatArray, t: FloatArray, vectors: FloatArray, gravity: bool,
+                  window_s: float, lag_s: float, quat: FloatArray | None = None) -> Callable[[FloatArray], tuple[float, FloatArray]] | None:
+    """A function of a candidate M (``stream = M body``) giving the median misfit (deg) and the per-pair misfits (rad) of a
+    vector fixed in the world (gravity, ``gravity``; else the field): each sample turned into the gyro's integration frame
+    (``R M^T v``) and averaged over ``window_s`` (the body's own accelerations, steps and pedalling, average out there;
+    gravity does not), two such means ``lag_s`` apart, where the gyro turned at least ``FRAME_TURN_DEG``, must point
+    alike. A magnetometer's constant offset (hard iron) is fitted per candidate (linear least squares). ``quat``: the
+    gyro already integrated at its times over the checked span (``_integrated``), when the caller has it. None when the
+    gyro hardly turned (nothing tells)."""
+    span = (t <= t[0] + CHECK_SPAN_S) & (t >= gyro_t[0]) & (t <= gyro_t[-1])
+    t, vectors = t[span], vectors[span]
+    if len(t) < 50:
+        return None
+    step = max(1, int(round(0.01 / float(np.median(np.diff(t))))))  # at most 100 Hz: the averages need no more
+    t, vectors = t[::step], vectors[::step]
+    if quat is None:
+        quat = _integrated(gyro_t, gyro)
+    turn = matrix_from_quat(quat[np.clip(np.searchsorted(gyro_t, t), 0, len(gyro_t) - 1)])
+    dt = float(np.median(np.diff(t)))
+    lag, width = max(1, int(round(lag_s / dt))), max(1, int(round(window_s / dt)))
+    i = np.arange(width // 2, len(t) - lag - width // 2, max(1, lag // 4))
+    j = i + lag
+    relative = np.einsum("nba,nbc->nac", turn[i], turn[j])
+    turned = np.rad2deg(np.arccos(np.clip((np.einsum("nii->n", relative) - 1.0) / 2.0, -1.0, 1.0)))
+    keep = turned >= FRAME_TURN_DEG
+    if keep.sum() < 5:
+        return None
+    i, j = i[keep], j[keep]
+    # R M^T v = sum_kl M[l, k] R[:, :, k] v_l: the nine products averaged once, at the instants compared only
+    mean_products = np.stack([np.stack([_moving_mean(turn[:, :, k] * vectors[:, l, None], width) for l in range(3)]) for k in range(3)])
+    at_i, at_j = mean_products[:, :, i], mean_products[:, :, j]
+    mean_turn = _moving_mean(turn, width)
+    turn_i, turn_j = mean_turn[i], mean_turn[j]
+
+    def score(matrix: FloatArray) -> tuple[float, FloatArray]:
+        fixed_i, fixed_j = np.einsum("lk,klna->na", matrix, at_i), np.einsum("lk,klna->na", matrix, at_j)  # R M^T v, averaged
+        if not gravity:  # R M^T (m - b): the offset b' = M^T b from (A_i - A_j) b' = u_i - u_j, A the averaged turns
+            offset = np.linalg.lstsq((turn_i - turn_j).reshape(-1, 3), (fixed_i - fixed_j).reshape(-1), rcond=None)[0]
+            fixed_i, fixed_j = fixed_i - turn_i @ offset, fixed_j - turn_j @ offset
+        unit_i = fixed_i / np.maximum(np.linalg.norm(fixed_i, axis=1), 1e-12)[:, None]
+        unit_j = fixed_j / np.maximum(np.linalg.norm(fixed_j, axis=1), 1e-12)[:, None]
+        angles = np.deg2rad(_angle_deg(unit_i, unit_j))
+        return float(np.rad2deg(np.median(angles))), angles
+
+    return score
+
+
+def frame_misfits(gyro_t: FloatArray, gyro: FloatArray, t: FloatArray, vectors: FloatArray, gravity: bool,
+                  window_s: float = 1.0, lag_s: float = 2.0, quat: FloatArray | None = None) -> dict[str, Any] | None:
+    """``_frame_scorer``'s misfit for every signed permutation M: ``{"misfits": [(M, deg), ...] best first, "identity":
+    deg, "score": the scorer}``, or None when the gyro hardly turned."""
+    score = _frame_scorer(gyro_t, gyro, t, vectors, gravity, window_s, lag_s, quat)
+    if score is None:
+        return None
+    scored = sorted(((matrix, score(matrix)[0]) for matrix in signed_permutations()), key=lambda pair: pair[1])
+    identity = next(deg for matrix, deg in scored if np.allclose(matrix, np.eye(3)))
+    return {"misfits": scored, "identity": identity, "score": score}
+
+
+ODD_TURN_MIN_DEG = 8.0
+"""A turn by an odd angle (three free numbers) is fitted only where the axes as written are off by at least this much: on
+Mobilise-D's slow walks the axes as written are off by 4-5 deg, and a fitted turn of 90-110 deg brought that to 1-2 deg."""
+
+
+def fitted_rotation(fit: Mapping[str, Any]) -> tuple[FloatArray, float] | None:
+    """The rotation (or reflection, from the best signed permutation's family) M that fits the stream best, by least
+    squares on the per-pair misfits from the best signed permutation; (M, median misfit deg) when the axes as written are
+    off by ``ODD_TURN_MIN_DEG`` and M, at least 10 deg from the identity, fits with at most ``FRAME_CLEAR`` of their
+    misfit: a sensor mounted turned by an odd angle."""
+    from scipy.optimize import least_squares
+
+    from .geometry import quat_from_rotvec
+
+    if fit["identity"] < ODD_TURN_MIN_DEG:
+        return None
+    score = fit["score"]
+    start = np.asarray(fit["misfits"][0][0])
+
+    def matrix_of(rotvec: FloatArray) -> FloatArray:
+        return np.asarray(matrix_from_quat(quat_from_rotvec(rotvec[None])[0]) @ start)
+
+    found = least_squares(lambda r: score(matrix_of(r))[1], np.zeros(3), loss="soft_l1", f_scale=0.05, max_nfev=60)
+    matrix = matrix_of(found.x)
+    deg = score(matrix)[0]
+    departure = np.rad2deg(np.arccos(np.clip((np.trace(matrix) - 1.0) / 2.0, -1.0, 1.0))) if np.linalg.det(matrix) > 0 else 180.0
+    if departure >= 10.0 and deg <= FRAME_CLEAR * fit["identity"]:
+        return matrix, deg
+    return None
+
+
+def other_frame(fit: Mapping[str, Any] | None) -> list[FloatArray]:
+    """The signed permutations that explain a stream far better than its axes as written, best first: one when it is
+    better than any other (``MISTAKE_FITS``, ``FRAME_UNIQUE``), the few that fit alike when the motion cannot tell them
+    apart but all fit far better than the axes as written (``FRAME_CLEAR``); empty when the axes as written may be right."""
+    if fit is None:
+        return []
+    misfits = fit["misfits"]
+    (best, best_deg), (_, second_deg) = misfits[0], misfits[1]
+    if np.allclose(best, np.eye(3)) or fit["identity"] < MIN_MISFIT_DEG or best_deg > MISTAKE_FITS * fit["identity"]:
+        return []
+    if best_deg <= FRAME_UNIQUE * second_deg:
+        return [np.asarray(best)]
+    if best_deg <= FRAME_CLEAR * fit["identity"]:
+        return [np.asarray(m) for m, deg in misfits if deg * FRAME_UNIQUE <= best_deg and not np.allclose(m, np.eye(3))][:3]
+    return []
+
+
+def _matrix_toml(matrix: FloatArray, digits: int = 0) -> str:
+    return "[" + ", ".join("[" + ", ".join(f"{round(v, digits) + 0.0:g}" for v in row) + "]" for row in np.asarray(matrix)) + "]"
+
+
+def _turn_text(matrix: FloatArray) -> str:
+    """``31 deg about (0.99, 0.02, -0.1)`` (a reflection: ``a reflection``, with the matrix in the fix)."""
+    if np.linalg.det(matrix) < 0:
+        return "a reflection"
+    angle = float(np.arccos(np.clip((np.trace(matrix) - 1.0) / 2.0, -1.0, 1.0)))
+    axis = np.array([matrix[2, 1] - matrix[1, 2], matrix[0, 2] - matrix[2, 0], matrix[1, 0] - matrix[0, 1]])
+    axis = axis / max(float(np.linalg.norm(axis)), 1e-12)
+    return f"{np.rad2deg(angle):.0f} deg about ({', '.join(f'{a:.2f}' for a in axis)}) of its axes"
+
+
+def gyro_swaps_against(gyro: Any, stream: Any, gravity: bool, window_s: float, lag_s: float) -> dict[str, float] | None:
+    """``_frame_scorer``'s misfit of a stream in the gyro's frame for the gyro as written and with two columns swapped
+    (``SWAPS``' keys), or None when the gyro hardly turned."""
+    out = {}
+    for name, rates in {"as written": gyro.values, **{swap: gyro.values[:, order] for swap, order in SWAPS.items()}}.items():
+        score = _frame_scorer(gyro.t, rates, stream.t, stream.values, gravity, window_s, lag_s)
+        if score is None:
+            return None
+        out[name] = score(np.eye(3))[0]
+    return out
+
+
+def check_frames(gyro: Any, accel: Any | None, mag: Any | None) -> None:
+    """One frame for every IMU stream: gravity (``accel``) and the field (``mag``) must turn as the gyro says. A signed
+    permutation that explains a stream far better than its axes as written is a ``ConsistencyError`` naming the stream and
+    the ``frame_R_sensor`` to declare (or the gyro, when both other streams agree with each other and not with it)."""
+    fits: dict[str, tuple[Any, list[FloatArray], dict[str, Any]]] = {}
+    span = gyro.t <= gyro.t[0] + CHECK_SPAN_S + 1.0
+    gyro_t, rates = gyro.t[span], gyro.values[span]
+    quat = _integrated(gyro_t, rates)
+    written: dict[str, float] = {}
+    for stream, gravity in ((accel, True), (mag, False)):
+        if stream is None:
+            continue
+        for window_s, lag_s in FRAME_SETTINGS:
+            fit = frame_misfits(gyro_t, rates, stream.t, stream.values, gravity, window_s, lag_s, quat)
+            if fit is not None:
+                written[stream.name] = max(written.get(stream.name, 0.0), fit["identity"])
+            frames = other_frame(fit)
+            if not frames and fit is not None:
+                turned = fitted_rotation(fit)
+                if turned is not None:
+                    raise ConsistencyError(
+                        f"stream '{stream.name}': {'gravity' if gravity else 'the field'} turns {fit['identity']:.1f} deg (median) away from "
+                        f"where the gyro '{gyro.name}' carries it, {turned[1]:.1f} deg with its axes turned by {_turn_text(turned[0])}: "
+                        f"a sensor mounted turned against the gyro? declare frame_R_sensor = {_matrix_toml(turned[0].T, 4)} in "
+                        f"[streams.{stream.name}] (its axes into the gyro's)")
+            if frames and fit is not None:
+                fits[stream.name] = (stream, frames, fit)
+                break
+    if not fits:  # no stream in another frame: the gyro's own columns swapped (a mirror is no frame) may still explain both
+        for stream, gravity in ((s, g) for s, g in ((accel, True), (mag, False)) if s is not None and written.get(s.name, 0.0) >= ODD_TURN_MIN_DEG):
+            for window_s, lag_s in FRAME_SETTINGS:
+                swapped = gyro_swaps_against(gyro, stream, gravity, window_s, lag_s)
+                if swapped is not None and swapped["as written"] >= ODD_TURN_MIN_DEG:  # Mobilise-D's walks: 4-5 deg as written, 1-2 swapped
+                    _name_mistake(swapped, None, gyro.name, f"the gyro turns {'gravity' if gravity else 'the field'} {swapped['as written']:.1f} deg "
+                                  f"(median) away from where '{stream.name}' sees it")
+    odd = {name: (stream, frames, fit) for name, (stream, frames, fit) in fits.items() if frames}
+    if len(odd) == 2:
+        (_, f_a, _), (_, f_m, _) = odd.values()
+        if len(f_a) == len(f_m) == 1 and (np.allclose(f_a[0], f_m[0]) or np.allclose(f_a[0], -f_m[0])):
+            raise ConsistencyError(
+                f"stream '{gyro.name}': gravity and the field both turn as if the gyro's axes were theirs turned: theirs read the gyro's "
+                f"{describe_axes(f_a[0])}: the gyro in another frame than the accelerometer and magnetometer? declare frame_R_sensor = "
+                f"{_matrix_toml(f_a[0])} in [streams.{gyro.name}] (its axes into theirs), or reorder its columns")
+    for name, (stream, frames, fit) in odd.items():
+        what = "gravity" if stream.kind == "accel" else "the field"
+        best = fit["misfits"][0][1]
+        axes = " or ".join(describe_axes(m) for m in frames)
+        declare = (f"declare frame_R_sensor = {_matrix_toml(frames[0].T)}" if len(frames) == 1 else
+                   f"the motion turns about too few axes to tell which; declare frame_R_sensor (e.g. {_matrix_toml(frames[0].T)})")
+        raise ConsistencyError(
+            f"stream '{name}': {what} turns {fit['identity']:.1f} deg (median) away from where the gyro '{gyro.name}' carries it, "
+            f"{best:.1f} deg with its axes read as the gyro's {axes}: its axes in another frame than the gyro's "
+            f"(columns swapped or negated, a chip mounted turned)? {declare} in [streams.{name}] (its axes into the gyro's), "
+            "or write its columns in the gyro's axes")
+
+
+def field_against_still_gyro(gyro: Any, accel: Any | None, mag: Any) -> dict[str, float] | None:
+    """On a sensor that gravity shows at rest (it never tilts by ``FRAME_TURN_DEG``), the field tells what gravity cannot: the
+    median misfit (deg) of the field 1 s later against the gyro's carry, as written and x pi/180 (``deg/s``: a bias in deg/s
+    about the vertical read as rad/s turns the sensor tens of degrees a second). None where the sensor tilts (the gravity
+    check decides there) or the gyro as written hardly turns. A magnet carried on a sensor that turns only about the
+    vertical would look alike; it is not named here, only the units."""
+    if accel is not None:
+        up = _smoothed(accel.t, accel.values, 1.0)
+        up /= np.maximum(np.linalg.norm(up, axis=1), 1e-12)[:, None]
+        if float(np.max(_angle_deg(up, np.repeat(np.median(up, axis=0, keepdims=True) / np.linalg.norm(np.median(up, axis=0)), len(up), 0)))) > FRAME_TURN_DEG:
+            return None
+    out = {}
+    for name, rate in (("as written", gyro.values), ("deg/s", gyro.values * DEG)):
+        span = (mag.t <= mag.t[0] + CHECK_SPAN_S) & (mag.t >= gyro.t[0]) & (mag.t <= gyro.t[-1])
+        t, field = mag.t[span], _smoothed(mag.t[span], mag.values[span])
+        if len(t) < 50:
+            return None
+        inside = gyro.t <= t[-1] + 1.0
+        quat = _integrated(gyro.t[inside], rate[inside])[np.clip(np.searchsorted(gyro.t[inside], t), 0, int(inside.sum()) - 1)]
+        lag = max(1, int(round(FRAME_LAG_S / float(np.median(np.diff(t))))))
+        i = np.arange(0, len(t) - lag, lag)
+        j = i + lag
+        carry = np.transpose(matrix_from_quat(quat_multiply(quat_conjugate(quat[i]), quat[j])), (0, 2, 1))
+        predicted = np.einsum("nab,nb->na", carry, field[i])
+        predicted /= np.maximum(np.linalg.norm(predicted, axis=1), 1e-12)[:, None]
+        seen = field[j] / np.maximum(np.linalg.norm(field[j], axis=1), 1e-12)[:, None]
+        out[name] = float(np.median(_angle_deg(predicted, seen)))
+    return out
+
+
+VECTOR_KINDS = ("gyro", "accel", "mag")
+STUCK_S = 3.0
+"""A vector stream whose every axis repeats one reading for this long (and at least ``STUCK_SAMPLES`` samples) is stuck there
+(noise never repeats a float triple; BROAD's magnetometer holds a reading for 4 samples at most, its own slower rate; the
+Tobii export's 10 Hz magnetometer, held at the gyro's rate, once for 1.4 s)."""
+STUCK_SAMPLES = 20
+
+
+def dead_reason(stream: Any) -> str | None:
+    """Why a gyro, accelerometer or magnetometer stream measures nothing: every sample zero, or one constant reading."""
+    if stream.kind not in VECTOR_KINDS or len(stream) < 2:
+        return None
+    values = np.asarray(stream.values, dtype=float)
+    if not np.any(values):
+        return "every sample is zero (a dead or unplugged sensor, or a column of another stream)"
+    if np.all(values == values[0]):
+        return f"every sample reads ({', '.join(f'{v:.4g}' for v in values[0])}): a dead or disconnected sensor"
+    return None
+
+
+def stuck_span(stream: Any) -> tuple[float, float, int] | None:
+    """The longest stretch where a live vector stream repeats one reading (start, end, samples), when over ``STUCK_S``."""
+    if stream.kind not in VECTOR_KINDS or len(stream) < STUCK_SAMPLES:
+        return None
+    same = np.all(np.diff(stream.values, axis=0) == 0, axis=1)
+    if not same.any():
+        return None
+    edges = np.flatnonzero(np.diff(np.r_[0, same.astype(np.int8), 0]))
+    starts, ends = edges[::2], edges[1::2]  # runs of repeats: samples starts[k] .. ends[k] read the same
+    k = int(np.argmax(ends - starts))
+    count = int(ends[k] - starts[k]) + 1
+    first, last = float(stream.t[starts[k]]), float(stream.t[ends[k]])
+    if count >= STUCK_SAMPLES and last - first >= STUCK_S:
+        return first, last, count
+    return None
+
+
+DROPPABLE_KINDS = ("mag",)
+"""A dead stream of these kinds is left out with a warning: every system that reads one runs without it (the 9-axis system
+with gravity and the gyro alone; the EKFs of the papers that need it say so)."""
+
+
+REPEATED_SHARE = 0.1
+"""Two tags at one distance from a receiver give one range twice in an epoch where ranges are rounded (LIAS UWB, to the
+millimetre: 1.2 % of its rows); a log written twice repeats half of them."""
+
+
+def repeated_range_rows(stream: Any) -> np.ndarray | None:
+    """Rows of a ranges stream that repeat an earlier row of the same epoch exactly (time, receiver, range) when over
+    ``REPEATED_SHARE`` of the rows do: a log written twice. A mask of the rows to keep, or None."""
+    if stream.kind != "ranges" or len(stream) < 2:
+        return None
+    rows = np.column_stack([stream.t, stream.values])
+    _, first = np.unique(rows, axis=0, return_index=True)
+    if len(first) >= (1.0 - REPEATED_SHARE) * len(rows):
+        return None
+    keep = np.zeros(len(rows), dtype=bool)
+    keep[first] = True
+    return keep
+
+
+def repairs(streams: Mapping[str, Any]) -> dict[str, tuple[str, np.ndarray | None]]:
+    """What a solver leaves out of the streams, by name: (the warning, the mask of samples kept, or None for the whole stream)."""
+    out: dict[str, tuple[str, np.ndarray | None]] = {}
+    for name, stream in streams.items():
+        reason = dead_reason(stream)
+        if reason is not None and stream.kind in DROPPABLE_KINDS:
+            out[name] = (f"stream '{name}': {reason}; solved without it", None)
+        keep = repeated_range_rows(stream)
+        if keep is not None:
+            out[name] = (f"stream '{name}': {int((~keep).sum())} of {len(keep)} rows repeat a row of their epoch exactly (time, receiver, "
+                         "range): the log written twice? each kept once", keep)
+    return out
+
+
+def truth_against_gyro(gyro: Any, truth: Any) -> None:
+    """Truth that overlaps none of the gyro's time, or agrees with it only conjugated (written body_R_world), is a
+    ``ConsistencyError`` naming ``truth``: it would score a right estimate as wrong, or nothing at all."""
+    finite = np.all(np.isfinite(truth.values), axis=1)
+    t, quat = truth.t[finite], truth.values[finite]
+    if not len(t):
+        return
+    if t[-1] < gyro.t[0] or t[0] > gyro.t[-1]:
+        offset = float(np.median(t) - np.median(gyro.t))
+        raise ConsistencyError(f"truth ({t[0]:.3f} .. {t[-1]:.3f} s) does not overlap '{gyro.name}' ({gyro.t[0]:.3f} .. {gyro.t[-1]:.3f} s): "
+                               f"on another clock (about {offset:+.4g} s off)? write it on the sensors' clock; nothing could be scored")
+    fit = tracker_against_gyro(gyro.t, gyro.values, t, quat, conjugated=True)
+    if fit is not None and fit["as written"] >= MIN_MISFIT_DEG and fit["conjugated"] <= MISTAKE_FITS * fit["as written"]:
+        raise ConsistencyError(f"truth: its rotation over 0.2 s is {fit['as written']:.1f} deg (median) from the one of gyro '{gyro.name}', "
+                               f"{fit['conjugated']:.1f} deg conjugated: written as body_R_world? write world_R_body (negate qx, qy, qz)")

@@ -158,16 +158,34 @@ class Session:
             if not np.isfinite(values).all():
                 i = int(np.argmax(~np.isfinite(values).all(axis=1)))
                 raise SessionError(f"{label}: sample {i}: a value is NaN or infinite (leave the sample out for a dropout)")
-            check_plausible(entry, t, values, {k: v for k, v in stream.meta.items() if k != "units"}, label)
+            check_plausible(entry, t, values, {k: v for k, v in stream.meta.items() if k not in ("units", "frame_R_sensor")}, label)
         check_overlap(self.streams, where)
         from .consistency import ConsistencyError, check_streams
 
         try:
-            undecided = check_streams(self.streams)
+            undecided = check_streams(self.streams, self.truth)
         except ConsistencyError as err:
             raise SessionError(f"{where}: {err}") from None
         for line in undecided:
             warnings.warn(f"{where}: {line}", SessionWarning, stacklevel=3)
+
+    def usable(self) -> Session:
+        """The session a solver reads: a dead magnetometer left out, a ranges row written twice in its epoch kept once
+        (``consistency.repairs``; ``validate`` warns of each). The same session when nothing is left out."""
+        from .consistency import repairs
+
+        found = repairs(self.streams)
+        if not found:
+            return self
+        streams = {}
+        for name, stream in self.streams.items():
+            if name not in found:
+                streams[name] = stream
+            else:
+                keep = found[name][1]
+                if keep is not None:
+                    streams[name] = stream.select(keep)
+        return Session(self.system, streams, self.truth, self.meta, self.path)
 
     def stream(self, name: str) -> Stream:
         """The stream called ``name``; a SessionError lists the ones that exist."""
@@ -354,19 +372,38 @@ def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any
     return Stream(name, kind, t, values, entry.columns, float(latency), meta)
 
 
+STILL_WINDOW_S = 0.5
+"""The stretch over which a sample at rest is judged (a step or a bounce moves the norm within it)."""
+
+
+def still_norms(t: FloatArray, values: FloatArray) -> FloatArray:
+    """Norms of the samples at rest: where the norm varies by under 2 % of itself over ``STILL_WINDOW_S`` and is not near
+    zero (free fall reads ~0 in any unit; a sensor at rest reads g, 1 in g): in any unit the reading of gravity alone."""
+    if len(t) < 3:
+        return np.zeros(0)
+    norm = np.linalg.norm(values, axis=1)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    width = max(3, int(round(STILL_WINDOW_S / max(dt, 1e-9))))
+    if len(norm) < width:
+        return np.zeros(0)
+    windows = np.lib.stride_tricks.sliding_window_view(norm, width)[:: max(1, width // 2)]
+    mean, spread = windows.mean(axis=1), windows.std(axis=1)
+    return np.asarray(mean[(spread < 0.02 * mean) & (mean > 0.5)])
+
+
 def check_plausible(entry: SensorKind, t: FloatArray, values: FloatArray, keys: Mapping[str, Any], label: str) -> FloatArray:
     """The catalogue's checks on one stream: units converted, then magnitudes, quaternion norms, the
     declared rate and positive noise sigmas; returns the values in SI (normalised quaternions).
 
     A violation raises ``SessionError`` naming the stream and its likely cause."""
-    import warnings
-
     units = keys.get("units")
     if units is not None:
         if units not in entry.unit_conversions:
             accepted = ", ".join(entry.unit_conversions) or "none (the kind has one unit)"
             raise SessionError(f"{label}: units = {units!r} is not one this kind converts (accepted: {accepted})")
         values = values * entry.unit_conversions[units]
+    if keys.get("frame_R_sensor") is not None:
+        values = values @ frame_rotation(keys["frame_R_sensor"], entry.kind, label).T
     for spec in entry.keys:
         value = keys.get(spec.name)
         positive = spec.name.endswith(("sigma_rad_s", "sigma_deg", "sigma_m", "_sigma")) and spec.name != "markov_sigma_deg"
@@ -378,11 +415,24 @@ def check_plausible(entry: SensorKind, t: FloatArray, values: FloatArray, keys: 
     finite = np.all(np.isfinite(values), axis=1)
     norms = np.linalg.norm(values[finite], axis=1) if finite.any() else np.zeros(1)
     for check in entry.magnitude:
-        stat = float(np.max(norms)) if check.statistic == "max" else float(np.median(norms))
+        if check.statistic == "still median":
+            still = still_norms(t[finite], values[finite])
+            if not len(still):  # moving throughout (walking, bouncing): the median off free fall, and only a warning
+                moving = norms[norms > 0.5]
+                stat = float(np.median(moving)) if len(moving) else 0.0
+                if not check.low <= stat <= check.high:
+                    warnings.warn(f"{label}: no part at rest, and the median |value| off free fall is {stat:.4g}, outside [{check.low:g}, "
+                                  f"{check.high:g}]: {check.likely_cause if units is None else 'in another unit than units says?'} "
+                                  "(bouncing and falling alone can do this)", SessionWarning, stacklevel=3)
+                continue
+            stat = float(np.median(still))
+        else:
+            stat = float(np.max(norms)) if check.statistic == "max" else float(np.median(norms))
         if not check.low <= stat <= check.high:
             row = int(np.argmax(norms)) + 2 if check.statistic == "max" else None
             at = f" (line {row})" if row is not None else ""
-            raise SessionError(f"{label}: {check.statistic} |value| {stat:.4g}{at} outside [{check.low:g}, {check.high:g}]: {check.likely_cause}")
+            cause = check.likely_cause if units is None else f"units = {units!r} was applied: another unit still? check the file's unit"
+            raise SessionError(f"{label}: {check.statistic} |value| {stat:.4g}{at} outside [{check.low:g}, {check.high:g}]: {cause}")
     if entry.unit_norm and finite.any():
         departure = np.abs(norms - 1.0)
         worst = int(np.argmax(departure))
@@ -409,6 +459,20 @@ def check_plausible(entry: SensorKind, t: FloatArray, values: FloatArray, keys: 
                 cause = "time stamps in milliseconds? convert to seconds" if median_dt > 100.0 / rate else "is rate_hz right?"
                 raise SessionError(f"{label}: rate_hz = {rate:g} but the median sample interval is {median_dt:.6g} s ({1 / median_dt:.4g} Hz): {cause}")
     return values
+
+
+def frame_rotation(value: Any, kind: str, label: str) -> FloatArray:
+    """``frame_R_sensor`` as a 3 x 3 rotation or reflection (orthogonal within 1e-3): a SessionError names what is wrong."""
+    if kind not in ("gyro", "accel", "mag"):
+        raise SessionError(f"{label}: frame_R_sensor applies to gyro, accel and mag streams, not {kind}")
+    try:
+        matrix = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        matrix = np.zeros(0)
+    if matrix.shape != (3, 3) or not np.allclose(matrix @ matrix.T, np.eye(3), atol=1e-3):
+        raise SessionError(f"{label}: frame_R_sensor = {value!r} must be 3 rows of 3 numbers forming a rotation (or a signed "
+                           "permutation), e.g. [[0, 1, 0], [1, 0, 0], [0, 0, 1]] for x and y swapped")
+    return matrix
 
 
 def read_stream_csv(

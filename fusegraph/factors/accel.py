@@ -85,7 +85,7 @@ CATALOGUE = (
             KeySpec("bias_rw_m_s2_sqrt_s", None, "attitude9: accelerometer bias random walk, m/s^2/sqrt(s) (default: chosen on BROAD, "
                     "1e-5 for both estimates; a data sheet's bias instability belongs here)"),
         ),
-        magnitude=(Magnitude("median", 4.0, 20.0, "the median |a| should be near g = 9.81 m/s^2: in g? set units = 'g' or convert"),),
+        magnitude=(Magnitude("still median", 4.0, 20.0, "at rest |a| should be near g = 9.81 m/s^2: in g? set units = 'g' or convert"),),
         unit_conversions={"m/s^2": 1.0, "g": 9.80665},
     ),
 )

@@ -81,7 +81,7 @@ class Preset:
         if solver not in self.solvers:
             raise SessionError(f"--solver {solver}: {self.name} sessions have {', '.join(self.solvers)}")
         session.validate()
-        return self.run(session, solver)
+        return self.run(session.usable(), solver)
 
 
 def flatten(metrics: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
