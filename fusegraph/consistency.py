@@ -66,7 +66,7 @@ def saturation_level(values: FloatArray) -> float | None:
     at_top = (magnitude >= top * (1.0 - 1e-6)) & (top > 0)
     held = np.zeros(at_top.shape[1], dtype=bool)  # the signal runs into the rail and stays: samples in a row at it
     if len(at_top) >= CLIPPED_RUN:
-        held = np.lib.stride_tricks.sliding_window_view(at_top, CLIPPED_RUN, axis=0).all(axis=-1).any(axis=0)
+        held = np.asarray(np.lib.stride_tricks.sliding_window_view(at_top, CLIPPED_RUN, axis=0).all(axis=-1).any(axis=0))
     clipped = (at_top.sum(axis=0) >= CLIPPED_MIN_SAMPLES) & held & (top >= np.max(top) * (1.0 - 1e-6))
     return float(top[clipped].min()) if clipped.any() else None
 

@@ -267,8 +267,8 @@ def test_free_fall_and_bouncing_are_no_unit_error_but_g_at_rest_is() -> None:
     _with(session, "accel", bouncing).validate()
     with pytest.raises(SessionError, match="stream 'accel'.*at rest.*in g\\? set units = 'g'"):
         load_accel_in_g = _with(session, "accel", accel / 9.81)
-        from fusegraph.session import check_plausible
         from fusegraph.sensors import sensor_catalogue
+        from fusegraph.session import check_plausible
 
         check_plausible(sensor_catalogue()["accel"], session.stream("accel").t, load_accel_in_g.stream("accel").values, {}, "stream 'accel'")
 
