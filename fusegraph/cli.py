@@ -129,6 +129,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--json", action="store_true", help="print JSON instead of the table")
     rep.add_argument("--plot", type=Path, help="write a figure to this PNG (sessions: the headline metric per session and solver; "
                      "seeds: like the paper's Fig. 3/4, first seed)")
+    rep.add_argument("--include-suspect", action="store_true", help="sessions: count runs marked suspect (a heavily clipped gyro, a long "
+                     "dropout) in the means; by default they are left out and counted apart")
 
     vw = sub.add_parser("view", help="files to look at: 3D scene (PLY/GLB/PNG), 2D plots, TUM and CSV trajectories",
                         description="Given a session directory (the solver runs first) or an estimate CSV, write a 3D scene "
@@ -162,6 +164,18 @@ def build_parser() -> argparse.ArgumentParser:
     abl.add_argument("--retry-failed", action="store_true", help="on resume, run the runs that failed before again (default: keep them as failed)")
     abl.add_argument("--force", action="store_true", help="--out holds a study with other settings: start this one there anyway "
                      "(its rows are kept aside as runs.replaced.csv)")
+
+    chk = sub.add_parser("check", help="every check of a session without solving: units, clocks, sensor frames (with the rotation "
+                         "between them where the motion tells), dead streams, truth",
+                         description="Load each session and run every check a solver would run first, without solving: the format, "
+                         "units (a gyro in deg/s, an accelerometer in g), clocks, quaternion conventions, dead or stuck streams, repeated "
+                         "range rows, truth in another convention or clock. Then, for each accelerometer and magnetometer, how far its "
+                         "axes as written are from the gyro's frame and the rotation between them fitted from the data (with its "
+                         "1-sigma per axis) where the motion tells it. Exit 2 with the first error; warnings are printed.",
+                         epilog="examples:\n  fusegraph check sessions/broad/01_undisturbed_slow_rotation_A\n  fusegraph check sessions/broad --json",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    chk.add_argument("sessions", nargs="+", type=Path, metavar="SESSION_DIR", help="session directories, or folders of them")
+    chk.add_argument("--json", action="store_true", help="print JSON instead of text")
 
     sen = sub.add_parser("sensors", help="the sensor catalogue: every stream kind's columns, units, keys, factors and checks",
                          description="Print the sensor catalogue (docs/sensors.md is this output), one kind's entry, "
@@ -479,6 +493,30 @@ def system_docs() -> list[tuple[str, str, tuple[Any, ...], tuple[str, ...], str,
     return [(p.name, p.streams, p.session_keys, tuple(p.solvers), p.truth, p.axes) for p in PRESETS.values()]
 
 
+def _cmd_check(args: argparse.Namespace) -> int:
+    from .consistency import frames_found, suspect_reasons
+    from .evaluation.runner import load_sessions
+
+    found: list[dict[str, Any]] = []
+    for name, session in load_sessions(args.sessions):
+        session.validate()  # an error is the command's exit 2, naming the stream
+        found.append({"session": name, "frames": frames_found(session.streams), "suspect": suspect_reasons(session.streams)})
+    if args.json:
+        print(_dump(found))
+        return 0
+    for entry in found:
+        print(f"{entry['session']}: every check passed" + (f"; suspect: {'; '.join(entry['suspect'])}" if entry["suspect"] else ""))
+        for frame in entry["frames"]:
+            if not frame["told"]:
+                print(f"  {frame['stream']} against {frame['gyro']}: the motion turns too little to tell its frame")
+                continue
+            sigma = ", ".join(f"{s:.2f}" for s in frame["turn_sigma_deg"])
+            print(f"  {frame['stream']} against {frame['gyro']}: axes as written off by {frame['misfit_as_written_deg']:.2f} deg (median); "
+                  f"fitted turn {frame['turn_deg']:.2f} deg (1-sigma per axis {sigma} deg) leaves {frame['fitted_misfit_deg']:.2f} deg; "
+                  f"frame_R_sensor = {json.dumps([[round(v, 4) for v in row] for row in frame['frame_R_sensor']])}")
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from .evaluation.runner import describe, format_many, run_many, run_session, session_dirs
 
@@ -639,7 +677,7 @@ def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int
     given = [flag for flag, used in fixed.items() if used]
     if given:
         raise ValueError(f"{', '.join(given)}: for simulated reports; session folders are reported as recorded")
-    found = report_sessions(args.system, load_sessions(args.sessions), solvers)
+    found = report_sessions(args.system, load_sessions(args.sessions), solvers, include_suspect=args.include_suspect)
     print(_dump(found) if args.json else format_session_report(found))
     if args.plot:
         print(f"wrote {plot_session_report(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
@@ -883,7 +921,7 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
 
 COMMANDS = {"tune": _cmd_tune, "live": _cmd_live,
             "ablate": _cmd_ablate, "simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view,
-            "sensors": _cmd_sensors, "import": _cmd_import}
+            "sensors": _cmd_sensors, "import": _cmd_import, "check": _cmd_check}
 
 
 if __name__ == "__main__":

@@ -485,30 +485,66 @@ ODD_TURN_MIN_DEG = 8.0
 Mobilise-D's slow walks the axes as written are off by 4-5 deg, and a fitted turn of 90-110 deg brought that to 1-2 deg."""
 
 
-def fitted_rotation(fit: Mapping[str, Any]) -> tuple[FloatArray, float] | None:
-    """The rotation (or reflection, from the best signed permutation's family) M that fits the stream best, by least
-    squares on the per-pair misfits from the best signed permutation; (M, median misfit deg) when the axes as written are
-    off by ``ODD_TURN_MIN_DEG`` and M, at least 10 deg from the identity, fits with at most ``FRAME_CLEAR`` of their
-    misfit: a sensor mounted turned by an odd angle."""
+def fit_rotation(score: Callable[[FloatArray], tuple[float, FloatArray]], start: FloatArray) -> tuple[FloatArray, float, FloatArray]:
+    """The M = exp(r) start that minimises ``score``'s per-pair misfits (robust least squares from r = 0): (M, its median
+    misfit in deg, 1-sigma of r in deg per axis from the fit's Jacobian and residual spread)."""
     from scipy.optimize import least_squares
 
     from .geometry import quat_from_rotvec
-
-    if fit["identity"] < ODD_TURN_MIN_DEG:
-        return None
-    score = fit["score"]
-    start = np.asarray(fit["misfits"][0][0])
 
     def matrix_of(rotvec: FloatArray) -> FloatArray:
         return np.asarray(matrix_from_quat(quat_from_rotvec(rotvec[None])[0]) @ start)
 
     found = least_squares(lambda r: score(matrix_of(r))[1], np.zeros(3), loss="soft_l1", f_scale=0.05, max_nfev=60)
+    jac = np.asarray(found.jac)
+    dof = max(1, len(found.fun) - 3)
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * float(np.sum(found.fun**2)) / dof
+        sigma = np.rad2deg(np.sqrt(np.clip(np.diag(cov), 0.0, None)))
+    except np.linalg.LinAlgError:  # a turn about an axis the motion never showed: unknown there
+        sigma = np.full(3, np.inf)
     matrix = matrix_of(found.x)
-    deg = score(matrix)[0]
+    return matrix, score(matrix)[0], sigma
+
+
+def fitted_rotation(fit: Mapping[str, Any]) -> tuple[FloatArray, float] | None:
+    """The rotation (or reflection, from the best signed permutation's family) M that fits the stream best, by least
+    squares on the per-pair misfits from the best signed permutation; (M, median misfit deg) when the axes as written are
+    off by ``ODD_TURN_MIN_DEG`` and M, at least 10 deg from the identity, fits with at most ``FRAME_CLEAR`` of their
+    misfit: a sensor mounted turned by an odd angle."""
+    if fit["identity"] < ODD_TURN_MIN_DEG:
+        return None
+    matrix, deg, _ = fit_rotation(fit["score"], np.asarray(fit["misfits"][0][0]))
     departure = np.rad2deg(np.arccos(np.clip((np.trace(matrix) - 1.0) / 2.0, -1.0, 1.0))) if np.linalg.det(matrix) > 0 else 180.0
     if departure >= 10.0 and deg <= FRAME_CLEAR * fit["identity"]:
         return matrix, deg
     return None
+
+
+def frames_found(streams: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """For ``fusegraph check``: each accelerometer and magnetometer against its body's gyro, where the motion tells: the
+    misfit of its axes as written (deg), the best signed permutation and its misfit, and the rotation fitted from the
+    identity (``frame_R_sensor`` to declare, the turn in deg and its 1-sigma per axis)."""
+    out = []
+    gyros = [s for s in streams.values() if s.kind == "gyro" and len(s) > 20]
+    accels = [s for s in streams.values() if s.kind == "accel" and len(s) > 20]
+    mags = [s for s in streams.values() if s.kind == "mag" and len(s) > 20 and s.meta.get("role") != "calibration recording"]
+    for gyro in gyros:
+        for stream, gravity in ((_body_stream(gyro, accels, "accel"), True), (_body_stream(gyro, mags, "mag"), False)):
+            if stream is None:
+                continue
+            window_s, lag_s = FRAME_SETTINGS[0]
+            fit = frame_misfits(gyro.t, gyro.values, stream.t, stream.values, gravity, window_s, lag_s)
+            if fit is None:
+                out.append({"gyro": gyro.name, "stream": stream.name, "told": False})
+                continue
+            matrix, deg, sigma = fit_rotation(fit["score"], np.eye(3))
+            angle = float(np.rad2deg(np.arccos(np.clip((np.trace(matrix) - 1.0) / 2.0, -1.0, 1.0))))
+            best, best_deg = fit["misfits"][0]
+            out.append({"gyro": gyro.name, "stream": stream.name, "told": True, "misfit_as_written_deg": fit["identity"],
+                        "best_axes": describe_axes(best), "best_misfit_deg": best_deg, "frame_R_sensor": matrix.T.tolist(),
+                        "turn_deg": angle, "turn_sigma_deg": sigma.tolist(), "fitted_misfit_deg": deg})
+    return out
 
 
 def other_frame(fit: Mapping[str, Any] | None) -> list[FloatArray]:
@@ -730,3 +766,27 @@ def truth_against_gyro(gyro: Any, truth: Any) -> None:
     if fit is not None and fit["as written"] >= MIN_MISFIT_DEG and fit["conjugated"] <= MISTAKE_FITS * fit["as written"]:
         raise ConsistencyError(f"truth: its rotation over 0.2 s is {fit['as written']:.1f} deg (median) from the one of gyro '{gyro.name}', "
                                f"{fit['conjugated']:.1f} deg conjugated: written as body_R_world? write world_R_body (negate qx, qy, qz)")
+
+
+SUSPECT_CLIPPED_SHARE = 0.05
+"""A gyro clipped on more than this share of its samples gives a rotation that is a bound there, not a measurement: the
+run is marked suspect (BROAD's fastest trials clip on none; a 250 deg/s gyro waved at 400 deg/s clipped on 37 %)."""
+SUSPECT_GAP_S = 2.0
+"""A gyro or accelerometer silent for longer than this is bridged by the motion model alone: the run is marked suspect."""
+
+
+def suspect_reasons(streams: Mapping[str, Any]) -> list[str]:
+    """Why a run on these streams may be unreliable though it ran: a heavily clipped gyro, a long dropout bridged."""
+    reasons = []
+    for stream in streams.values():
+        if stream.kind not in ("gyro", "accel") or len(stream) < 3:
+            continue
+        if stream.kind == "gyro":
+            share = float(np.mean(clipped_samples(stream.values, saturation_level(stream.values))))
+            if share > SUSPECT_CLIPPED_SHARE:
+                reasons.append(f"'{stream.name}' clipped on {100 * share:.0f} % of its samples")
+        steps = np.diff(stream.t)
+        if float(np.max(steps)) > SUSPECT_GAP_S:
+            worst = int(np.argmax(steps))
+            reasons.append(f"'{stream.name}' silent for {steps[worst]:.1f} s after t = {stream.t[worst]:.1f} s (bridged by the motion model alone)")
+    return reasons

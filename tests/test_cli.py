@@ -195,3 +195,26 @@ def test_a_declared_gyro_scale_is_estimated_and_printed(tmp_path: Path, capsys: 
     assert main(["run", str(session), "--solver", "online", "--out", str(tmp_path / "o.csv"), "--json"]) == 0
     assert "gyro_calibration" not in json.loads(capsys.readouterr().out)  # the online estimate keeps a perfect gyro
     assert main(["simulate", "head", "--gyro-scale-error", "0.01", "--out", str(tmp_path / "h")]) == 2  # attitude9 only
+
+
+def test_check_runs_every_check_without_solving_and_prints_the_frames(tmp_path, capsys) -> None:
+    """`fusegraph check`: exit 0 with the fitted turn between the accelerometer's and the gyro's axes where the motion tells
+    (near zero on a right session); a session with its accelerometer axes swapped: exit 2 naming the stream."""
+    import json
+
+    import numpy as np
+
+    from fusegraph.session import load_session, save_session
+
+    assert main(["simulate", "attitude9", "--seed", "0", "--duration", "30", "--out", str(tmp_path / "ok")]) == 0
+    capsys.readouterr()
+    assert main(["check", str(tmp_path / "ok"), "--json"]) == 0
+    frames = {f["stream"]: f for f in json.loads(capsys.readouterr().out)[0]["frames"]}
+    assert frames["accel"]["told"] and frames["accel"]["turn_deg"] < 3.0  # the simulated axes agree: a turn of noise only
+    session = load_session(tmp_path / "ok")
+    from dataclasses import replace
+
+    accel = session.stream("accel")
+    save_session(replace(session, streams={**session.streams, "accel": replace(accel, values=accel.values[:, [1, 0, 2]])}), tmp_path / "bad")
+    assert main(["check", str(tmp_path / "bad")]) == 2
+    assert "stream 'accel'" in capsys.readouterr().err and np.isfinite(frames["accel"]["misfit_as_written_deg"])

@@ -81,3 +81,50 @@ def test_report_refuses_a_session_of_another_system(tmp_path: Path, capsys: pyte
     _simulate("head", tmp_path / "sessions", seeds=(0,))
     assert main(["report", "attitude9", str(tmp_path / "sessions")]) == 2
     assert "a head session, not attitude9" in capsys.readouterr().err
+
+
+def test_a_suspect_run_and_a_nan_figure_stay_out_of_the_means_and_say_why(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A gyro clipped on a large share of its samples marks the run suspect (in `run --json` and the report's row); the
+    report's mean is then the other session's alone, and the table counts it apart. A NaN figure is not scored, with why."""
+    import numpy as np
+
+    from fusegraph.evaluation.runner import load_sessions, not_scored_reason, report_sessions
+    from fusegraph.session import load_session, save_session
+
+    for seed in (0, 1):
+        assert main(["simulate", "head", "--seed", str(seed), "--duration", "5", "--out", str(tmp_path / "s" / f"seed{seed}")]) == 0
+    clipped = load_session(tmp_path / "s" / "seed1")
+    gyro = clipped.stream("gyro")
+    level = float(np.percentile(np.abs(gyro.values), 80))  # a rail under the motion: a fifth of the samples on it
+    from dataclasses import replace
+
+    rail = replace(gyro, values=np.clip(gyro.values, -level, level))
+    save_session(replace(clipped, streams={**clipped.streams, "gyro": rail}), tmp_path / "s" / "seed1")
+    capsys.readouterr()
+    assert main(["run", str(tmp_path / "s" / "seed1"), "--solver", "online", "--json", "--out", str(tmp_path / "e.csv")]) == 0
+    assert "clipped on" in " ".join(json.loads(capsys.readouterr().out)["suspect"])
+    found = report_sessions("head", load_sessions([tmp_path / "s"]), ["online"], show_progress=False)
+    method = found["methods"]["online"]
+    assert (method["sessions_scored"], method["sessions_suspect"]) == (1, 1)
+    alone = found["sessions"]["seed0"]["online"]["metrics"]["rms_deg"]["azimuth"]
+    assert method["metrics"]["rms_deg"]["azimuth"] == alone  # the mean of the one session counted
+    assert "SUSPECT" in main_output(["report", "head", str(tmp_path / "s"), "--solvers", "online"], capsys)
+    counted = report_sessions("head", load_sessions([tmp_path / "s"]), ["online"], show_progress=False, include_suspect=True)
+    assert counted["methods"]["online"]["sessions_scored"] == 2
+    why = not_scored_reason(PRESETS["head"], {"rms_deg": {"azimuth": float("nan")}, "excluded": "ekf: its elevation left the domain"}, [])
+    assert why == "rms_deg.azimuth not a number: ekf: its elevation left the domain"
+
+
+def main_output(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    capsys.readouterr()
+    assert main(argv) == 0
+    return capsys.readouterr().out
+
+
+def test_sessions_of_one_name_in_two_folders_and_below_keep_their_own_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for folder in ("A/trial", "B/trial", "C/deeper/still/other"):
+        assert main(["simulate", "attitude9", "--seed", "0", "--duration", "5", "--out", str(tmp_path / "in" / folder)]) == 0
+    out = main_output(["run", str(tmp_path / "in"), "--solver", "online", "--out", str(tmp_path / "out"), "--workers", "1"], capsys)
+    written = sorted(p.name for p in (tmp_path / "out").glob("*.csv"))
+    assert written == ["A__trial_online.csv", "B__trial_online.csv", "C__deeper__still__other_online.csv"], written
+    assert out.splitlines()[-2].startswith("mean") and "3 sessions, 0 failed, 0 not scored" in out

@@ -29,12 +29,15 @@ class Outcome:
     estimate: Result
     metrics: dict[str, Any] | None
     files: list[Path] = field(default_factory=list)
+    suspect: list[str] = field(default_factory=list)
+    """Why the run may be unreliable though it ran (``consistency.suspect_reasons``): reports leave it out of their means."""
 
     def as_json(self) -> dict[str, Any]:
-        """``{"system": s, "solver": s, "metrics": {...}}`` (metrics empty without truth), and the estimated calibrations a
-        solver reports (``ESTIMATED``) where it has them."""
+        """``{"system": s, "solver": s, "metrics": {...}}`` (metrics empty without truth), ``suspect: [reasons]`` when the
+        run's own diagnostics say it may be unreliable, and the estimated calibrations a solver reports (``ESTIMATED``)."""
         found = {key: self.estimate.extras[key] for key in ESTIMATED if key in self.estimate.extras}
-        return {"system": self.preset.name, "solver": self.solver, "metrics": self.metrics or {}, **found}
+        marked = {"suspect": self.suspect} if self.suspect else {}
+        return {"system": self.preset.name, "solver": self.solver, "metrics": self.metrics or {}, **marked, **found}
 
 
 ESTIMATED = ("gyro_calibration",)
@@ -44,9 +47,11 @@ recording declares ``scale_sigma``)."""
 
 def solve_session(session: Session, solver: str) -> Outcome:
     """Run one solver of the session's preset and score it when the session has truth."""
+    from ..consistency import suspect_reasons
+
     preset = preset_for(session)
     estimate = preset.solve(session, solver)
-    return Outcome(session, preset, solver, estimate, preset.score(session, estimate))
+    return Outcome(session, preset, solver, estimate, preset.score(session, estimate), suspect=suspect_reasons(session.streams))
 
 
 def run_session(path: str | Path, solver: str, out: str | Path | None = None, plot: str | Path | None = None) -> Outcome:
@@ -96,6 +101,8 @@ def describe(outcome: Outcome) -> str:
         flat = flatten(outcome.metrics)
         keys = [k for k in outcome.preset.metric_keys if k in flat] + [k for k in flat if k.startswith("gap_")]
         lines.append("; ".join(f"{k} {flat[k]:.4g}" for k in keys))
+    if outcome.suspect:
+        lines.append("suspect: " + "; ".join(outcome.suspect) + " (reports leave this run out of their means)")
     return "\n".join(line for line in lines if line)
 
 
@@ -103,14 +110,14 @@ def describe(outcome: Outcome) -> str:
 
 
 def session_dirs(paths: Iterable[str | Path]) -> list[Path]:
-    """Session directories from arguments: each is a session, or a folder whose sub-folders are sessions."""
+    """Session directories from arguments: each is a session, or a folder with sessions below it (at any depth)."""
     found: list[Path] = []
     for item in paths:
         path = Path(item)
         if (path / "session.toml").is_file():
             found.append(path)
         elif path.is_dir():
-            inner = sorted(p.parent for p in path.glob("*/session.toml"))
+            inner = sorted(p.parent for p in path.rglob("session.toml"))  # at any depth: nothing below the folder is skipped
             if not inner:
                 raise SessionError(f"{path / 'session.toml'}: not found (a session is a directory with session.toml; a study, a folder of them)")
             found += inner
@@ -119,10 +126,20 @@ def session_dirs(paths: Iterable[str | Path]) -> list[Path]:
     return found
 
 
-def _run_one_to_folder(args: tuple[str, str, str]) -> dict[str, Any]:
+def unique_names(paths: Sequence[Path]) -> list[str]:
+    """A name per session that no other of them has: its folder's name, or where two share one, its path below the folder
+    they share with ``__`` between the parts (``A/trial`` and ``B/trial`` -> ``A__trial``, ``B__trial``)."""
+    names = [p.name for p in paths]
+    if len(set(names)) == len(names):
+        return names
+    resolved = [p.resolve() for p in paths]
+    common = Path(*[parts[0] for parts in zip(*(r.parts for r in resolved), strict=False) if len(set(parts)) == 1]) if len(resolved) > 1 else resolved[0].parent
+    return ["__".join(r.relative_to(common).parts) or r.name for r in resolved]
+
+
+def _run_one_to_folder(args: tuple[str, str, str, str]) -> dict[str, Any]:
     """Worker: one session into the study folder; a failure is a row, not an exception."""
-    path, solver, out_dir = args
-    name = Path(path).name
+    path, solver, out_dir, name = args
     try:
         outcome = run_session(path, solver, Path(out_dir) / f"{name}_{solver}.csv")
         row = {"session": name, "path": path, "status": "ok", **outcome.as_json(), "runtime_s": outcome.estimate.runtime_s}
@@ -150,7 +167,8 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
                 continue  # a torn last line (killed while writing): that session is run again
             if row.get("status") == "ok" and row.get("solver") == solver:
                 done[row["path"]] = row
-    todo = [(str(p), solver, str(out)) for p in paths if str(p) not in done]
+    names = unique_names(paths)
+    todo = [(str(p), solver, str(out), name) for p, name in zip(paths, names, strict=True) if str(p) not in done]
     if log.exists() and log.stat().st_size and not log.read_bytes().endswith(b"\n"):
         with log.open("a") as handle:
             handle.write("\n")  # end the torn line, so the next row starts a line of its own
@@ -162,7 +180,7 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
     return [done.get(str(p), {"session": p.name, "path": str(p), "status": "failed", "error": "not run"}) for p in paths]
 
 
-def _map(todo: list[tuple[str, str, str]], workers: int, scheduler: str | None) -> Iterable[dict[str, Any]]:
+def _map(todo: list[tuple[str, str, str, str]], workers: int, scheduler: str | None) -> Iterable[dict[str, Any]]:
     from .cluster import completed
 
     for _, future in completed(_run_one_to_folder, todo, workers, scheduler):
@@ -170,19 +188,30 @@ def _map(todo: list[tuple[str, str, str]], workers: int, scheduler: str | None) 
 
 
 def format_many(rows: Sequence[dict[str, Any]]) -> str:
-    """One line per session: status and the metrics its preset summarises."""
+    """One line per session (status and the metrics its preset summarises), then the mean over the sessions scored, as
+    ``report`` prints it: a NaN figure or a suspect run is not averaged, and said."""
+    width = max([len(str(r.get("session", ""))) for r in rows] + [7]) + 2
     lines = []
+    scored: list[dict[str, float]] = []
+    keys: list[str] = []
     for row in rows:
         if row.get("status") != "ok":
-            lines.append(f"{row['session']:<24} FAILED {row.get('error', '')}")
+            lines.append(f"{row['session']:<{width}}FAILED {row.get('error', '')}")
             continue
         preset = PRESETS[row["system"]]
         flat = flatten(row.get("metrics", {}))
-        keys = [k for k in preset.metric_keys if k in flat] or list(flat)  # a solver with metrics of its own (walking: steps)
-        cells = "  ".join(f"{k} {flat[k]:.4g}" for k in keys) or "(no truth)"
-        lines.append(f"{row['session']:<24} {row['system']:<10} {row['solver']:<8} {cells}")
+        shown = [k for k in preset.metric_keys if k in flat] or list(flat)  # a solver with metrics of its own (walking: steps)
+        cells = "  ".join(f"{k} {flat[k]:.4g}" for k in shown) or "(no truth)"
+        mark = "  suspect: " + "; ".join(row["suspect"]) if row.get("suspect") else ""
+        lines.append(f"{row['session']:<{width}}{row['system']:<11}{row['solver']:<9}{cells}{mark}")
+        if flat and not row.get("suspect") and all(np.isfinite(flat[k]) for k in shown):
+            scored.append(flat)
+            keys = keys or shown
     failed = sum(r.get("status") != "ok" for r in rows)
-    lines.append(f"{len(rows)} sessions, {failed} failed")
+    if scored:
+        means = "  ".join(f"{k} {np.mean([s[k] for s in scored if k in s]):.4g}" for k in keys)
+        lines.append(f"{'mean':<{width}}{'':<20}{means}   (over {len(scored)} scored; a NaN figure or a suspect run is left out)")
+    lines.append(f"{len(rows)} sessions, {failed} failed, {len(rows) - failed - len(scored)} not scored")
     return "\n".join(lines)
 
 
@@ -267,14 +296,16 @@ def _without_truth(outcome: Outcome) -> dict[str, float]:
 
 
 def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solvers: Sequence[str] | None = None,
-                    show_progress: bool = True) -> dict[str, Any]:
+                    show_progress: bool = True, include_suspect: bool = False) -> dict[str, Any]:
     """Every solver of ``system`` on every session (imported, hand-made or simulated), each through ``solve_session``
     exactly as ``fusegraph run`` runs it.
 
     JSON: ``{"system", "solvers", "sessions": {name: {solver: {"status", "metrics", "runtime_s", "x_realtime",
     "warnings", "no_truth"}}}, "methods": {solver: {"metrics": mean over the sessions it scored (the keys ``run --json``
-    prints), "x_realtime", "sessions_scored", "sessions_failed"}}}``. A session without truth gets ``metrics: {}`` and
-    ``no_truth`` (the estimate's own sigma, the fraction of samples it covers); a solver that fails is a row with its error.
+    prints), "x_realtime", "sessions_scored", "sessions_failed", "sessions_not_scored", "sessions_suspect"}}}``. A session
+    without truth gets ``metrics: {}`` and ``no_truth`` (the estimate's own sigma, the fraction of samples it covers); a
+    solver that fails is a row with its error; a run whose headline metric is NaN is ``not_scored`` with the reason, and a
+    ``suspect`` run (its own diagnostics) stays out of the means unless ``include_suspect``: neither is averaged silently.
     """
     import warnings
 
@@ -299,32 +330,52 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
                 rows[name][solver] = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
                 continue
         runtime = float(outcome.estimate.runtime_s)
-        rows[name][solver] = {
+        said = sorted({str(w.message) for w in caught})
+        row = {
             "status": "ok", "metrics": outcome.metrics or {}, "runtime_s": runtime,
             "x_realtime": session.duration_s / runtime if runtime > 0 else float("inf"),
-            "warnings": sorted({str(w.message) for w in caught}),
+            "warnings": said,
             **({} if outcome.metrics else {"no_truth": _without_truth(outcome)}),
+            **({"suspect": outcome.suspect} if outcome.suspect else {}),
         }
+        unscored = not_scored_reason(preset, outcome.metrics, said)
+        if unscored:
+            row["not_scored"] = unscored
+        rows[name][solver] = row
     methods: dict[str, dict[str, Any]] = {}
     for solver in names:
         done = [rows[name][solver] for name, _ in sessions if rows[name][solver]["status"] == "ok"]
-        scored = [flatten(r["metrics"]) for r in done if r["metrics"]]
+        counted = [r for r in done if r["metrics"] and "not_scored" not in r and (include_suspect or "suspect" not in r)]
+        scored = [flatten(r["metrics"]) for r in counted]
         keys = sorted(set().union(*[set(r) for r in scored])) if scored else []
         means = {k: float(np.mean([r[k] for r in scored if k in r])) for k in keys}
         data_s = sum(session.duration_s for name, session in sessions if rows[name][solver]["status"] == "ok")
         seconds = sum(r["runtime_s"] for r in done)
         methods[solver] = {"metrics": unflatten(means), "x_realtime": data_s / seconds if seconds > 0 else float("nan"),
-                           "sessions_scored": len(scored), "sessions_failed": len(sessions) - len(done)}
+                           "sessions_scored": len(scored), "sessions_failed": len(sessions) - len(done),
+                           "sessions_not_scored": sum("not_scored" in r for r in done),
+                           "sessions_suspect": sum("suspect" in r for r in done), "suspect_in_means": include_suspect}
     return {"system": system, "solvers": names, "sessions": rows, "methods": methods}
 
 
+def not_scored_reason(preset: Preset, metrics: dict[str, Any] | None, said: Sequence[str]) -> str | None:
+    """Why a run with truth has no figure to average: a headline metric that is NaN (with the run's first warning, which
+    usually says why: truth that does not overlap, an Euler filter out of its domain). None when every one is a number."""
+    if not metrics:
+        return None
+    flat = flatten(metrics)
+    missing = [k for k in preset.metric_keys if k in flat and not np.isfinite(flat[k])]
+    if not missing:
+        return None
+    why = str(metrics.get("excluded", "") or metrics.get("truth_samples_missing_why", "")) or (said[0] if said else "")
+    return f"{', '.join(missing)} not a number" + (f": {why}" if why else "")
+
+
 def load_sessions(paths: Iterable[str | Path]) -> list[tuple[str, Session]]:
-    """Sessions from directories (each a session, or a folder of them), named by their folder (a clash: by their path)."""
+    """Sessions from directories (each a session, or a folder of them at any depth), named by their folder (where two
+    share a name: by their path below the folder they share, ``unique_names``)."""
     dirs = session_dirs(paths)
-    names = [p.name for p in dirs]
-    if len(set(names)) < len(names):
-        names = [str(p) for p in dirs]
-    return [(name, load_session(p)) for name, p in zip(names, dirs, strict=True)]
+    return [(name, load_session(p)) for name, p in zip(unique_names(dirs), dirs, strict=True)]
 
 
 def simulated_sessions(system: str, seeds: Sequence[int], duration_s: float | None = None, **options: Any) -> list[tuple[str, Session]]:

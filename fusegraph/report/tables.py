@@ -19,20 +19,26 @@ def _keys(system: str, rows: list[dict[str, float]]) -> list[str]:
 
 
 def format_session_report(report: dict[str, Any]) -> str:
-    """The report as a text table (numbers as the JSON holds them, 4 significant digits)."""
+    """The report as a text table (numbers as the JSON holds them, 4 significant digits), columns as wide as their content;
+    a run not scored (a NaN figure) or suspect says why in its row and is counted apart from the means."""
     system = report["system"]
     methods = report["methods"]
     keys = _keys(system, [flatten(m["metrics"]) for m in methods.values()])
     width = max([len(n) for n in methods] + [8]) + 2
+    cell = max([len(k) for k in keys] + [10]) + 2
     count = len(report["sessions"])
-    lines = [f"{system}: {count} session{'s' if count != 1 else ''}; means over the sessions each solver scored",
-             f"{'solver':<{width}}" + "".join(f"{k:>22}" for k in keys) + f"{'x real time':>13}{'scored':>8}{'failed':>8}"]
+    suspect_in = any(m.get("suspect_in_means") for m in methods.values())
+    lines = [f"{system}: {count} session{'s' if count != 1 else ''}; means over the sessions each solver scored"
+             + ("" if suspect_in else " (suspect runs left out)"),
+             f"{'solver':<{width}}" + "".join(f"{k:>{cell}}" for k in keys) + f"{'x real time':>13}{'scored':>8}{'not scored':>12}{'suspect':>9}{'failed':>8}"]
     for name, row in methods.items():
         flat = flatten(row["metrics"])
-        cells = "".join(f"{flat[k]:22.4g}" if k in flat else f"{'-':>22}" for k in keys)
-        lines.append(f"{name:<{width}}{cells}{row['x_realtime']:13.1f}{row['sessions_scored']:8d}{row['sessions_failed']:8d}")
+        cells = "".join(f"{flat[k]:{cell}.4g}" if k in flat else f"{'-':>{cell}}" for k in keys)
+        lines.append(f"{name:<{width}}{cells}{row['x_realtime']:13.1f}{row['sessions_scored']:8d}{row.get('sessions_not_scored', 0):12d}"
+                     f"{row.get('sessions_suspect', 0):9d}{row['sessions_failed']:8d}")
     lines.append("")
-    lines.append(f"{'session':<28}{'solver':<{width}}result")
+    session_width = max([len(s) for s in report["sessions"]] + [7]) + 2
+    lines.append(f"{'session':<{session_width}}{'solver':<{width}}result")
     for session, per_solver in report["sessions"].items():
         for name, row in per_solver.items():
             if row["status"] != "ok":
@@ -45,8 +51,12 @@ def format_session_report(report: dict[str, Any]) -> str:
                 text = "no truth: " + "  ".join(f"{k} {v:.4g}" for k, v in nt.items())
             if row["status"] == "ok":
                 text += f"  ({row['x_realtime']:.1f}x real time)"
-                text += "".join(f"\n{'':<28}{'':<{width}}warning: {w}" for w in row.get("warnings", []))
-            lines.append(f"{session:<28}{name:<{width}}{text}")
+                if "not_scored" in row:
+                    text += f"  NOT SCORED: {row['not_scored']}"
+                if "suspect" in row:
+                    text += f"  SUSPECT: {'; '.join(row['suspect'])}"
+                text += "".join(f"\n{'':<{session_width}}{'':<{width}}warning: {w}" for w in row.get("warnings", []))
+            lines.append(f"{session:<{session_width}}{name:<{width}}{text}")
     return "\n".join(lines)
 
 
