@@ -177,6 +177,17 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("sessions", nargs="+", type=Path, metavar="SESSION_DIR", help="session directories, or folders of them")
     chk.add_argument("--json", action="store_true", help="print JSON instead of text")
 
+    dst = sub.add_parser("datasets", help="the public datasets the importers read: source, licence, layout, import command; "
+                         "`datasets check DIR` says what a folder holds",
+                         description="Every public dataset an importer reads: where to get it (URL or DOI), its licence, the folder "
+                         "layout the importer expects (as the source publishes it) and the import command. `datasets check DIR` says "
+                         "which dataset a folder holds, what of it is there and what is missing. Nothing is downloaded.",
+                         epilog="examples:\n  fusegraph datasets\n  fusegraph datasets check ~/Downloads/broad/data_mat",
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    dst.add_argument("action", nargs="?", choices=["list", "check"], default="list", help="list (default) or check a folder")
+    dst.add_argument("folder", nargs="?", type=Path, help="check: the folder to look at")
+    dst.add_argument("--json", action="store_true", help="print JSON instead of text")
+
     sen = sub.add_parser("sensors", help="the sensor catalogue: every stream kind's columns, units, keys, factors and checks",
                          description="Print the sensor catalogue (docs/sensors.md is this output), one kind's entry, "
                          "or one system's streams, keys and solvers.",
@@ -227,6 +238,9 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--units", metavar="UNIT", help="csv: the values' unit when not SI (the kind's accepted units, e.g. deg/s, g); "
                      "xdf: STREAM=UNIT, repeatable")
     imp.add_argument("--time-units", default="s", choices=["s", "ms", "us", "ns"], help="csv: the time column's unit (default s)")
+    imp.add_argument("--onto", metavar="STREAM", help="csv, into an existing session: put the stream on the times of this stream of the "
+                     "session (e.g. an accelerometer exported on its own clock onto the gyro's), interpolated linearly; what was "
+                     "bridged is said")
     imp.add_argument("--map", action="append", default=[], metavar="LSL_NAME=STREAM[:KIND]",
                      help="xdf: an LSL stream of the file as a session stream (KIND defaults to STREAM, e.g. HMD_gyro=gyro, "
                      "Polhemus=tracker:attitude); repeatable")
@@ -493,6 +507,39 @@ def system_docs() -> list[tuple[str, str, tuple[Any, ...], tuple[str, ...], str,
     return [(p.name, p.streams, p.session_keys, tuple(p.solvers), p.truth, p.axes) for p in PRESETS.values()]
 
 
+def _cmd_datasets(args: argparse.Namespace) -> int:
+    from dataclasses import asdict
+
+    from .datasets.catalogue import DATASETS, check_folder
+
+    if args.action == "check":
+        if args.folder is None:
+            raise ValueError("datasets check: give the folder to look at (fusegraph datasets check DIR)")
+        if not args.folder.is_dir():
+            raise FileNotFoundError(f"{args.folder}: not a folder")
+        found = check_folder(args.folder)
+        if args.json:
+            print(_dump(found))
+            return 0 if any(row["complete"] for row in found) else 2
+        if not found:
+            print(f"{args.folder}: holds none of the datasets the importers read (`fusegraph datasets` lists their layouts)")
+            return 2
+        for row in found:
+            parts = ", ".join(f"{pattern}: {count}" for pattern, count in row["parts"].items())  # type: ignore[attr-defined]
+            state = "complete" if row["complete"] else "missing " + ", ".join(row["missing"])  # type: ignore[arg-type]
+            print(f"{args.folder}: {row['dataset']} ({state}; files {parts})\n  import: {row['import']}")
+        return 0 if any(row["complete"] for row in found) else 2
+    if args.json:
+        print(_dump([asdict(d) for d in DATASETS]))
+        return 0
+    for d in DATASETS:
+        print(f"{d.name}: {d.title}\n  source:  {d.source}\n  licence: {d.licence}\n  cite:    {d.citation}\n  system:  {d.system}")
+        for part in d.layout:
+            print(f"  {'needs' if part.required else 'reads'}:   {part.pattern}  ({part.meaning})")
+        print(f"  layout:  {d.notes}\n  import:  {d.example}\n")
+    return 0
+
+
 def _cmd_check(args: argparse.Namespace) -> int:
     from .consistency import frames_found, suspect_reasons
     from .evaluation.runner import load_sessions
@@ -569,7 +616,7 @@ def _import_generic(args: argparse.Namespace) -> int:
         if not args.kind or not args.columns:
             raise ValueError("import csv needs --kind and --columns (e.g. --kind gyro --columns t=Timestamp,wx=GyrX,wy=GyrY,wz=GyrZ)")
         stream = csv_stream(args.source, args.kind, parse_columns(args.columns, args.kind), args.name, args.units, args.time_units)
-        path = add_to_session(args.out, {stream.name: stream}, args.system, truth=args.truth)
+        path = add_to_session(args.out, {stream.name: stream}, args.system, truth=args.truth, onto=args.onto)
         print(f"wrote {path}/ (stream '{'truth' if args.truth else stream.name}': {len(stream.t)} samples of {args.kind})")
         return 0
     if not args.map:
@@ -921,7 +968,8 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
 
 COMMANDS = {"tune": _cmd_tune, "live": _cmd_live,
             "ablate": _cmd_ablate, "simulate": _cmd_simulate, "run": _cmd_run, "report": _cmd_report, "bench": _cmd_bench, "view": _cmd_view,
-            "sensors": _cmd_sensors, "import": _cmd_import, "check": _cmd_check}
+            "sensors": _cmd_sensors, "import": _cmd_import, "check": _cmd_check,
+            "datasets": _cmd_datasets}
 
 
 if __name__ == "__main__":

@@ -112,3 +112,77 @@ def test_write_xdf_round_trips_through_import_xdf(tmp_path: Path, capsys: pytest
     for name in ("gyro", "accel", "mag"):
         np.testing.assert_array_equal(back.stream(name).values, session.stream(name).values)
         np.testing.assert_allclose(back.stream(name).t + back.meta["session"]["time_origin_s"], session.stream(name).t, atol=1e-12)
+
+
+def _vendor_csv(path: Path, t_ms: np.ndarray, values: np.ndarray, names: tuple[str, str, str]) -> Path:
+    np.savetxt(path, np.column_stack([t_ms, values]), delimiter=",", header=",".join(("Timestamp", *names)), comments="")
+    return path
+
+
+def test_import_csv_takes_a_magnetometer_unit_and_puts_a_stream_on_another_s_clock(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """One unit key for every stream (`--units uT` / `gauss` for a magnetometer, as docs/sensors.md says); `--onto gyro` puts an
+    accelerometer sampled on its own clock onto the gyro's times, interpolated, saying what it bridged."""
+    rng = np.random.default_rng(0)
+    t_gyro = np.arange(0.0, 20.0, 0.01) * 1000.0
+    t_own = np.arange(0.003, 20.0, 0.0125) * 1000.0  # 80 Hz on another clock
+    _vendor_csv(tmp_path / "gyr.csv", t_gyro, rng.normal(0.0, 0.01, (len(t_gyro), 3)), ("GyrX", "GyrY", "GyrZ"))
+    ramp = np.column_stack([np.linspace(0.1, 0.2, len(t_own)), np.zeros(len(t_own)), np.full(len(t_own), 0.98)])
+    _vendor_csv(tmp_path / "acc.csv", t_own, ramp, ("AccX", "AccY", "AccZ"))
+    _vendor_csv(tmp_path / "mag.csv", t_own, np.tile([0.2, 0.0, -0.4], (len(t_own), 1)), ("MagX", "MagY", "MagZ"))
+    out = tmp_path / "mine"
+    assert main(["import", "csv", str(tmp_path / "gyr.csv"), "--system", "attitude9", "--kind", "gyro", "--columns",
+                 "t=Timestamp,wx=GyrX,wy=GyrY,wz=GyrZ", "--time-units", "ms", "--out", str(out)]) == 0
+    assert main(["import", "csv", str(tmp_path / "acc.csv"), "--kind", "accel", "--columns", "t=Timestamp,ax=AccX,ay=AccY,az=AccZ", "--units", "g",
+                 "--time-units", "ms", "--out", str(out), "--onto", "gyro"]) == 0
+    assert "interpolated linearly onto the" in capsys.readouterr().err
+    for unit, factor in (("uT", 1.0), ("gauss", 100.0)):
+        name = f"mag_{unit}"
+        assert main(["import", "csv", str(tmp_path / "mag.csv"), "--kind", "mag", "--name", name, "--units", unit, "--columns",
+                     "t=Timestamp,mx=MagX,my=MagY,mz=MagZ", "--time-units", "ms", "--out", str(out), "--onto", "gyro"]) == 0
+        np.testing.assert_allclose(load_session(out).stream(name).values[0], np.array([0.2, 0.0, -0.4]) * factor)
+    session = load_session(out)
+    gyro, accel = session.stream("gyro"), session.stream("accel")
+    assert np.all(np.isin(accel.t, gyro.t))  # on the gyro's times
+    expected = np.interp(accel.t + float(session.meta["session"]["time_origin_s"]), t_own / 1000.0, ramp[:, 0]) * 9.80665
+    np.testing.assert_allclose(accel.values[:, 0], expected, rtol=1e-6)  # a linear ramp is interpolated exactly
+
+
+def test_import_csv_says_repeated_stamps_at_import(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    t = np.arange(0.0, 5.0, 0.01) * 1000.0
+    values = np.random.default_rng(1).normal(0.0, 0.01, (len(t), 3))
+    twice = np.insert(np.column_stack([t, values]), 50, np.column_stack([t, values])[49], axis=0)
+    np.savetxt(tmp_path / "g.csv", twice, delimiter=",", header="T,X,Y,Z", comments="")
+    argv = ["import", "csv", str(tmp_path / "g.csv"), "--system", "attitude9", "--kind", "gyro", "--columns", "t=T,wx=X,wy=Y,wz=Z", "--time-units", "ms"]
+    assert main([*argv, "--out", str(tmp_path / "a")]) == 0
+    assert "1 row repeat the row before exactly (first: line 52)" in capsys.readouterr().err
+    assert len(load_session(tmp_path / "a").stream("gyro")) == len(t)
+    twice[50, 1] += 1.0  # the same time with another value: no sample can be kept
+    np.savetxt(tmp_path / "g.csv", twice, delimiter=",", header="T,X,Y,Z", comments="")
+    assert main([*argv, "--out", str(tmp_path / "b")]) == 2
+    assert "line 52: time 490.0 repeats line 51 with other values" in capsys.readouterr().err
+
+
+def test_dataset_importers_take_the_published_folders(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """LIAS UWB as published (its README.md at the top, runs in folders below) and a folder of Pupil exports."""
+    import shutil
+
+    from conftest import SHARED_DATA
+
+    if not (SHARED_DATA / "uwb_lias").is_dir() or not (SHARED_DATA / "gaze_pupil_invisible").is_dir():
+        pytest.skip(f"real recordings not found at {SHARED_DATA} (CI has them beside the repo)")
+    published = tmp_path / "Planar_Dataset"
+    (published / "fast").mkdir(parents=True)
+    shutil.copy(SHARED_DATA / "uwb_lias" / "SOURCE_README.md", published / "README.md")
+    for csv_file in (SHARED_DATA / "uwb_lias").glob("*_exp_fast.csv"):
+        shutil.copy(csv_file, published / "fast")
+    assert main(["import", "uwb", str(published), "--out", str(tmp_path / "uwb")]) == 0
+    assert (tmp_path / "uwb" / "fast" / "session.toml").is_file()
+    for name in ("rec1", "rec2"):
+        shutil.copytree(SHARED_DATA / "gaze_pupil_invisible", tmp_path / "exports" / name)
+    assert main(["import", "pupil", str(tmp_path / "exports"), "--out", str(tmp_path / "pupil")]) == 0
+    assert sorted(p.parent.name for p in (tmp_path / "pupil").glob("*/session.toml")) == ["rec1", "rec2"]
+    capsys.readouterr()
+    assert main(["datasets", "check", str(published / "fast")]) == 2  # a run alone lacks the README: said
+    assert "missing README.md|SOURCE_README.md" in capsys.readouterr().out
+    assert main(["datasets", "check", str(SHARED_DATA / "uwb_lias")]) == 0
+    assert "uwb (complete" in capsys.readouterr().out

@@ -120,7 +120,7 @@ def test_uwb_loader_names_a_missing_file(tmp_path) -> None:  # type: ignore[no-u
     with pytest.raises(SessionError, match="one UWB run per folder .* found none"):
         load_uwb_lias(tmp_path)
     (tmp_path / "UWB_dynamic_exp_mid.csv").write_text("")
-    with pytest.raises(SessionError, match="SOURCE_README.md: UWB recording file not found"):
+    with pytest.raises(SessionError, match=r"no README.md \(or SOURCE_README.md\) with the anchors"):
         load_uwb_lias(tmp_path)
 
 

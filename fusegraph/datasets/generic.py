@@ -77,11 +77,60 @@ def csv_stream(path: str | Path, kind: str, columns: dict[str, str], name: str |
             raise SessionError(f"{path}: line {line}: column {bad!r} is not a number") from None
     if not rows:
         raise SessionError(f"{path}: no samples after the header")
-    table = np.asarray(rows, dtype=float)
+    table = _without_repeats(path, np.asarray(rows, dtype=float))
     t = table[:, 0] * TIME_UNITS[time_units]
     meta: dict[str, object] = {"description": f"imported from {path.name} ({', '.join(f'{k}={v}' for k, v in columns.items())}"
                                               + (f"; converted from {units}" if units else "") + ")"}
     return Stream(name or kind, kind, t, table[:, 1:] * factor, entry.columns, 0.0, meta)
+
+
+def _without_repeats(path: Path, table: np.ndarray) -> np.ndarray:
+    """A vendor export's rows checked in time order: a row that repeats the one before it exactly (a logger's double write)
+    is kept once with a warning; a time that repeats with other values, or goes back, is an error naming the lines (as
+    data rows: the header is line 1). Said here, at import, not left for ``run``."""
+    import warnings
+
+    from ..session import SessionWarning
+
+    step = np.diff(table[:, 0])
+    back = np.flatnonzero(step < 0)
+    if len(back):
+        i = int(back[0]) + 1
+        raise SessionError(f"{path}: line {i + 2}: time {float(table[i, 0])!r} goes back from {float(table[i - 1, 0])!r} on line {i + 1} "
+                           f"({len(back)} such row{'s' if len(back) > 1 else ''}): rows out of order, or two recordings in one file?")
+    same_time = np.flatnonzero(step == 0) + 1
+    exact = same_time[np.all(table[same_time] == table[same_time - 1], axis=1)]
+    other = np.setdiff1d(same_time, exact)
+    if len(other):
+        i = int(other[0])
+        raise SessionError(f"{path}: line {i + 2}: time {float(table[i, 0])!r} repeats line {i + 1} with other values ({len(other)} such "
+                           f"row{'s' if len(other) > 1 else ''}): a time column with too few digits (--time-units?), or the wrong column?")
+    if len(exact):
+        warnings.warn(f"{path}: {len(exact)} row{'s' if len(exact) > 1 else ''} repeat the row before exactly (first: line {int(exact[0]) + 2}): "
+                      "a logger's double write? kept once", SessionWarning, stacklevel=3)
+        table = np.delete(table, exact, axis=0)
+    return table
+
+
+def resample_onto(stream: Stream, target: Stream) -> tuple[Stream, str]:
+    """``stream`` (sampled on its own clock) at ``target``'s times: each column interpolated linearly between the two samples
+    around each target time, at the target times inside its span only. Returns it and a line saying how: the samples
+    made, the target times outside its span, the largest interval of its own an interpolated sample bridges."""
+    if stream.kind in ("attitude", "ranges", "tag_position", "beacon_ranges", "flag"):
+        raise SessionError(f"--onto {target.name}: a {stream.kind} stream is not interpolated (import it on its own times)")
+    inside = (target.t >= stream.t[0]) & (target.t <= stream.t[-1])
+    if not inside.any():
+        raise SessionError(f"--onto {target.name}: '{stream.name}' ({stream.t[0]:.3f} .. {stream.t[-1]:.3f} s) does not overlap '{target.name}' "
+                           f"({target.t[0]:.3f} .. {target.t[-1]:.3f} s): another clock or time unit?")
+    t = target.t[inside]
+    values = np.column_stack([np.interp(t, stream.t, stream.values[:, c]) for c in range(stream.values.shape[1])])
+    right = np.clip(np.searchsorted(stream.t, t), 1, len(stream.t) - 1)
+    bridged = float(np.max(stream.t[right] - stream.t[right - 1]))
+    said = (f"'{stream.name}' ({len(stream.t)} samples on its own clock) interpolated linearly onto the {len(t)} times of '{target.name}'"
+            + (f" ({int((~inside).sum())} of its times outside '{stream.name}''s span left out)" if (~inside).any() else "")
+            + f"; the largest interval bridged {bridged:.4g} s (its median {float(np.median(np.diff(stream.t))):.4g} s)")
+    meta = {**stream.meta, "description": f"{stream.meta.get('description', '')}; {said}".strip("; ")}
+    return Stream(stream.name, stream.kind, t, values, stream.columns, stream.latency_s, meta), said
 
 
 def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: dict[str, str] | None = None) -> tuple[dict[str, Stream], list[str]]:
@@ -147,15 +196,28 @@ def write_xdf(session: Session, path: str | Path) -> Path:
     return path
 
 
-def add_to_session(out: str | Path, streams: dict[str, Stream], system: str | None, truth: bool = False) -> Path:
+def add_to_session(out: str | Path, streams: dict[str, Stream], system: str | None, truth: bool = False, onto: str | None = None) -> Path:
     """Write ``streams`` as a new session in ``out`` (``system`` required) or add them to the session already there.
-    Times start at zero at the first sample of the new session (an added stream is moved by the same origin)."""
+    Times start at zero at the first sample of the new session (an added stream is moved by the same origin). ``onto``:
+    each stream is first put on the times of that stream of the session (``resample_onto``; said as a warning)."""
+    import warnings
+
+    from ..session import SessionWarning
+
     root = Path(out)
     if (root / "session.toml").is_file():
         session = load_session(root)
         if system is not None and system != session.system:
             raise SessionError(f"{root / 'session.toml'}: a {session.system} session; --system {system} does not match")
         origin = float(session.meta.get("session", {}).get("time_origin_s", 0.0))
+        if onto is not None:
+            target = session.stream(onto)
+            target = replace(target, t=target.t + origin)  # on the source's clock, as the new streams are
+            for name in list(streams):
+                streams[name], said = resample_onto(streams[name], target)
+                warnings.warn(f"{root}: {said}", SessionWarning, stacklevel=2)
+    elif onto is not None:
+        raise SessionError(f"--onto {onto}: --out {root} has no session yet; import the stream whose times to take first")
     else:
         if system is None:
             raise SessionError(f"--out {root}: a new session: say whose with --system (head, attitude9, gaze, bicycle, walking, ultrasonic)")

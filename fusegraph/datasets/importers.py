@@ -64,16 +64,19 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
             return [save_session(found[0][1], out)]
         return [save_session(session, out / name) for name, session in found]
     if fmt == "uwb":
-        return [save_session(uwb_session(source, labelled, calibration), out)]
+        runs = recordings_below(source, "UWB_*.csv")
+        return [save_session(uwb_session(run, labelled, calibration), out if run == source else out / run.name) for run in runs]
     if fmt == "oxford":
         found = oxford_sessions(source)
         if (source / "stats.csv").is_file():
             return [save_session(session, out / name) for name, session in found]
         return [save_session(found[0][1], out)]
-    if fmt == "tobii":
-        return [save_session(tobii_session(source), out)]
     if fmt == "pupil":
-        return [save_session(pupil_session(source, device), out)]
+        exports = recordings_below(source, "imu.csv")
+        return [save_session(pupil_session(export, device), out if export == source else out / export.name) for export in exports]
+    if fmt == "tobii":
+        exports = recordings_below(source, "imudata.gz")
+        return [save_session(tobii_session(export), out if export == source else out / export.name) for export in exports]
     if fmt == "hapt":
         from .hapt import hapt_sessions
 
@@ -83,6 +86,17 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
 
         return [save_session(session, out / name) for name, session in mobgap_sessions(source)]
     raise SessionError(f"unknown format {fmt!r} (known: broad, hapt, mobgap, oxford, plaza, pupil, tobii, uwb)")
+
+
+def recordings_below(source: Path, marker: str) -> list[Path]:
+    """One recording's folder (it holds ``marker``) as itself, or a dataset folder's recordings: every folder below it that
+    holds one (at any depth), each imported into a folder of its own name."""
+    if not source.is_dir() or any(source.glob(marker)):
+        return [source]
+    found = sorted({p.parent for p in source.rglob(marker)})
+    if not found:
+        raise SessionError(f"{source}: no {marker} here or below (one recording's folder, or a folder of them)")
+    return found
 
 
 def broad_sessions(source: Path, trials: Sequence[str] = (), system: str = "attitude9") -> list[tuple[str, Session]]:

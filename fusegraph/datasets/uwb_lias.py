@@ -3,7 +3,8 @@
 One run per folder (read in place, e.g. ``../shared/data/uwb_lias`` fast, ``uwb_lias_slow``): ``UWB_<run>.csv`` (no
 header: a wall-clock time, then 24 ranges in metres ordered a0-t0, a0-t1, a0-t2, a1-t0, ... a7-t2; some
 empty), ``motion_capture_<run>.csv`` (header ``time,x,y,z,rotation,,,``: centroid
-position in metres and a quaternion; optional: without it the run has no truth), ``SOURCE_README.md`` (anchor coordinates, tag offsets in the
+position in metres and a quaternion; optional: without it the run has no truth), ``README.md`` (the dataset's own, or a copy
+renamed ``SOURCE_README.md``: anchor coordinates, tag offsets in the
 trolley frame, as Markdown tables).
 
 The quaternion is stored SCALAR FIRST (w, x, y, z), as SOURCE_README.md says; its rigid body frame
@@ -91,16 +92,31 @@ def _table(text: str, label: str) -> FloatArray:
     return np.array([[float(x), float(y), float(z)] for _, x, y, z in sorted(rows, key=lambda r: int(r[0]))])
 
 
+README_NAMES = ("README.md", "SOURCE_README.md")
+"""Where the anchors and tag offsets are: the dataset's own README.md (as published), or SOURCE_README.md (a copy renamed
+beside the runs); looked for in the run's folder and the folders above it (the published layout keeps one README at the top)."""
+
+
+def readme_file(directory: Path) -> Path:
+    """The README with the anchor and tag tables for a run folder (``README_NAMES``, here or up to two folders above)."""
+    for folder in (directory, directory.parent, directory.parent.parent):
+        for name in README_NAMES:
+            candidate = folder / name
+            if candidate.is_file() and "Anchor" in candidate.read_text(errors="replace"):
+                return candidate
+    raise SessionError(f"{directory}: no README.md (or SOURCE_README.md) with the anchors' and tags' tables here or above: "
+                       "keep the dataset's README.md beside the runs, as published")
+
+
 def load_uwb_lias(directory: str | Path = DEFAULT_DIR) -> UwbRecording:
     """One run (any speed): ranges, anchors and tag offsets, motion capture (empty arrays when the folder has none)."""
     directory = Path(directory)
     ranges_file, mocap_file = run_files(directory)
-    if not (directory / "SOURCE_README.md").is_file():
-        raise SessionError(f"{directory / 'SOURCE_README.md'}: UWB recording file not found (it holds the anchors and tag offsets)")
-    readme = (directory / "SOURCE_README.md").read_text()
+    readme_path = readme_file(directory)
+    readme = readme_path.read_text()
     anchors, tags = _table(readme, "Anchor"), _table(readme, "Tag")
     if anchors.shape != (8, 3) or tags.shape != (3, 3):
-        raise SessionError(f"{directory / 'SOURCE_README.md'}: expected 8 anchors and 3 tags, found {len(anchors)} and {len(tags)}")
+        raise SessionError(f"{readme_path}: expected 8 anchors and 3 tags, found {len(anchors)} and {len(tags)}")
     t, ranges = [], []
     with open(ranges_file) as f:
         for row, line in enumerate(f, start=1):

@@ -291,7 +291,8 @@ CATALOGUE = (
         kind="mag",
         summary="magnetometer: the local magnetic field (raw: gain and offset errors allowed)",
         columns=("mx", "my", "mz"),
-        units=("any (uT, gauss or normalised; say which in unit)",) * 3,
+        units=("uT, or any unit said in units (converted to uT on loading: nT, mT, gauss, T); normalised readings are accepted",) * 3,
+        unit_conversions={"uT": 1.0, "nT": 1e-3, "mT": 1e3, "gauss": 100.0, "G": 100.0, "T": 1e6},
         frame="body (sensor) axes",
         factors="heading from the tilt-compensated, calibrated field (AttitudeFactorPose3 to north with the vertical component free); "
         "sigma grows with the field's norm and dip departures; Cauchy kernel against disturbances; attitude9/gaze: a magnet carried on the "
