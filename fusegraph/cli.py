@@ -129,6 +129,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--json", action="store_true", help="print JSON instead of the table")
     rep.add_argument("--plot", type=Path, help="write a figure to this PNG (sessions: the headline metric per session and solver; "
                      "seeds: like the paper's Fig. 3/4, first seed)")
+    rep.add_argument("--html", type=Path, metavar="OUT.html", help="sessions: also write a page to look at in a browser (one file, works "
+                     "offline): the table, and per session each solver's estimate against the truth, its error and 3-sigma band, the warnings")
     rep.add_argument("--include-suspect", action="store_true", help="sessions: count runs marked suspect (a heavily clipped gyro, a long "
                      "dropout) in the means; by default they are left out and counted apart")
 
@@ -140,6 +142,8 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--out", type=Path, required=True, help="directory for the files (created)")
     vw.add_argument("--solver", default="batch", help="solver for a bare session (default batch; any of the system's solvers)")
     vw.add_argument("--truth", type=Path, help="truth for an estimate CSV: a TUM file or a session directory")
+    vw.add_argument("--html", type=Path, metavar="OUT.html", help="a session: also write the page `report --html` writes, for this "
+                    "session and --solver (a comma list: several solvers side by side)")
 
     abl = sub.add_parser("ablate", help="ablation study: sensors dropped x parameter grid x seeds x solvers, local or on Dask",
                          description="Run a study: the full-sensor baseline plus one variant per --drop, crossed with every --vary grid, "
@@ -658,6 +662,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         raise ValueError("--gait chooses the gait of simulated walking seeds (report walking --seeds ...); recorded sessions have their own")
     if args.sessions:
         return _report_sessions(args, solvers)
+    if args.html or args.include_suspect:
+        raise ValueError("--html, --include-suspect: for session folders (write simulated ones with `fusegraph simulate SYSTEM --seed N --out DIR`)")
     if args.seeds is None:
         args.seeds = list(range(10))
     if solvers is not None and args.system in ("head", "bicycle", "gaze"):
@@ -724,8 +730,14 @@ def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int
     given = [flag for flag, used in fixed.items() if used]
     if given:
         raise ValueError(f"{', '.join(given)}: for simulated reports; session folders are reported as recorded")
-    found = report_sessions(args.system, load_sessions(args.sessions), solvers, include_suspect=args.include_suspect)
-    print(_dump(found) if args.json else format_session_report(found))
+    traces: dict[str, list[Any]] | None = {} if args.html else None
+    found = report_sessions(args.system, load_sessions(args.sessions), solvers, include_suspect=args.include_suspect, traces=traces)
+    table = format_session_report(found)
+    print(_dump(found) if args.json else table)
+    if args.html and traces is not None:
+        from .report.html import write_html
+
+        print(f"wrote {write_html(found, table, traces, args.html)}", file=sys.stderr if args.json else sys.stdout)
     if args.plot:
         print(f"wrote {plot_session_report(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
     return 0
@@ -880,8 +892,20 @@ def _bench_broad(args: argparse.Namespace) -> int:
 def _cmd_view(args: argparse.Namespace) -> int:
     from .report.view import view
 
-    for path in view(args.source, args.out, args.solver, args.truth):
+    solvers = [s.strip() for s in args.solver.split(",") if s.strip()]
+    for path in view(args.source, args.out, solvers[0], args.truth):
         print(f"wrote {path}")
+    if args.html:
+        from .evaluation.runner import load_sessions, report_sessions
+        from .report.html import write_html
+        from .report.tables import format_session_report
+
+        if not (args.source / "session.toml").is_file():
+            raise ValueError("--html: for a session directory (an estimate CSV alone has no report)")
+        sessions = load_sessions([args.source])
+        traces: dict[str, list[Any]] = {}
+        found = report_sessions(sessions[0][1].system, sessions, solvers, show_progress=False, traces=traces)
+        print(f"wrote {write_html(found, format_session_report(found), traces, args.html)}")
     return 0
 
 

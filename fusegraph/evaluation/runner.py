@@ -296,7 +296,7 @@ def _without_truth(outcome: Outcome) -> dict[str, float]:
 
 
 def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solvers: Sequence[str] | None = None,
-                    show_progress: bool = True, include_suspect: bool = False) -> dict[str, Any]:
+                    show_progress: bool = True, include_suspect: bool = False, traces: dict[str, list[Any]] | None = None) -> dict[str, Any]:
     """Every solver of ``system`` on every session (imported, hand-made or simulated), each through ``solve_session``
     exactly as ``fusegraph run`` runs it.
 
@@ -306,10 +306,12 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
     without truth gets ``metrics: {}`` and ``no_truth`` (the estimate's own sigma, the fraction of samples it covers); a
     solver that fails is a row with its error; a run whose headline metric is NaN is ``not_scored`` with the reason, and a
     ``suspect`` run (its own diagnostics) stays out of the means unless ``include_suspect``: neither is averaged silently.
+    ``traces``: a dict to fill with each session's ``results.Trace`` per solver that ran (what ``report --html`` draws).
     """
     import warnings
 
     from ..progress import progress
+    from ..results import trace_of
 
     preset = PRESETS[system]
     names = list(solvers or preset.solvers)
@@ -338,6 +340,8 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
             **({} if outcome.metrics else {"no_truth": _without_truth(outcome)}),
             **({"suspect": outcome.suspect} if outcome.suspect else {}),
         }
+        if traces is not None:
+            traces.setdefault(name, []).append(trace_of(solver, outcome.estimate, session.truth))
         unscored = not_scored_reason(preset, outcome.metrics, said)
         if unscored:
             row["not_scored"] = unscored
