@@ -890,7 +890,7 @@ def _bench_broad(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from .report.view import view
+    from .evaluation.view import view
 
     solvers = [s.strip() for s in args.solver.split(",") if s.strip()]
     for path in view(args.source, args.out, solvers[0], args.truth):

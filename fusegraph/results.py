@@ -8,13 +8,72 @@ times, the error and its 3-sigma band where the solver gives one. ``trace_of`` m
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from .estimate import Estimate, PointEstimate, Result
 from .geometry import FloatArray, euler_zyx_from_quat, wrap_angle
 from .session import Stream
+
+
+def flatten(metrics: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
+    """Nested metrics as ``a.b`` -> number (lists and strings are left out)."""
+    out: dict[str, float] = {}
+    for key, value in metrics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten(value, name + "."))
+        elif isinstance(value, bool):
+            continue
+        elif isinstance(value, int | float) and value is not None:
+            out[name] = float(value)
+    return out
+
+
+WALK_METHODS = ("dead_reckoning", "ekf", "online", "batch")
+"""The walking system's trajectory methods, in the order its tables and figures show them."""
+
+
+@dataclass
+class TrackingRun:
+    """A method's output over a session."""
+
+    positions: FloatArray
+    """(K, N, 3) estimated positions, in the method's own transmitter order."""
+    labels: list[list[np.ndarray]]
+    """Per epoch and receiver: the method's transmitter of each distance, or -1."""
+    ms_per_epoch: FloatArray
+    """Processing time of every epoch, ms."""
+    extras: dict[str, float] = field(default_factory=dict)
+    rest_probability: FloatArray | None = None
+    """(K, N) probability of the REST motion model per transmitter (fusegraph only)."""
+
+
+@dataclass(frozen=True)
+class WalkRun:
+    """One method's trajectory: a position per event (start included)."""
+
+    method: str
+    t: FloatArray
+    xyz: FloatArray
+    seconds: float
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    variant: str
+    solver: str
+    runs: int
+    failed: int
+    mean: tuple[float, ...]
+    half_width_95: tuple[float, ...]
+    solver_s: float
+    names: tuple[str, ...] = ("azimuth", "elevation", "roll")
+    """The metrics summarised (head: RMS per axis in rad; other systems: their preset's metric keys)."""
+
 
 MAX_POINTS = 2000
 """Samples kept per trace (evenly strided): a page stays light, and a screen has fewer pixels than that per curve."""

@@ -229,8 +229,9 @@ def test_frames_dead_streams_and_truth_are_named_or_harmless_in_every_system(sys
     from dataclasses import replace
 
     from fusegraph.evaluation.runner import simulated_sessions
+    from fusegraph.results import flatten
     from fusegraph.session import SessionError
-    from fusegraph.systems.presets import PRESETS, flatten
+    from fusegraph.systems.presets import PRESETS
 
     preset, (metric, floor) = PRESETS[system], SCORED_BY[system]
     if system not in _UNDAMAGED:

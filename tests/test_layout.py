@@ -92,6 +92,13 @@ def test_systems_import_no_simulator_loader_evaluation_or_report() -> None:
     assert not any(bad.values()), {k: v for k, v in bad.items() if v}
 
 
+def test_report_draws_what_it_is_handed_and_imports_neither_systems_nor_evaluation() -> None:
+    graph = _graph()
+    bad = {name: sorted(m for m in deps if m.startswith(("fusegraph.systems", "fusegraph.evaluation")))
+           for name, deps in graph.items() if name.startswith("fusegraph.report")}
+    assert not any(bad.values()), {k: v for k, v in bad.items() if v}
+
+
 def test_the_library_imports_nothing_from_the_cli() -> None:
     graph = _graph()
     assert not [name for name, deps in graph.items() if "fusegraph.cli" in deps]

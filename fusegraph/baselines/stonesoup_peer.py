@@ -111,7 +111,7 @@ def run_stonesoup(epochs: RangeEpochs, transmitters: int, method: str = "gnn", c
     from stonesoup.types.track import Track
     from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
-    from ..systems.ultrasonic import TrackingRun
+    from ..results import TrackingRun
 
     if method not in ("gnn", "jpda"):
         raise ValueError(f"unknown Stone Soup tracker {method!r} (gnn or jpda)")

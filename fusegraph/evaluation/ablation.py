@@ -31,6 +31,7 @@ import numpy as np
 from ..factors.gyro import GyroNoise
 from ..graphs.head import HeadModel, head_model_for
 from ..progress import progress
+from ..results import SummaryRow
 from ..session import Session
 from ..tuned import value as tuned_value
 
@@ -220,9 +221,9 @@ def _solve_generic(spec: Mapping[str, Any]) -> tuple[dict[str, float], float]:
     score (flattened metrics)."""
     from dataclasses import replace
 
+    from ..results import flatten
     from ..scenarios import SIMULATORS
     from ..sensors import sensor_catalogue
-    from ..systems.presets import flatten
     from .runner import solve_session
 
     options: dict[str, Any] = {}
@@ -403,19 +404,6 @@ def _rewrite(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
 
 
 # ------------------------------------------------------------------------------------ summary
-
-
-@dataclass(frozen=True)
-class SummaryRow:
-    variant: str
-    solver: str
-    runs: int
-    failed: int
-    mean: tuple[float, ...]
-    half_width_95: tuple[float, ...]
-    solver_s: float
-    names: tuple[str, ...] = ("azimuth", "elevation", "roll")
-    """The metrics summarised (head: RMS per axis in rad; other systems: their preset's metric keys)."""
 
 
 def _metric_values(row: Mapping[str, Any]) -> dict[str, float]:

@@ -15,8 +15,9 @@ from typing import Any
 import numpy as np
 
 from ..estimate import Estimate, PointEstimate, Result
+from ..results import flatten
 from ..session import Session, SessionError, load_session
-from ..systems.presets import PRESETS, Preset, flatten, preset_for
+from ..systems.presets import PRESETS, Preset, preset_for
 
 
 @dataclass
@@ -359,7 +360,7 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
                            "sessions_scored": len(scored), "sessions_failed": len(sessions) - len(done),
                            "sessions_not_scored": sum("not_scored" in r for r in done),
                            "sessions_suspect": sum("suspect" in r for r in done), "suspect_in_means": include_suspect}
-    return {"system": system, "solvers": names, "sessions": rows, "methods": methods}
+    return {"system": system, "solvers": names, "metric_keys": list(preset.metric_keys), "sessions": rows, "methods": methods}
 
 
 def not_scored_reason(preset: Preset, metrics: dict[str, Any] | None, said: Sequence[str]) -> str | None:

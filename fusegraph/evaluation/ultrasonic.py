@@ -10,7 +10,8 @@ import numpy as np
 from ..metrics import identity_map, oracle_labels, score_run
 from ..records import RangeEpochs
 from ..report.ultrasonic import plot_ultrasonic
-from ..systems.ultrasonic import TrackingRun, run_combinatorial, run_fusegraph
+from ..results import TrackingRun
+from ..systems.ultrasonic import run_combinatorial, run_fusegraph
 
 
 def crossing_epochs(closest_m: float, speed_m_s: float, head_on: bool, seed: int = 0, rate_hz: float = 40.0) -> RangeEpochs:

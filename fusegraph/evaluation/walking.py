@@ -12,9 +12,11 @@ from ..estimate import PointEstimate
 from ..frontends.pdr import Cycle, Ride, front_end
 from ..records import ACTIVITIES, WalkingSession
 from ..report.walking import plot_gait_statistics, plot_walk
+from ..results import WALK_METHODS as METHODS
+from ..results import WalkRun
 from ..scenarios.walking import WalkingScenarioConfig, calibrated_speed, session_of_walk, simulate_walking
 from ..session import Session
-from ..systems.walking import METHODS, WAIST, WalkRun, analyse
+from ..systems.walking import WAIST, analyse
 from .activity import STEP_STATISTICS
 from .runner import report_sessions, solve_session
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..evaluation.ablation import SummaryRow
+from ..results import SummaryRow
 
 
 def summary_table(summary: Sequence[SummaryRow]) -> str:

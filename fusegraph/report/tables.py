@@ -8,13 +8,13 @@ from typing import Any
 
 import numpy as np
 
-from ..systems.presets import PRESETS, flatten
+from ..results import flatten
 
 
-def _keys(system: str, rows: list[dict[str, float]]) -> list[str]:
-    """The preset's headline metrics that any row has (else every key the rows have)."""
+def _keys(headline: list[str], rows: list[dict[str, float]]) -> list[str]:
+    """The system's headline metrics (the report's ``metric_keys``) that any row has (else every key the rows have)."""
     present = set().union(*[set(r) for r in rows]) if rows else set()
-    keys = [k for k in PRESETS[system].metric_keys if k in present]
+    keys = [k for k in headline if k in present]
     return keys or sorted(present)
 
 
@@ -23,7 +23,8 @@ def format_session_report(report: dict[str, Any]) -> str:
     a run not scored (a NaN figure) or suspect says why in its row and is counted apart from the means."""
     system = report["system"]
     methods = report["methods"]
-    keys = _keys(system, [flatten(m["metrics"]) for m in methods.values()])
+    headline = list(report.get("metric_keys", []))
+    keys = _keys(headline, [flatten(m["metrics"]) for m in methods.values()])
     width = max([len(n) for n in methods] + [8]) + 2
     cell = max([len(k) for k in keys] + [10]) + 2
     count = len(report["sessions"])
@@ -45,7 +46,7 @@ def format_session_report(report: dict[str, Any]) -> str:
                 text = f"FAILED {row['error']}"
             elif row["metrics"]:
                 flat = flatten(row["metrics"])
-                text = "  ".join(f"{k} {flat[k]:.4g}" for k in _keys(system, [flat]))
+                text = "  ".join(f"{k} {flat[k]:.4g}" for k in _keys(headline, [flat]))
             else:
                 nt = row.get("no_truth", {})
                 text = "no truth: " + "  ".join(f"{k} {v:.4g}" for k, v in nt.items())
@@ -67,7 +68,7 @@ def plot_session_report(report: dict[str, Any], path: str | Path) -> Path:
     system = report["system"]
     sessions = list(report["sessions"])
     flat_rows = [flatten(r["metrics"]) for per in report["sessions"].values() for r in per.values() if r["status"] == "ok"]
-    keys = _keys(system, flat_rows)
+    keys = _keys(list(report.get("metric_keys", [])), flat_rows)
     key = keys[0] if keys else None
     series: dict[str, list[float | None]] = {}
     for solver in report["solvers"]:

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..metrics import identity_map
 from ..records import RangeEpochs
-from ..systems.ultrasonic import TrackingRun
+from ..results import TrackingRun
 
 
 def plot_ultrasonic(epochs: RangeEpochs, run: TrackingRun, path: str | Path) -> None:

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from ..records import ACTIVITIES, WalkingSession
-from ..systems.walking import METHODS, WalkRun
+from ..results import WALK_METHODS as METHODS
+from ..results import WalkRun
 
 
 def plot_walk(session: WalkingSession, runs: dict[str, WalkRun], path: Path) -> None:

@@ -84,20 +84,6 @@ class Preset:
         return self.run(session.usable(), solver)
 
 
-def flatten(metrics: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
-    """Nested metrics as ``a.b`` -> number (lists and strings are left out)."""
-    out: dict[str, float] = {}
-    for key, value in metrics.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            out.update(flatten(value, name + "."))
-        elif isinstance(value, bool):
-            continue
-        elif isinstance(value, int | float) and value is not None:
-            out[name] = float(value)
-    return out
-
-
 # ------------------------------------------------------------------------------------- head
 
 

@@ -25,6 +25,7 @@ from ..factors.linear import robust
 from ..frontends.association import assign_receivers, locate, swap_probability
 from ..geometry import FloatArray
 from ..records import RangeEpochs
+from ..results import TrackingRun
 from ..solvers.multiple_model import REST, MotionModes, PointBank, Prediction
 
 
@@ -235,21 +236,6 @@ class UltrasonicTracker:
                 idx = np.nonzero(labels[r] < 0)[0]
                 if j < len(idx):
                     labels[r][idx[j]] = i
-
-
-@dataclass
-class TrackingRun:
-    """A method's output over a session."""
-
-    positions: FloatArray
-    """(K, N, 3) estimated positions, in the method's own transmitter order."""
-    labels: list[list[np.ndarray]]
-    """Per epoch and receiver: the method's transmitter of each distance, or -1."""
-    ms_per_epoch: FloatArray
-    """Processing time of every epoch, ms."""
-    extras: dict[str, float] = field(default_factory=dict)
-    rest_probability: FloatArray | None = None
-    """(K, N) probability of the REST motion model per transmitter (fusegraph only)."""
 
 
 def run_fusegraph(epochs: RangeEpochs, transmitters: int, config: TrackerConfig | None = None) -> TrackingRun:

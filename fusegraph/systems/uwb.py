@@ -25,8 +25,8 @@ from ..frontends.association import assign_ranges, association_self_check, share
 from ..geometry import FloatArray
 from ..progress import progress
 from ..records import RangeEpochs
+from ..results import TrackingRun
 from ..solvers.sequential import MarginalStep, constant_velocity, whitening
-from .ultrasonic import TrackingRun
 
 
 @dataclass(frozen=True)

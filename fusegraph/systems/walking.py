@@ -29,6 +29,7 @@ from ..geometry import FloatArray
 from ..graphs.planar import PlanarGraph, causal_online, poses_of, range_schedule, start_from_ranges
 from ..metrics import track_errors
 from ..records import Building, Fixes, WalkingSession
+from ..results import WalkRun
 from ..session import Session, SessionError
 from ..solvers.batch import solve_python_loop
 from ..solvers.online import OnlineConfig
@@ -57,7 +58,6 @@ re-anchors every 50 states (5-10 s): iSAM2 hands every Python range factor a cop
 window is what keeps it fast (the 30 s step window: Plaza2 42x real time against 123x)."""
 WAIST = PdrConfig()
 """Front-end settings for the waist IMU."""
-METHODS = ("dead_reckoning", "ekf", "online", "batch")
 
 
 @dataclass(frozen=True)
@@ -84,16 +84,6 @@ def events_from(cycles: list[Cycle], rides: list[Ride], speed: SpeedModel, build
         floors = round(r.up_m / building.floor_height_m)
         out.append(Event(r.end_s, PlanarMotion(forward_m=0.0, up_m=floors * building.floor_height_m), RIDE_NOISE, True))
     return sorted(out, key=lambda e: e.t)
-
-
-@dataclass(frozen=True)
-class WalkRun:
-    """One method's trajectory: a position per event (start included)."""
-
-    method: str
-    t: FloatArray
-    xyz: FloatArray
-    seconds: float
 
 
 def _fix_schedule(session: WalkingSession, times: FloatArray) -> list[list[int]]:

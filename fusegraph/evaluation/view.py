@@ -1,5 +1,6 @@
 """``fusegraph view``: run a session's solver (or read an estimate CSV) and write everything to look at: the
-estimate as CSV and TUM, the system's picture, and for attitudes the 3D scene (``scene``)."""
+estimate as CSV and TUM, the system's picture, and for attitudes the 3D scene (``report.scene``). It runs solvers, so it
+lives in evaluation; what it writes is drawn by ``report``."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..estimate import Estimate
+from ..report.scene import head_scene, write_head_scene
 from ..session import Session
-from .scene import head_scene, write_head_scene
 
 SOLVER_METHODS = {"online": "isam2", "batch": "batch", "ekf": "method2"}
 """CLI solver names -> head methods."""
@@ -17,9 +18,9 @@ SOLVER_METHODS = {"online": "isam2", "batch": "batch", "ekf": "method2"}
 
 def view_session(session: Session, out: Path, solver: str) -> list[Path]:
     """Any system's session: run the solver, write its estimate (CSV; TUM for attitudes) and the preset's picture."""
+    from ..report.pictures import PICTURES
+    from ..report.tum import write_tum
     from ..systems.presets import preset_for
-    from .pictures import PICTURES
-    from .tum import write_tum
 
     preset = preset_for(session)
     estimate = preset.solve(session, solver)
@@ -35,9 +36,9 @@ def view(path: str | Path, out_dir: str | Path, solver: str = "batch", truth_pat
     ``path`` is a session directory (the solver runs first) or an estimate CSV written by
     ``fusegraph run`` (then ``truth_path``, a TUM file or a session directory, adds the truth).
     """
+    from ..report.plots import plot_attitude_axes
+    from ..report.tum import read_tum, write_tum
     from ..session import SessionError, load_session
-    from .plots import plot_attitude_axes
-    from .tum import read_tum, write_tum
 
     source, out = Path(path), Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
