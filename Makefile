@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv install sysdeps demo test lint bench clean
+.PHONY: venv install sysdeps browser demo test docs lint bench clean
 
 # Debian packages open3d's headless renderer needs (open3d-cpu links libusb; offscreen rendering
 # runs on Mesa's Vulkan llvmpipe). Installed when we are root and they are missing; otherwise we say so
@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml
 	$(MAKE) --no-print-directory sysdeps
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,docs]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -39,6 +39,20 @@ test: $(STAMP)
 	$(BIN)/ruff check fusegraph tests
 	$(BIN)/mypy fusegraph
 
+# the documentation site (mkdocs-material + mkdocstrings) into site/, warnings as errors: a broken link or a stale
+# reference fails; the CLI reference, the settings tables, the dataset pages and the frames figures are generated
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+	@echo "site/index.html"
+
+# Debian's chromium for the test that opens `report --html` in a headless browser (installed when we are root)
+browser: $(STAMP)
+	@if command -v chromium >/dev/null; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	else echo "note: install chromium (Debian) for the headless-browser test of report --html"; fi
+	$(BIN)/python -m pytest -q tests/test_html_report.py
+
 lint: $(STAMP)
 	$(BIN)/ruff check fusegraph tests
 	$(BIN)/mypy fusegraph
@@ -49,4 +63,4 @@ bench: $(STAMP)
 	$(BIN)/fusegraph bench head --duration 600 --repeat 3
 
 clean:
-	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache *.egg-info
+	rm -rf $(VENV) out site docs/figures .pytest_cache .mypy_cache .ruff_cache *.egg-info

@@ -1,6 +1,7 @@
 """fusegraph: factor-graph smoothing for human motion from wearable and environmental sensors."""
 
-from .estimate import Estimate
+from .api import import_dataset, plot, run_report, score, simulate, solve, solver_names
+from .estimate import Estimate, PointEstimate
 from .session import ArrivalEvent, Session, SessionError, Stream, load_session, replay_in_arrival_order, save_session
 
 __version__ = "0.1.0"
@@ -19,11 +20,19 @@ __all__ = [
     "ArrivalEvent",
     "Estimate",
     "OnlineHeadTracker",
+    "PointEstimate",
     "Session",
     "SessionError",
     "Stream",
     "__version__",
+    "import_dataset",
     "load_session",
+    "plot",
     "replay_in_arrival_order",
+    "run_report",
     "save_session",
+    "score",
+    "simulate",
+    "solve",
+    "solver_names",
 ]
