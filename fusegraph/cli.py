@@ -743,6 +743,12 @@ def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int
     return 0
 
 
+def _on_terminal(line: str) -> None:
+    """A bench's progress line, on stderr when a person watches it (a terminal); a log stays quiet."""
+    if sys.stderr.isatty():
+        print(f"\r\033[K{line}", end="", file=sys.stderr, flush=True)
+
+
 def _dump(value: Any) -> str:
     """JSON as every command prints it: NaN and infinities as null (JSON has no NaN; a reader's parser would fail)."""
     return json.dumps(_json_safe(value), indent=2)
@@ -798,7 +804,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
         found = head_recorded.bench_head_recorded(args.directory, workers=args.workers, trials=trials,
-                                                  progress=lambda line: print(line, file=sys.stderr))
+                                                  progress=_on_terminal)
         print(_dump(found) if args.json else head_recorded.format_head_recorded(found))
         if args.plot:
             print(f"wrote {head_recorded.plot_head_recorded(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
@@ -806,7 +812,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "gait":
         from .evaluation.gait import bench_gait, format_gait
 
-        found = bench_gait(args.directory, progress=lambda line: print(line, file=sys.stderr))
+        found = bench_gait(args.directory, progress=_on_terminal)
         print(_dump(found) if args.json else format_gait(found))
         if args.plot:
             from .evaluation.gait import plot_gait
@@ -816,7 +822,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "activity":
         from .evaluation.activity import bench_activity, format_activity
 
-        found = bench_activity(args.directory, progress=lambda line: print(line, file=sys.stderr), workers=args.workers)
+        found = bench_activity(args.directory, progress=_on_terminal, workers=args.workers)
         print(_dump(found) if args.json else format_activity(found))
         if args.plot:
             from .report.gait import plot_confusions
@@ -975,7 +981,7 @@ def _cmd_ablate(args: argparse.Namespace) -> int:
 
     print(summary_table(summary))
     files = write_summary(summary, args.out)
-    failed = sum(r["status"] != "ok" for r in result.rows)
+    failed = sum(r["status"] == "failed" for r in result.rows)
     idle = ablation.settings_without_effect(result.rows, study)
     if idle:
         raise ValueError(f"--vary {', '.join(idle)}: every value gave the same results in every run: no solver of {study.system} "

@@ -73,6 +73,8 @@ class SummaryRow:
     solver_s: float
     names: tuple[str, ...] = ("azimuth", "elevation", "roll")
     """The metrics summarised (head: RMS per axis in rad; other systems: their preset's metric keys)."""
+    not_applicable: str = ""
+    """Why the solver cannot take this variant at all (it drops a stream the solver needs); empty when it can."""
 
 
 MAX_POINTS = 2000

@@ -52,6 +52,11 @@ class SessionError(ValueError):
     """A session directory or stream that cannot be used as it is; the message says where and why."""
 
 
+class NotApplicableError(SessionError):
+    """A solver that cannot take this session's streams (the 9-axis EKF without a magnetometer): an ablation variant that
+    drops what it needs is 'not applicable' for it, not a failed run."""
+
+
 class SessionWarning(UserWarning):
     """Something in a session that was repaired on loading (e.g. quaternions normalised); the message says what."""
 

@@ -116,3 +116,24 @@ def test_without_gyro_the_graph_tracks_with_a_constant_velocity_model() -> None:
     rms = score_attitude(run_batch(clock_only, model), session.truth.t, session.truth.values).rms_rad
     # the tracker alone (0.8 deg noise at 50 Hz) smoothed by the motion model: well under 2 deg per axis
     assert np.all(rms < np.deg2rad(2.0)), rms
+
+
+def test_a_variant_a_solver_cannot_take_is_not_applicable_not_a_failure(tmp_path, capsys) -> None:
+    """Dropping the magnetometer leaves the papers' 9-axis EKF nothing to run on: its row says 'not applicable' and why, the
+    study exits 0 and the other solvers' rows are figures."""
+    from fusegraph.cli import main
+
+    assert main(["simulate", "attitude9", "--seed", "0", "--duration", "10", "--out", str(tmp_path / "s")]) == 0
+    capsys.readouterr()
+    assert main(["ablate", "attitude9", "--sessions", str(tmp_path / "s"), "--drop", "mag", "--solver", "ekf,online",
+                 "--workers", "1", "--out", str(tmp_path / "study")]) == 0
+    table = capsys.readouterr().out
+    assert "-mag    ekf                1      0  not applicable: the 9-axis EKF needs a magnetometer" in table
+    assert "0 failed" in table
+
+
+def test_bench_progress_stays_off_a_log(capsys) -> None:
+    from fusegraph.cli import _on_terminal
+
+    _on_terminal("step-length grid point 1/64")  # stderr is captured here, as in a log: nothing is written
+    assert capsys.readouterr().err == ""

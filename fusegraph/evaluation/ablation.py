@@ -32,7 +32,7 @@ from ..factors.gyro import GyroNoise
 from ..graphs.head import HeadModel, head_model_for
 from ..progress import progress
 from ..results import SummaryRow
-from ..session import Session
+from ..session import NotApplicableError, Session
 from ..tuned import value as tuned_value
 
 #: ``--vary`` names for the head system -> fields of the head scenario.
@@ -199,6 +199,9 @@ def execute(spec: Mapping[str, Any]) -> dict[str, Any]:
         row["nees"] = "" if score.nees is None else score.nees
         row["solver_s"] = estimate.runtime_s
         row["status"] = "ok"
+    except NotApplicableError as exc:  # the variant took away what this solver needs: not a failure
+        row["status"] = "n/a"
+        row["error"] = str(exc)
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the study goes on
         row["status"] = "failed"
         row["error"] = f"{type(exc).__name__}: {exc}"
@@ -339,7 +342,7 @@ def run_study(
         rows = []
     recorded.write_text(described)
     # finished runs are kept (and failed ones unless retried); a torn or damaged row is dropped and redone
-    kept = [row for row in rows if row["status"] == "ok" or not retry_failed]
+    kept = [row for row in rows if row["status"] in ("ok", "n/a") or not retry_failed]
     done = {row["key"]: row for row in kept}
     _rewrite(table_path, kept)
     specs = study.runs()
@@ -388,7 +391,7 @@ def read_rows(path: str | Path) -> list[dict[str, Any]]:
         return []
     with path.open(newline="") as handle:
         rows = list(csv.DictReader(handle))
-    return [r for r in rows if None not in r and all(r.get(c) is not None for c in COLUMNS) and r["key"] and r["status"] in ("ok", "failed")]
+    return [r for r in rows if None not in r and all(r.get(c) is not None for c in COLUMNS) and r["key"] and r["status"] in ("ok", "failed", "n/a")]
 
 
 def _rewrite(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
@@ -433,7 +436,9 @@ def summarize(rows: Sequence[Mapping[str, Any]]) -> list[SummaryRow]:
         mean = values.mean(axis=0) if len(ok) else np.full(len(names), np.nan)
         half = stats.t.ppf(0.975, len(ok) - 1) * values.std(axis=0, ddof=1) / np.sqrt(len(ok)) if len(ok) > 1 else np.full(len(names), np.nan)
         solver_s = float(np.mean([float(m["solver_s"]) for m in ok])) if ok else float("nan")
-        out.append(SummaryRow(variant, solver, len(members), len(members) - len(ok), tuple(mean), tuple(half), solver_s, names))
+        na = [m for m in members if m["status"] == "n/a"]
+        out.append(SummaryRow(variant, solver, len(members), len(members) - len(ok) - len(na), tuple(mean), tuple(half), solver_s, names,
+                              not_applicable=str(na[0]["error"]) if na and not ok else ""))
     return out
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..estimate import Estimate, PointEstimate, Result
 from ..results import flatten
-from ..session import Session, SessionError, load_session
+from ..session import NotApplicableError, Session, SessionError, load_session
 from ..systems.presets import PRESETS, Preset, preset_for
 
 
@@ -329,6 +329,9 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
             warnings.simplefilter("always")
             try:
                 outcome = solve_session(session, solver)
+            except NotApplicableError as exc:  # the session lacks what this solver needs: said, not a failure
+                rows[name][solver] = {"status": "n/a", "error": str(exc).split(": ", 1)[-1], "metrics": {}}
+                continue
             except Exception as exc:  # noqa: BLE001 - one solver failing on one session is a row, the report goes on
                 rows[name][solver] = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
                 continue
@@ -357,7 +360,9 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
         data_s = sum(session.duration_s for name, session in sessions if rows[name][solver]["status"] == "ok")
         seconds = sum(r["runtime_s"] for r in done)
         methods[solver] = {"metrics": unflatten(means), "x_realtime": data_s / seconds if seconds > 0 else float("nan"),
-                           "sessions_scored": len(scored), "sessions_failed": len(sessions) - len(done),
+                           "sessions_scored": len(scored),
+                           "sessions_failed": sum(rows[name][solver]["status"] == "failed" for name, _ in sessions),
+                           "sessions_not_applicable": sum(rows[name][solver]["status"] == "n/a" for name, _ in sessions),
                            "sessions_not_scored": sum("not_scored" in r for r in done),
                            "sessions_suspect": sum("suspect" in r for r in done), "suspect_in_means": include_suspect}
     return {"system": system, "solvers": names, "metric_keys": list(preset.metric_keys), "sessions": rows, "methods": methods}

@@ -20,6 +20,9 @@ def summary_table(summary: Sequence[SummaryRow]) -> str:
     lines = [f"{'variant':<{width}} {'solver':<14} {'runs':>5} {'failed':>6}  " + " ".join(f"{n:>20}" for n in names) + f"  {'solver s':>8}",
              f"{'':<{width}} {'':<14} {'':>5} {'':>6}  " + ("RMS [1e-2 rad], mean +- 95% CI" if head else "mean +- 95% CI")]
     for s in summary:
+        if s.not_applicable:
+            lines.append(f"{s.variant:<{width}} {s.solver:<14} {s.runs:>5} {s.failed:>6}  not applicable: {s.not_applicable.split(': ', 1)[-1]}")
+            continue
         cells = [f"{scale * m:9.4g} +-{scale * h:8.3g}" if np.isfinite(m) else f"{'-':>20}" for m, h in zip(s.mean, s.half_width_95, strict=True)]
         lines.append(f"{s.variant:<{width}} {s.solver:<14} {s.runs:>5} {s.failed:>6}  " + " ".join(f"{c:>20}" for c in cells) + f"  {s.solver_s:8.3f}")
     return "\n".join(lines)

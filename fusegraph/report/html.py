@@ -65,7 +65,7 @@ def write_html(report: Mapping[str, Any], table: str, traces: Mapping[str, Seque
     for name, session_traces in traces.items():
         parts.append(f"<h2 id='{html.escape(name)}'>{html.escape(name)}</h2>")
         said = sorted({w for row in report["sessions"].get(name, {}).values() for w in row.get("warnings", [])})
-        failed = [f"{solver}: {row['error']}" for solver, row in report["sessions"].get(name, {}).items() if row.get("status") != "ok"]
+        failed = [f"{solver}: {row['error']}" for solver, row in report["sessions"].get(name, {}).items() if row.get("status") == "failed"]
         if said or failed:
             parts.append("<ul class='warnings'>" + "".join(f"<li>warning: {html.escape(w)}</li>" for w in said)
                          + "".join(f"<li>failed: {html.escape(f)}</li>" for f in failed) + "</ul>")

@@ -42,7 +42,9 @@ def format_session_report(report: dict[str, Any]) -> str:
     lines.append(f"{'session':<{session_width}}{'solver':<{width}}result")
     for session, per_solver in report["sessions"].items():
         for name, row in per_solver.items():
-            if row["status"] != "ok":
+            if row["status"] == "n/a":
+                text = f"not applicable: {row['error']}"
+            elif row["status"] != "ok":
                 text = f"FAILED {row['error']}"
             elif row["metrics"]:
                 flat = flatten(row["metrics"])
@@ -61,8 +63,14 @@ def format_session_report(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+MAX_BAR_SESSIONS = 8
+"""Over this many sessions a report's figure is a summary per solver (one point per session) instead of a bar per session
+and solver, which grew into a strip 6,732 px wide over 17 sessions."""
+
+
 def plot_session_report(report: dict[str, Any], path: str | Path) -> Path:
-    """Bars per session and solver of the system's first headline metric (without truth anywhere: x real time)."""
+    """Bars per session and solver of the system's first headline metric (without truth anywhere: x real time); over
+    ``MAX_BAR_SESSIONS`` sessions, a summary per solver."""
     from .plots import grouped_bars, plt, save_figure
 
     system = report["system"]
@@ -83,9 +91,20 @@ def plot_session_report(report: dict[str, Any], path: str | Path) -> Path:
             else:
                 values.append(row["x_realtime"])
         series[solver] = values
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(sessions) * max(1, len(series)) / 2), 4.5))
-    grouped_bars(ax, sessions, series)
-    ax.set(ylabel=key or "x real time", title=f"{system}: {key or 'speed (no truth)'} per session and solver")
+    if len(sessions) > MAX_BAR_SESSIONS:  # a summary: each solver's sessions as points, their mean as a bar; the figure keeps its size
+        fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(series) + 2.0), 4.5))
+        for index, values in enumerate(series.values()):
+            points = np.array([v for v in values if v is not None], dtype=float)
+            if len(points):
+                ax.bar(index, float(np.mean(points)), color="0.85", width=0.6)
+                ax.scatter(index + np.linspace(-0.2, 0.2, len(points)), points, s=12, zorder=3)
+        ax.set_xticks(range(len(series)), list(series), rotation=30, ha="right")
+        ax.set(ylabel=key or "x real time",
+               title=f"{system}: {key or 'speed (no truth)'} over {len(sessions)} sessions (points: sessions; bar: mean)")
+    else:
+        fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(sessions) * max(1, len(series)) / 2), 4.5))
+        grouped_bars(ax, sessions, series)
+        ax.set(ylabel=key or "x real time", title=f"{system}: {key or 'speed (no truth)'} per session and solver")
+        ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
-    ax.legend(fontsize=8)
     return save_figure(fig, path)

@@ -30,7 +30,7 @@ from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
 from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, mag_noise_tuned, with_rest
 from ..graphs.increment import GraphIncrement
 from ..progress import progress
-from ..session import Session, SessionError, SessionWarning
+from ..session import NotApplicableError, Session, SessionError, SessionWarning
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from ..tuned import tuned
 
@@ -318,7 +318,7 @@ def run_ekf(session: Session, model: Attitude9Model | None = None) -> Estimate:
 
     data = imu9(session)
     if data.mag is None:
-        raise ValueError("the 9-axis EKF needs a magnetometer stream")
+        raise NotApplicableError(f"{session.where}: the 9-axis EKF needs a magnetometer stream (the papers' filter has no mode without one)")
     cal = model_for(session, model).mag_calibration
     start = time.perf_counter()
     config = Ekf9Config(mag_gain=cal.gain, mag_offset=cal.offset)
