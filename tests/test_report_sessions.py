@@ -128,3 +128,23 @@ def test_sessions_of_one_name_in_two_folders_and_below_keep_their_own_files(tmp_
     written = sorted(p.name for p in (tmp_path / "out").glob("*.csv"))
     assert written == ["A__trial_online.csv", "B__trial_online.csv", "C__deeper__still__other_online.csv"], written
     assert out.splitlines()[-2].startswith("mean") and "3 sessions, 0 failed, 0 not scored" in out
+
+
+def _report_of(names: list[str]) -> dict:
+    rows = {name: {"online": {"status": "ok", "metrics": {"total_deg": 1.0 + i}, "runtime_s": 0.1, "x_realtime": 100.0, "warnings": []}}
+            for i, name in enumerate(names)}
+    method = {"metrics": {"total_deg": 2.0}, "x_realtime": 100.0, "sessions_scored": len(names), "sessions_failed": 0}
+    return {"system": "attitude9", "solvers": ["online"], "metric_keys": ["total_deg"], "sessions": rows, "methods": {"online": method}}
+
+
+def test_a_long_session_name_keeps_the_solver_column_and_many_sessions_make_a_summary_figure(tmp_path: Path) -> None:
+    from PIL import Image
+
+    from fusegraph.report.tables import format_session_report, plot_session_report
+
+    long_name = "04_undisturbed_slow_rotation_with_breaks_A"
+    lines = format_session_report(_report_of([long_name, "s2"])).splitlines()
+    rows = [line for line in lines if line.startswith((long_name, "s2 "))]
+    assert len(rows) == 2 and rows[0].index("online") == rows[1].index("online") > len(long_name)  # one column, after the name
+    width, _ = Image.open(plot_session_report(_report_of([f"trial{i:02d}" for i in range(17)]), tmp_path / "many.png")).size
+    assert width < 1200, width  # a summary per solver, not a bar per session (6,732 px over 17 sessions before)
