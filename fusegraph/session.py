@@ -126,7 +126,21 @@ class Session:
         """The checks ``load_session`` makes, for a Session built in memory too (every solver runs them first): each
         stream's kind and keys are the catalogue's, its times finite and never going back, its values finite and
         plausible (magnitudes, unit quaternions, the declared rate), the streams on one clock. A SessionError names the
-        stream and the likely cause."""
+        stream and the likely cause.
+
+        A session is immutable: a second call (every solver of a report validates the same session) repeats the first's
+        warnings without checking again."""
+        said = self.__dict__.get("_validation_warnings")
+        if said is None:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                self._validate()
+            said = [(w.message, w.category) for w in caught]
+            object.__setattr__(self, "_validation_warnings", said)  # a frozen dataclass: a cache, not a field
+        for message, category in said:
+            warnings.warn(message, category, stacklevel=2)
+
+    def _validate(self) -> None:
         where = self.where
         catalogue = sensor_catalogue()
         if not self.streams:
