@@ -186,3 +186,15 @@ def test_dataset_importers_take_the_published_folders(tmp_path: Path, capsys: py
     assert "missing README.md|SOURCE_README.md" in capsys.readouterr().out
     assert main(["datasets", "check", str(SHARED_DATA / "uwb_lias")]) == 0
     assert "uwb (complete" in capsys.readouterr().out
+
+
+def test_every_dataset_importer_takes_one_recording_too(tmp_path: Path) -> None:
+    from conftest import SHARED_DATA
+
+    if not (SHARED_DATA / "hapt").is_dir() or not (SHARED_DATA / "mobgap").is_dir():
+        pytest.skip(f"real recordings not found at {SHARED_DATA} (CI has them beside the repo)")
+    assert main(["import", "hapt", str(SHARED_DATA / "hapt" / "acc_exp01_user01.txt"), "--out", str(tmp_path / "hapt")]) == 0
+    assert [p.parent.name for p in (tmp_path / "hapt").glob("*/session.toml")] == ["exp01_user01"]
+    participant = next((SHARED_DATA / "mobgap" / "lab").glob("*/*"))
+    assert main(["import", "mobgap", str(participant), "--out", str(tmp_path / "mobgap")]) == 0
+    assert list((tmp_path / "mobgap").glob("*/session.toml"))

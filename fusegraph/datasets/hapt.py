@@ -86,5 +86,13 @@ def _table(path: Path) -> np.ndarray:
 
 
 def hapt_sessions(directory: str | Path = DEFAULT_DIR) -> list[tuple[str, Session]]:
-    """Every experiment of the folder as a walking session, named ``expXX_userYY``."""
+    """Every experiment of the folder as a walking session, named ``expXX_userYY``; given one recording's file
+    (``acc_expXX_userYY.txt`` or its ``gyro_`` twin, ``labels.txt`` beside it), that experiment alone."""
+    import re
+
+    path = Path(directory)
+    found = re.fullmatch(r"(?:acc|gyro)_exp(\d+)_user(\d+)\.txt", path.name) if path.is_file() else None
+    if found:
+        e, u = int(found.group(1)), int(found.group(2))
+        return [(f"exp{e:02d}_user{u:02d}", hapt_session(path.parent, e, u))]
     return [(f"exp{e:02d}_user{u:02d}", hapt_session(directory, e, u)) for e, u in experiments(directory)]
