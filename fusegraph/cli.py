@@ -131,6 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "seeds: like the paper's Fig. 3/4, first seed)")
     rep.add_argument("--html", type=Path, metavar="OUT.html", help="sessions: also write a page to look at in a browser (one file, works "
                      "offline): the table, and per session each solver's estimate against the truth, its error and 3-sigma band, the warnings")
+    rep.add_argument("--workers", type=int, default=None, help="sessions: how many in parallel (default: every core)")
+    rep.add_argument("--scheduler", default=None, help="sessions: a Dask scheduler: local, or tcp://host:port of a running cluster")
     rep.add_argument("--include-suspect", action="store_true", help="sessions: count runs marked suspect (a heavily clipped gyro, a long "
                      "dropout) in the means; by default they are left out and counted apart")
 
@@ -662,8 +664,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
         raise ValueError("--gait chooses the gait of simulated walking seeds (report walking --seeds ...); recorded sessions have their own")
     if args.sessions:
         return _report_sessions(args, solvers)
-    if args.html or args.include_suspect:
-        raise ValueError("--html, --include-suspect: for session folders (write simulated ones with `fusegraph simulate SYSTEM --seed N --out DIR`)")
+    if args.html or args.include_suspect or args.workers or args.scheduler:
+        raise ValueError("--html, --include-suspect, --workers, --scheduler: for session folders "
+                         "(write simulated ones with `fusegraph simulate SYSTEM --seed N --out DIR`)")
     if args.seeds is None:
         args.seeds = list(range(10))
     if solvers is not None and args.system in ("head", "bicycle", "gaze"):
@@ -731,7 +734,10 @@ def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int
     if given:
         raise ValueError(f"{', '.join(given)}: for simulated reports; session folders are reported as recorded")
     traces: dict[str, list[Any]] | None = {} if args.html else None
-    found = report_sessions(args.system, load_sessions(args.sessions), solvers, include_suspect=args.include_suspect, traces=traces)
+    import os
+
+    found = report_sessions(args.system, load_sessions(args.sessions), solvers, include_suspect=args.include_suspect, traces=traces,
+                            workers=args.workers or os.cpu_count() or 1, scheduler=args.scheduler)
     table = format_session_report(found)
     print(_dump(found) if args.json else table)
     if args.html and traces is not None:

@@ -367,7 +367,7 @@ def check_streams(streams: Mapping[str, Any], truth: Any | None = None) -> list[
 
 AXIS_NAMES = ("x", "y", "z")
 FRAME_LAG_S = 1.0
-"""Two instants compared by the frame checks are this far apart (the gyro's drift over it is far below the misfits sought)."""
+"""The still-sensor units check compares the field 1 s apart (the gyro's drift over it is far below the misfits sought)."""
 FRAME_TURN_DEG = 5.0
 """...and the gyro turned at least this much between them (less tells no axis from another)."""
 FRAME_UNIQUE = 0.6

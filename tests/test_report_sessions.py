@@ -148,3 +148,16 @@ def test_a_long_session_name_keeps_the_solver_column_and_many_sessions_make_a_su
     assert len(rows) == 2 and rows[0].index("online") == rows[1].index("online") > len(long_name)  # one column, after the name
     width, _ = Image.open(plot_session_report(_report_of([f"trial{i:02d}" for i in range(17)]), tmp_path / "many.png")).size
     assert width < 1200, width  # a summary per solver, not a bar per session (6,732 px over 17 sessions before)
+
+
+def test_a_report_in_two_processes_is_the_report_in_one(tmp_path: Path) -> None:
+    from fusegraph.evaluation.runner import load_sessions, report_sessions
+
+    for seed in (0, 1, 2):
+        assert main(["simulate", "attitude9", "--seed", str(seed), "--duration", "10", "--out", str(tmp_path / f"seed{seed}")]) == 0
+    sessions = load_sessions([tmp_path])
+    one = report_sessions("attitude9", sessions, ["online", "batch"], show_progress=False)
+    two = report_sessions("attitude9", sessions, ["online", "batch"], show_progress=False, workers=2)
+    assert list(two["sessions"]) == ["seed0", "seed1", "seed2"]  # in the order of the sessions
+    for solver in ("online", "batch"):
+        assert two["methods"][solver]["metrics"] == one["methods"][solver]["metrics"]

@@ -297,7 +297,8 @@ def _without_truth(outcome: Outcome) -> dict[str, float]:
 
 
 def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solvers: Sequence[str] | None = None,
-                    show_progress: bool = True, include_suspect: bool = False, traces: dict[str, list[Any]] | None = None) -> dict[str, Any]:
+                    show_progress: bool = True, include_suspect: bool = False, traces: dict[str, list[Any]] | None = None,
+                    workers: int = 1, scheduler: str | None = None) -> dict[str, Any]:
     """Every solver of ``system`` on every session (imported, hand-made or simulated), each through ``solve_session``
     exactly as ``fusegraph run`` runs it.
 
@@ -308,11 +309,11 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
     solver that fails is a row with its error; a run whose headline metric is NaN is ``not_scored`` with the reason, and a
     ``suspect`` run (its own diagnostics) stays out of the means unless ``include_suspect``: neither is averaged silently.
     ``traces``: a dict to fill with each session's ``results.Trace`` per solver that ran (what ``report --html`` draws).
+    ``workers``/``scheduler``: sessions in parallel (processes, or Dask: ``local`` or ``tcp://host:port``), gathered in
+    the order of the sessions.
     """
-    import warnings
 
     from ..progress import progress
-    from ..results import trace_of
 
     preset = PRESETS[system]
     names = list(solvers or preset.solvers)
@@ -323,33 +324,20 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
         if session.system != system:
             raise SessionError(f"{name}: a {session.system} session, not {system} (report one system at a time)")
     rows: dict[str, dict[str, dict[str, Any]]] = {name: {} for name, _ in sessions}
-    jobs = [(name, session, solver) for name, session in sessions for solver in names]
-    for name, session, solver in progress(jobs, len(jobs), f"report {system}", enabled=None if show_progress else False):
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            try:
-                outcome = solve_session(session, solver)
-            except NotApplicableError as exc:  # the session lacks what this solver needs: said, not a failure
-                rows[name][solver] = {"status": "n/a", "error": str(exc).split(": ", 1)[-1], "metrics": {}}
-                continue
-            except Exception as exc:  # noqa: BLE001 - one solver failing on one session is a row, the report goes on
-                rows[name][solver] = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
-                continue
-        runtime = float(outcome.estimate.runtime_s)
-        said = sorted({str(w.message) for w in caught})
-        row = {
-            "status": "ok", "metrics": outcome.metrics or {}, "runtime_s": runtime,
-            "x_realtime": session.duration_s / runtime if runtime > 0 else float("inf"),
-            "warnings": said,
-            **({} if outcome.metrics else {"no_truth": _without_truth(outcome)}),
-            **({"suspect": outcome.suspect} if outcome.suspect else {}),
-        }
+    jobs = [(name, session, tuple(names), traces is not None) for name, session in sessions]
+    from .cluster import completed
+
+    finished = completed(_report_one_session, jobs, workers, scheduler)
+    for (name, _, _, _), future in progress(finished, len(jobs), f"report {system}", enabled=None if show_progress else False):
+        per_solver, session_traces = future.result()
+        rows[name] = per_solver
         if traces is not None:
-            traces.setdefault(name, []).append(trace_of(solver, outcome.estimate, session.truth))
-        unscored = not_scored_reason(preset, outcome.metrics, said)
-        if unscored:
-            row["not_scored"] = unscored
-        rows[name][solver] = row
+            traces[name] = session_traces
+    rows = {name: rows[name] for name, _ in sessions}  # in the order of the sessions, however they finished
+    if traces is not None:
+        ordered = {name: traces[name] for name, _ in sessions if name in traces}
+        traces.clear()
+        traces.update(ordered)
     methods: dict[str, dict[str, Any]] = {}
     for solver in names:
         done = [rows[name][solver] for name, _ in sessions if rows[name][solver]["status"] == "ok"]
@@ -366,6 +354,46 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
                            "sessions_not_scored": sum("not_scored" in r for r in done),
                            "sessions_suspect": sum("suspect" in r for r in done), "suspect_in_means": include_suspect}
     return {"system": system, "solvers": names, "metric_keys": list(preset.metric_keys), "sessions": rows, "methods": methods}
+
+
+def _report_one_session(job: tuple[str, Session, tuple[str, ...], bool]) -> tuple[dict[str, dict[str, Any]], list[Any]]:
+    """Worker: every solver on one session, each through ``solve_session`` with its warnings; a solver that fails or cannot
+    take the session is a row saying why. Returns the rows by solver and, when asked, the traces a page draws."""
+    import warnings
+
+    from ..results import trace_of
+
+    name, session, names, want_traces = job
+    preset = PRESETS[session.system]
+    rows: dict[str, dict[str, Any]] = {}
+    traces: list[Any] = []
+    for solver in names:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                outcome = solve_session(session, solver)
+            except NotApplicableError as exc:  # the session lacks what this solver needs: said, not a failure
+                rows[solver] = {"status": "n/a", "error": str(exc).split(": ", 1)[-1], "metrics": {}}
+                continue
+            except Exception as exc:  # noqa: BLE001 - one solver failing on one session is a row, the report goes on
+                rows[solver] = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "metrics": {}}
+                continue
+        runtime = float(outcome.estimate.runtime_s)
+        said = sorted({str(w.message) for w in caught})
+        row = {
+            "status": "ok", "metrics": outcome.metrics or {}, "runtime_s": runtime,
+            "x_realtime": session.duration_s / runtime if runtime > 0 else float("inf"),
+            "warnings": said,
+            **({} if outcome.metrics else {"no_truth": _without_truth(outcome)}),
+            **({"suspect": outcome.suspect} if outcome.suspect else {}),
+        }
+        if want_traces:
+            traces.append(trace_of(solver, outcome.estimate, session.truth))
+        unscored = not_scored_reason(preset, outcome.metrics, said)
+        if unscored:
+            row["not_scored"] = unscored
+        rows[solver] = row
+    return rows, traces
 
 
 def not_scored_reason(preset: Preset, metrics: dict[str, Any] | None, said: Sequence[str]) -> str | None:
