@@ -34,8 +34,9 @@ demo: $(STAMP)
 	$(BIN)/fusegraph report head --seeds 0-9 --plot out/head_tracking.png
 	@echo "figure: out/head_tracking.png (reference, tracker, Method II and iSAM2 per axis)"
 
+# the tests on every core (pytest-xdist: 2 cores take about half the time of one)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 	$(BIN)/ruff check fusegraph tests
 	$(BIN)/mypy fusegraph
 
