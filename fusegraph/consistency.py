@@ -775,9 +775,17 @@ SUSPECT_GAP_S = 2.0
 """A gyro or accelerometer silent for longer than this is bridged by the motion model alone: the run is marked suspect."""
 
 
-def suspect_reasons(streams: Mapping[str, Any]) -> list[str]:
-    """Why a run on these streams may be unreliable though it ran: a heavily clipped gyro, a long dropout bridged."""
+def suspect_reasons(streams: Mapping[str, Any], extras: Mapping[str, Any] | None = None) -> list[str]:
+    """Why a run on these streams may be unreliable though it ran: a heavily clipped gyro, a long dropout bridged, and
+    from the solver's own ``extras``: a batch that did not converge (the 9-axis batch's heading check, ``check =
+    "suspect"``; a batch stopped at its iteration cap, ``iterations >= max_iterations``)."""
     reasons = []
+    extras = extras or {}
+    if extras.get("check") == "suspect":
+        residual = float(extras.get("heading_residual_median_deg", float("nan")))
+        reasons.append(f"the batch did not converge (median heading residual {residual:.0f} deg)")
+    if "iterations" in extras and "max_iterations" in extras and int(extras["iterations"]) >= int(extras["max_iterations"]):
+        reasons.append(f"the batch stopped at its cap of {int(extras['max_iterations'])} iterations without converging")
     for stream in streams.values():
         if stream.kind not in ("gyro", "accel") or len(stream) < 3:
             continue

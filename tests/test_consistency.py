@@ -282,3 +282,12 @@ def test_the_largest_value_met_apart_is_no_clip_and_a_rail_is() -> None:
     assert saturation_level(values) is None
     values[5000:5012, 1] = 30.83  # the signal runs into the rail and stays there
     assert saturation_level(values) == pytest.approx(30.83)
+
+
+def test_a_batch_that_did_not_converge_is_suspect() -> None:
+    from fusegraph.consistency import suspect_reasons
+
+    assert suspect_reasons({}, {"check": "suspect", "heading_residual_median_deg": 95.0}) == [
+        "the batch did not converge (median heading residual 95 deg)"]
+    assert suspect_reasons({}, {"iterations": 50, "max_iterations": 50})[0].startswith("the batch stopped at its cap of 50 iterations")
+    assert suspect_reasons({}, {"iterations": 3, "max_iterations": 50, "check": "ok"}) == []

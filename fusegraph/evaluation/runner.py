@@ -52,7 +52,7 @@ def solve_session(session: Session, solver: str) -> Outcome:
 
     preset = preset_for(session)
     estimate = preset.solve(session, solver)
-    return Outcome(session, preset, solver, estimate, preset.score(session, estimate), suspect=suspect_reasons(session.streams))
+    return Outcome(session, preset, solver, estimate, preset.score(session, estimate), suspect=suspect_reasons(session.streams, estimate.extras))
 
 
 def run_session(path: str | Path, solver: str, out: str | Path | None = None, plot: str | Path | None = None) -> Outcome:

@@ -410,6 +410,7 @@ def run_batch(session: Session, model: HeadModel | None = None, config: BatchCon
     runtime = time.perf_counter() - start
     extras: dict[str, Any] = {
         "iterations": result.iterations,
+        "max_iterations": (config or BatchConfig()).max_iterations,
         "final_error": result.final_error,
         "too_late": len(builder.too_late),
         "bias_final": kf_bias[-1].tolist(),
