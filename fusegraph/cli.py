@@ -353,7 +353,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "  fusegraph import hapt ../shared/data/hapt --out sessions/hapt && fusegraph bench activity sessions/hapt --json\n"
                          "  fusegraph bench gait ../shared/data/mobgap",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
-    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak", "head-recorded", "gaze-recorded", "activity", "gait"])
+    ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak", "head-recorded", "gaze-recorded", "activity", "gait",
+                                               "speed"])
     ben.add_argument("directory", nargs="?", type=Path, help="broad, head-recorded: directory of BROAD trials (*.mat; default ../shared/data/broad) "
                      "or, head-recorded, of the head sessions `import broad --system head` wrote; "
                      "gaze-recorded: the eye-tracker export (Tobii, Pupil Invisible or Neon; default ../shared/data/gaze_tobii); "
@@ -798,6 +799,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             print(f"online head tracker over {soak['duration_s']:g} s of data: x real time per {soak['block_s']:g} s: "
                   + ", ".join(f"{x:.1f}" for x in soak["x_realtime_per_block"])
                   + f"; last/first {soak['last_over_first']:.2f}; peak RSS {soak['peak_rss_mb']:.0f} MB; every estimate finite: {soak['finite']}")
+        return 0
+    if args.system == "speed":
+        from .evaluation.speed import bench_speed, format_speed
+
+        broad = args.directory or Path(__file__).resolve().parents[1].parent / "shared" / "data" / "broad"
+        found = bench_speed(broad if broad.is_dir() else None, workers=args.workers or 1, progress=_on_terminal)
+        print(_dump(found) if args.json else format_speed(found))
         return 0
     if args.system == "live":
         from .live import bench_live, format_bench_live

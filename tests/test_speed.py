@@ -1,0 +1,28 @@
+"""`fusegraph bench speed`: its parts on small inputs (the bench itself is a benchmark, not a test: no timing is asserted)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fusegraph.evaluation.runner import simulated_sessions
+from fusegraph.evaluation.speed import format_speed, live_sample_times, repeated
+
+
+def test_a_recording_repeated_to_a_length_keeps_its_rate_and_streams() -> None:
+    _, session = simulated_sessions("attitude9", [0], 20.0)[0]
+    long = repeated(session, 65.0)
+    gyro = long.stream("gyro")
+    assert set(long.streams) == {"gyro", "accel", "mag", "mag_cal"} and long.truth is None
+    assert len(long.stream("mag_cal")) == len(session.stream("mag_cal"))  # a calibration recording is not repeated
+    assert abs(gyro.t[-1] - 65.0) < 0.02 and np.all(np.diff(gyro.t) > 0)  # one clock on, no step backwards at a seam
+    assert np.allclose(np.median(np.diff(gyro.t)), np.median(np.diff(session.stream("gyro").t)))
+
+
+def test_the_live_tracker_is_timed_per_gyro_sample_and_the_table_reads() -> None:
+    live = live_sample_times(duration_s=5.0)
+    assert live["samples"] > 400 and live["max_ms"] >= live["p99_ms"] >= live["median_ms"] > 0.0
+    found = {"systems": {"attitude9": {"online": {"x_realtime": 400.0, "peer": "vqf", "ratio_to_peer": 0.04}, "vqf": {"x_realtime": 10000.0}}},
+             "live": live, "memory": {"batch_peak_mb_1h": 800.0, "batch_peak_mb_24h": None, "hours_measured": 1.0, "note_24h": "not run"},
+             "cohort": {"recordings_per_hour_per_core_online": 9000.0, "mean_recording_s": 190.0}, "data": {"attitude9": "simulated"}}
+    text = format_speed(found)
+    assert "attitude9      online              400.0          vqf   0.040" in text and "peak RSS on 1 h: 800 MB" in text
