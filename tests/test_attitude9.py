@@ -729,3 +729,11 @@ def test_a_rest_pins_the_gyro_bias_only_with_the_zero_rate_update() -> None:
 
     for solver, study in (("online", "broad_rest"), ("batch", "broad_rest_batch")):
         assert attitude9.broad_model(solver).motion.rest_rate_sigma_rad_s == tuned(study)["rest_rate_sigma_rad_s"]
+
+
+def test_the_broad_bench_says_what_its_figures_are() -> None:
+    from fusegraph.evaluation.broad import figures_are
+
+    assert figures_are(["01_undisturbed_slow_rotation_A", "02_undisturbed_slow_rotation_B"]).startswith(
+        "in-sample: the settings on main were chosen on 1 of these 2 trials")
+    assert figures_are(["02_undisturbed_slow_rotation_B"]).startswith("held out: no setting on main was chosen on any of these 1 trials")

@@ -55,7 +55,24 @@ def bench_broad(
     out.update(methods=report["methods"], sessions=report["sessions"])
     out["published"] = published_baselines(Path(directory or DEFAULT_DIR))
     out["settings"] = tuning_provenance()
+    out["figures_are"] = figures_are(list(out["trials"]))
     return out
+
+
+def figures_are(trials: Sequence[str]) -> str:
+    """What a table of these trials' figures is: in-sample where the settings on main were chosen on some of them (every
+    BROAD study's trials in ``tuned.toml``), held out where on none."""
+    from ..tuned import SYSTEM_STUDIES, tuned
+
+    chosen_on: set[str] = set()
+    for study in SYSTEM_STUDIES["attitude9"]:
+        listed = tuned(study).get("trials", [])
+        chosen_on |= set(listed) if isinstance(listed, list) else set()
+    inside = [t for t in trials if t in chosen_on]
+    if not inside:
+        return f"held out: no setting on main was chosen on any of these {len(trials)} trials"
+    return (f"in-sample: the settings on main were chosen on {len(inside)} of these {len(trials)} trials (tuned.toml); "
+            "the leave-one-trial-out figures below are cross-validated within each study only")
 
 
 PEERS = (("online", "vqf"), ("batch", "vqf_offline"), ("online", "imufusion"))

@@ -27,7 +27,8 @@ def format_broad_table(result: dict[str, Any]) -> str:
         f"  {study:<20} {row['in_sample']:.3f} / {row['cross_validated']:.3f} deg over {row['trials']} trials"
         + (f" (chosen by {row['unit']}: {row['score_in_sample']:.3f} / {row['score_cross_validated']:.3f})" if "score_in_sample" in row else "")
         for study, row in result.get("settings", {}).items() if row.get("in_sample") is not None and row.get("cross_validated") is not None]
-    return "\n".join(lines + ["RMSE in degrees (BROAD metric, movement phases, no alignment); x rt = times faster than real time"] + ratios + published
+    label = [f"these figures are {result['figures_are']}"] if "figures_are" in result else []
+    return "\n".join(lines + ["RMSE in degrees (BROAD metric, movement phases, no alignment); x rt = times faster than real time"] + label + ratios + published
                      + (settings if len(settings) > 1 else []))
 
 
