@@ -284,6 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
     tun.add_argument("--sessions", nargs="+", type=Path, default=[], metavar="DIR",
                      help="BROAD studies: choose on these sessions (or folders of them, e.g. imported trials) by leave-one-recording-out")
     tun.add_argument("--workers", type=int, default=1, help="processes: a simulated study's settings, BROAD's trials or the UWB runs (default 1)")
+    tun.add_argument("--scheduler", default=None, help="a Dask scheduler for the same jobs: local, or tcp://host:port of a running cluster")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
                          description="Read each declared input from an LSL stream (sample times from LSL's clock, moved onto this machine's "
@@ -933,6 +934,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     from .evaluation.tuning import main as tune_main
 
     argv = [args.study, "--solver", args.solver, "--workers", str(args.workers)] + (["--write"] if args.write else [])
+    argv += ["--scheduler", args.scheduler] if args.scheduler else []
     if args.sessions:
         argv += ["--sessions", *(str(p) for p in args.sessions)]
     if args.seeds:

@@ -180,3 +180,9 @@ def test_a_broad_study_on_imported_sessions_chooses_as_on_the_trial_files(tmp_pa
     assert on_sessions["cross_validated"] == on_files["cross_validated"]
     assert "total_in_sample" not in on_files  # scored by the total RMSE itself: nothing to file beside it
     assert set(on_sessions["held_out"]) == {t.stem for t in trials}
+
+
+def test_jobs_on_a_dask_cluster_come_back_in_order() -> None:
+    from fusegraph.evaluation.cluster import in_order
+
+    assert in_order(abs, [-3, 1, -2, 5], 2, "local") == [3, 1, 2, 5]  # what tune --scheduler hands its studies' jobs to

@@ -75,10 +75,11 @@ def completed(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, sche
             yield pending[future], future
 
 
-def in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int) -> list[Any]:
-    """``fn`` over ``items`` through ``completed`` (here, or a local process pool), the results in item order."""
+def in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, scheduler: str | None = None) -> list[Any]:
+    """``fn`` over ``items`` through ``completed`` (here, a local process pool, or Dask with ``scheduler``), the results in
+    item order."""
     position = {id(item): i for i, item in enumerate(items)}  # completed() hands back the very item objects
     results: list[Any] = [None] * len(items)
-    for item, future in completed(fn, items, workers, None):
+    for item, future in completed(fn, items, workers, scheduler):
         results[position[id(item)]] = future.result()
     return results

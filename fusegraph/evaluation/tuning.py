@@ -49,15 +49,16 @@ def _score_job(job: tuple[str, dict[str, Any], int]) -> float:
     return STUDIES[name].score(setting, seed)
 
 
-def run_study(study: Study, seeds: Sequence[int] = TUNING_SEEDS, workers: int = 1) -> list[tuple[dict[str, Any], float]]:
-    """Every setting of the grid scored as the mean over ``seeds``, best first (``workers`` processes when > 1)."""
+def run_study(study: Study, seeds: Sequence[int] = TUNING_SEEDS, workers: int = 1, scheduler: str | None = None) -> list[tuple[dict[str, Any], float]]:
+    """Every setting of the grid scored as the mean over ``seeds``, best first (``workers`` processes when > 1, or Dask
+    with ``scheduler``)."""
     if set(seeds) & set(TEST_SEEDS):
         raise ValueError(f"tuning seeds {sorted(set(seeds) & set(TEST_SEEDS))} are test seeds: choose on {TUNING_SEEDS[0]}-{TUNING_SEEDS[-1]}")
     names = list(study.grid)
     settings = [dict(zip(names, values, strict=True)) for values in itertools.product(*(study.grid[n] for n in names))]
     jobs = [(study.name, setting, seed) for setting in settings for seed in seeds]
-    if workers > 1 and STUDIES.get(study.name) is study:
-        scores = in_order(_score_job, jobs, workers)
+    if (workers > 1 or scheduler is not None) and STUDIES.get(study.name) is study:
+        scores = in_order(_score_job, jobs, workers, scheduler)
     else:  # a study not in STUDIES cannot be looked up by a worker
         scores = [study.score(setting, seed) for _, setting, seed in jobs]
     per_setting = np.reshape(scores, (len(settings), len(seeds)))
@@ -314,7 +315,7 @@ def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, dict[str, float]
 
 
 def broad_graph_logo(study: str, directory: str | None = None, solver: str = "online", workers: int = 1,
-                     sessions: Sequence[str | Path] = ()) -> dict[str, Any]:
+                     sessions: Sequence[str | Path] = (), scheduler: str | None = None) -> dict[str, Any]:
     """Our graph's settings of one BROAD study (``broad_mag``: heading sigma, disturbance gains, Cauchy width;
     ``broad_motion``: the velocity prior, gyro and accelerometer noise, gravity sigma and its inflation; ``broad_bias``: the
     accelerometer bias's prior and walk, the gyro bias's walk; ``broad_online``: the online solver's relinearisation
@@ -326,7 +327,7 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     ``total_cross_validated``: the chosen settings' mean total RMSE (deg) on the trials, and each held-out trial's under
     the settings its fold chose."""
     paths = [str(p) for p in recordings(directory, sessions)]
-    per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers)
+    per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers, scheduler)
     names = list(grid_settings(broad_grid(study, solver)))
     scores: dict[str, dict[str, float]] = {name: {} for name in names}
     totals: dict[str, dict[str, float]] = {name: {} for name in names}
@@ -376,7 +377,7 @@ def _uwb_run_scores(job: tuple[str, str, bool]) -> dict[str, float]:
     return out
 
 
-def uwb_calibrated_logo(sessions: Sequence[str | Path] = (), workers: int = 1) -> dict[str, Any]:
+def uwb_calibrated_logo(sessions: Sequence[str | Path] = (), workers: int = 1, scheduler: str | None = None) -> dict[str, Any]:
     """The calibrated UWB tracker's range noise by leave-one-run-out: each run's unlabelled online tracking (every
     estimate's RMSE, m, the preset's ``rmse_all_m``) at every grid point. ``sessions``: imported UWB sessions that declare a
     calibration; default: ../shared/data's runs (each folder with its ``calibration.csv``), imported in memory; ``workers``
@@ -388,7 +389,7 @@ def uwb_calibrated_logo(sessions: Sequence[str | Path] = (), workers: int = 1) -
         jobs = [(p.name, str(p), True) for p in session_dirs(sessions)]
     else:
         jobs = [(d.name, str(d), False) for d in sorted(DEFAULT_DIR.parent.glob("uwb_lias*")) if (d / "calibration.csv").is_file()]
-    per_run = in_order(_uwb_run_scores, jobs, workers)
+    per_run = in_order(_uwb_run_scores, jobs, workers, scheduler)
     scores = {name: {job[0]: run[name] for job, run in zip(jobs, per_run, strict=True)} for name in grid_settings(UWB_CALIBRATED_GRID)}
     return leave_one_group_out(scores)
 
@@ -676,13 +677,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     parser.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml (what the reports read)")
     parser.add_argument("--workers", type=int, default=1, help="processes scoring the grid (simulated studies)")
+    parser.add_argument("--scheduler", default=None, help="a Dask scheduler for the jobs: local, or tcp://host:port of a running cluster")
     parser.add_argument("--sessions", nargs="+", default=[], help="BROAD studies: session directories (or folders of them) to choose on "
                         "by leave-one-recording-out, instead of ../shared/data/broad's trial files")
     args = parser.parse_args(argv)
     if args.study == "activity":
         return _main_activity(args)
     if args.study == "uwb_calibrated":
-        return _main_recorded(args, uwb_calibrated_logo(args.sessions, workers=args.workers), UWB_CALIBRATED_GRID, "m, every estimate's RMSE of the unlabelled "
+        return _main_recorded(args, uwb_calibrated_logo(args.sessions, workers=args.workers, scheduler=args.scheduler),
+                              UWB_CALIBRATED_GRID, "m, every estimate's RMSE of the unlabelled "
                               "online tracker (leave-one-run-out)", "runs")
     if args.sessions and args.study not in BROAD_GRIDS:
         raise ValueError(f"--sessions: {args.study} is a simulated study (tuning seeds); the recorded studies are {', '.join(BROAD_GRIDS)}")
@@ -692,7 +695,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.solver == "batch" and args.study not in BROAD_PER_SOLVER:
             raise ValueError(f"{args.study} has no batch variant (--solver batch is for {', '.join(BROAD_PER_SOLVER)})")
         result = (broad_ekf_logo(sessions=args.sessions) if args.study == "broad_ekf"
-                  else broad_graph_logo(args.study, solver=args.solver, workers=args.workers, sessions=args.sessions))
+                  else broad_graph_logo(args.study, solver=args.solver, workers=args.workers, sessions=args.sessions, scheduler=args.scheduler))
         name = f"{args.study}_batch" if args.study in BROAD_PER_SOLVER and args.solver == "batch" else args.study
         peer = "offline VQF" if args.solver == "batch" else "VQF"
         unit = (f"mean over trials of the {args.solver} estimate's total RMSE / {peer}'s + inclination RMSE / {peer}'s"
@@ -701,7 +704,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _main_recorded(args, result, broad_grid(args.study, args.solver), unit, "trials", name)
     seeds = tuple(range(args.seeds[0], args.seeds[1] + 1))
     study = STUDIES[args.study]
-    rows = run_study(study, seeds, workers=args.workers)
+    rows = run_study(study, seeds, workers=args.workers, scheduler=args.scheduler)
     print(format_study(study, rows, seeds))
     if args.write:
         best, score = rows[0]
