@@ -285,12 +285,6 @@ def check_streams(streams: Mapping[str, Any], truth: Any | None = None) -> list[
                               f"the gyro turns gravity {fit['as written']:.1f} deg away from where '{accel.name}' sees it a second later")
         if truth is not None and truth.kind == "attitude" and len(truth) > 20:
             truth_against_gyro(gyro, truth)
-    if truth is not None and len(truth) and streams:
-        start, end = min(float(s.t[0]) for s in streams.values()), max(float(s.t[-1]) for s in streams.values())
-        if truth.t[-1] < start or truth.t[0] > end:
-            raise ConsistencyError(f"truth ({truth.t[0]:.3f} .. {truth.t[-1]:.3f} s) does not overlap the streams ({start:.3f} .. {end:.3f} s): on "
-                                   f"another clock (about {float(np.median(truth.t)) - 0.5 * (start + end):+.4g} s off)? write it on the sensors' "
-                                   "clock; nothing could be scored")
         for tracker in (s for s in streams.values() if s.kind == "attitude" and len(s) > 20 and s.meta.get("role") != "truth"):
             fit = tracker_against_gyro(gyro.t, gyro.values, tracker.t, tracker.values)
             if fit is not None:
@@ -303,6 +297,12 @@ def check_streams(streams: Mapping[str, Any], truth: Any | None = None) -> list[
                         f"gyro's, which reads the tracked body's axes as {describe_axes(frame)}: the gyro in another frame than the tracker's "
                         f"body? declare frame_R_sensor = {_matrix_toml(frame.T)} in [streams.{gyro.name}] (its axes into the body's), "
                         "or write its columns in the body's axes")
+    if truth is not None and len(truth) and streams:
+        start, end = min(float(s.t[0]) for s in streams.values()), max(float(s.t[-1]) for s in streams.values())
+        if truth.t[-1] < start or truth.t[0] > end:
+            raise ConsistencyError(f"truth ({truth.t[0]:.3f} .. {truth.t[-1]:.3f} s) does not overlap the streams ({start:.3f} .. {end:.3f} s): on "
+                                   f"another clock (about {float(np.median(truth.t)) - 0.5 * (start + end):+.4g} s off)? write it on the sensors' "
+                                   "clock; nothing could be scored")
     for stream in (*gyros, *accels):
         level = saturation_level(stream.values)
         if level is not None:

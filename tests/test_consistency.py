@@ -291,3 +291,11 @@ def test_a_batch_that_did_not_converge_is_suspect() -> None:
         "the batch did not converge (median heading residual 95 deg)"]
     assert suspect_reasons({}, {"iterations": 50, "max_iterations": 50})[0].startswith("the batch stopped at its cap of 50 iterations")
     assert suspect_reasons({}, {"iterations": 3, "max_iterations": 50, "check": "ok"}) == []
+
+
+def test_a_tracker_is_checked_against_the_gyro_without_truth_too() -> None:
+    _, session = simulated_sessions("head", [0], duration_s=20.0)[0]
+    bare = replace(session, truth=None)
+    bare.validate()
+    with pytest.raises(SessionError, match="scalar LAST"):
+        _with(bare, "tracker", bare.stream("tracker").values[:, [1, 2, 3, 0]]).validate()
