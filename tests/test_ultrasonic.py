@@ -447,3 +447,12 @@ def test_a_silent_anchor_is_said_and_the_others_track_without_numpy_noise(tmp_pa
         outcome = solve_session(short, "online")
     assert any("receiver(s) 3 of receivers_m never heard" in line for line in check_streams(short.streams))
     assert outcome.metrics is not None and outcome.metrics["lost_frac"] == 0.0 and outcome.metrics["rmse_all_m"] < 0.1
+
+
+def test_the_uwb_bench_says_what_its_figures_are() -> None:
+    from pathlib import Path
+
+    from fusegraph.evaluation.ultrasonic import uwb_figures_are
+
+    assert "in-sample: the calibrated tracker's settings were chosen on this run" in uwb_figures_are(Path("data/uwb_lias"))
+    assert uwb_figures_are(Path("data/uwb_lias_medium")) == "ran; held out: no setting was chosen on this run"

@@ -110,6 +110,7 @@ def bench_ultrasonic(
         if directory.is_dir():
             uwb_status = "ran"
             uwb = bench_uwb(directory)
+            uwb_status = uwb_figures_are(directory)
     return {"sim": sim, "crossing": {"runs": runs_done, "swaps": swaps}, "uwb": uwb, "uwb_status": uwb_status}
 
 
@@ -124,3 +125,16 @@ def _head(epochs: RangeEpochs, seconds: float) -> RangeEpochs:
         epochs.t[:keep], epochs.receivers, epochs.ranges[:keep], None if epochs.labels is None else epochs.labels[:keep],
         None if epochs.positions is None else epochs.positions[:keep], epochs.range_sigma_m,
     )
+
+
+def uwb_figures_are(directory: Path) -> str:
+    """What the UWB figures of a run are: in-sample where the calibrated tracker's settings (``tuned.toml``
+    ``[uwb_calibrated]``) were chosen on this run, with the leave-one-run-out figure; held out where not."""
+    from ..tuned import tuned
+
+    table = tuned("uwb_calibrated")
+    runs = table.get("runs", [])
+    if directory.name in runs:
+        return (f"ran; in-sample: the calibrated tracker's settings were chosen on this run among {', '.join(runs)} "
+                f"(leave-one-run-out: {table.get('cross_validated')} m every estimate's RMSE, in-sample {table.get('in_sample')} m)")
+    return "ran; held out: no setting was chosen on this run"

@@ -83,6 +83,7 @@ def format_ultrasonic_table(result: dict[str, object]) -> str:
             f"self-check: association from geometry alone {uwb.get('assoc_expected_geometry', float('nan')):.2f} (a lower bound, no truth); "
             f"ceiling: the ranges assigned against the true tag positions {uwb.get('assoc_oracle', float('nan')):.3f}"
         )
+        lines.append(f"uwb figures: {result.get('uwb_status', '')}")
     else:
         lines.append(f"uwb: {result.get('uwb_status', 'not run')} (--uwb DIR)")
     return "\n".join(lines)
