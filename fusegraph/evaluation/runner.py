@@ -323,21 +323,16 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
     for name, session in sessions:
         if session.system != system:
             raise SessionError(f"{name}: a {session.system} session, not {system} (report one system at a time)")
-    rows: dict[str, dict[str, dict[str, Any]]] = {name: {} for name, _ in sessions}
-    jobs = [(name, session, tuple(names), traces is not None) for name, session in sessions]
     from .cluster import completed
 
-    finished = completed(_report_one_session, jobs, workers, scheduler)
-    for (name, _, _, _), future in progress(finished, len(jobs), f"report {system}", enabled=None if show_progress else False):
-        per_solver, session_traces = future.result()
-        rows[name] = per_solver
-        if traces is not None:
-            traces[name] = session_traces
-    rows = {name: rows[name] for name, _ in sessions}  # in the order of the sessions, however they finished
+    jobs = [(name, session, tuple(names), traces is not None) for name, session in sessions]
+    finished: dict[str, tuple[dict[str, dict[str, Any]], list[Any]]] = {}
+    for (name, _, _, _), future in progress(completed(_report_one_session, jobs, workers, scheduler), len(jobs), f"report {system}",
+                                            enabled=None if show_progress else False):
+        finished[name] = future.result()
+    rows = {name: finished[name][0] for name, _ in sessions}  # in the order of the sessions, however they finished
     if traces is not None:
-        ordered = {name: traces[name] for name, _ in sessions if name in traces}
-        traces.clear()
-        traces.update(ordered)
+        traces.update({name: finished[name][1] for name, _ in sessions})
     methods: dict[str, dict[str, Any]] = {}
     for solver in names:
         done = [rows[name][solver] for name, _ in sessions if rows[name][solver]["status"] == "ok"]
