@@ -85,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "recording); with several sessions, a folder")
     run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
     run.add_argument("--json", action="store_true", help='print one JSON object and nothing else: {"system", "solver", "metrics"}')
+    run.add_argument("--stream", action="store_true", help="attitude9 batch: read the session a minute at a time and write the estimate as "
+                     "each 10-minute window is smoothed (overlapping windows, blended at their seams): a recording of any length (a day at "
+                     "285 Hz) in memory that does not grow with it; nothing is scored")
     run.add_argument("--workers", type=int, default=None, help="several sessions: parallel processes (default: all cores)")
     run.add_argument("--scheduler", default=None, help="several sessions: 'local' starts a Dask LocalCluster; tcp://host:port uses an existing one")
 
@@ -573,9 +576,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .evaluation.runner import describe, format_many, run_many, run_session, session_dirs
+    from .evaluation.runner import describe, format_many, run_many, run_session, run_streamed, session_dirs
 
     paths = session_dirs(args.session)
+    if args.stream:
+        if len(paths) != 1 or args.solver != "batch" or args.plot or args.json:
+            raise ValueError("--stream: one session, --solver batch, no --plot or --json (the estimate is written as it is smoothed)")
+        print(run_streamed(paths[0], args.out, progress=_on_terminal))
+        return 0
     if len(paths) == 1 and (Path(args.session[0]) / "session.toml").is_file():
         outcome = run_session(paths[0], args.solver, args.out, args.plot)
         if args.json:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,13 +44,14 @@ class Estimate:
 
     def save_csv(self, path: str | Path) -> Path:
         """CSV with t, qw..qz, azimuth/elevation/roll in degrees and the 6 covariance entries."""
-        path = Path(path)
+        return save_csv_pieces([self], path)
+
+    def _write_rows(self, handle: Any, header: bool) -> None:
         euler_deg = np.rad2deg(self.euler_zyx)
         cov = np.full((len(self.t), 6), np.nan) if self.cov is None else self.cov[:, _UPPER[0], _UPPER[1]]
         columns = ("t", *KIND_COLUMNS["attitude"], "azimuth_deg", "elevation_deg", "roll_deg", *COV_COLUMNS)
         data = np.column_stack([self.t, self.quat_wxyz, euler_deg, cov])
-        np.savetxt(path, data, delimiter=",", header=",".join(columns), comments="", fmt="%.10g")
-        return path
+        np.savetxt(handle, data, delimiter=",", header=",".join(columns) if header else "", comments="", fmt="%.10g")
 
     @classmethod
     def load_csv(cls, path: str | Path, method: str = "") -> Estimate:
@@ -67,6 +69,18 @@ class Estimate:
         if len(t) == 0:
             raise SessionError(f"{path}: no rows")
         return cls(method or path.stem, t, quat, cov)
+
+
+def save_csv_pieces(pieces: Iterable[Estimate], path: str | Path, each: Callable[[Estimate], None] | None = None) -> Path:
+    """Consecutive pieces of one estimate (a windowed smoother's, as they come) written as one ``save_csv`` file, each
+    piece appended and let go; ``each(piece)`` after each is written."""
+    path = Path(path)
+    with path.open("w") as handle:
+        for n, piece in enumerate(pieces):
+            piece._write_rows(handle, header=n == 0)
+            if each is not None:
+                each(piece)
+    return path
 
 
 @dataclass

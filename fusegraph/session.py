@@ -19,7 +19,7 @@ import math
 import tomllib
 import warnings
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -329,9 +329,8 @@ def check_overlap(streams: Mapping[str, Stream], where: str) -> None:
                                f"({start:.3f} .. {end:.3f} s): another clock, or times in other units (ms? ns?)")
 
 
-def load_session(directory: str | Path) -> Session:
-    """Read and validate a session directory (see the module docstring for the format)."""
-    root = Path(directory)
+def read_session_spec(root: Path) -> tuple[Path, dict[str, Any], str]:
+    """session.toml read and its header checked: (its path, the tables, the system)."""
     toml_path = root / "session.toml"
     if not toml_path.is_file():
         raise SessionError(f"{toml_path}: not found (a session is a directory with session.toml)")
@@ -346,10 +345,19 @@ def load_session(directory: str | Path) -> Session:
     stream_specs = spec.get("streams", {})
     if not stream_specs:
         raise SessionError(f"{toml_path}: no [streams.<name>] tables")
-    streams = {}
     for name, table in stream_specs.items():
         if not isinstance(table, Mapping):
             raise SessionError(f"{toml_path}: [streams.{name}] must be a table (kind = ..., file = ...)")
+    return toml_path, spec, system
+
+
+def load_session(directory: str | Path) -> Session:
+    """Read and validate a session directory (see the module docstring for the format)."""
+    root = Path(directory)
+    toml_path, spec, system = read_session_spec(root)
+    stream_specs = spec["streams"]
+    streams = {}
+    for name, table in stream_specs.items():
         streams[name] = _load_stream(root, toml_path, name, table)
     check_overlap(streams, str(toml_path))
     truth = None
@@ -366,7 +374,8 @@ def load_session(directory: str | Path) -> Session:
     return Session(system, streams, truth, meta, root)
 
 
-def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any], allow_nan: bool = False) -> Stream:
+def _stream_spec(root: Path, toml_path: Path, name: str, table: Mapping[str, Any]) -> tuple[Stream, Path]:
+    """A stream's table checked against the catalogue: the Stream without samples, and its CSV's path."""
     where = f"{toml_path}: stream '{name}'"
     kind = table.get("kind")
     catalogue = sensor_catalogue()
@@ -383,12 +392,72 @@ def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any
     latency = table.get("latency_s", 0.0)
     if not isinstance(latency, int | float) or not math.isfinite(latency) or latency < 0:
         raise SessionError(f"{where}: latency_s must be a finite number >= 0 (got {latency!r})")
-    t, values = read_stream_csv(root / file, entry.columns, name, allow_nan=allow_nan, repeated_times=entry.repeated_times)
-    label = f"{root / file} (stream '{name}')"
-    if name != "truth":
-        values = check_plausible(entry, t, values, table, label)
     meta = {k: v for k, v in table.items() if k not in ("kind", "file", "latency_s")}
-    return Stream(name, kind, t, values, entry.columns, float(latency), meta)
+    return Stream(name, kind, np.zeros(0), np.zeros((0, len(entry.columns))), entry.columns, float(latency), meta), root / file
+
+
+def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any], allow_nan: bool = False) -> Stream:
+    empty, path = _stream_spec(root, toml_path, name, table)
+    entry = sensor_catalogue()[empty.kind]
+    t, values = read_stream_csv(path, entry.columns, name, allow_nan=allow_nan, repeated_times=entry.repeated_times)
+    if name != "truth":
+        values = check_plausible(entry, t, values, table, f"{path} (stream '{name}')")
+    return replace(empty, t=t, values=values)
+
+
+def iter_session_blocks(directory: str | Path, block_s: float = 60.0) -> Iterator[Session]:
+    """A session directory read ``block_s`` seconds at a time, in time order (its CSVs streamed: a recording of any length
+    in memory that does not grow with it), each block a Session of every stream's samples in [lo, lo + block_s). The
+    truth is not read; a calibration recording (``role``) comes whole in every block. The first CSV block of each stream
+    gets every check of ``load_session`` (units, magnitudes, rate), the rest its unit and frame conversion; the clocks'
+    overlap is not checked (it needs every stream's end)."""
+    root = Path(directory)
+    toml_path, spec, system = read_session_spec(root)
+    catalogue = sensor_catalogue()
+    whole: dict[str, Stream] = {}
+    readers: dict[str, tuple[Stream, Iterator[tuple[FloatArray, FloatArray]]]] = {}
+    for name, table in spec["streams"].items():
+        if table.get("role") == "calibration recording":
+            whole[name] = _load_stream(root, toml_path, name, table)
+            continue
+        empty, path = _stream_spec(root, toml_path, name, table)
+        entry = catalogue[empty.kind]
+        label = f"{path} (stream '{name}')"
+
+        def converted(entry: SensorKind = entry, path: Path = path, name: str = name, table: Mapping[str, Any] = table,
+                      label: str = label) -> Iterator[tuple[FloatArray, FloatArray]]:
+            for n, (t, values) in enumerate(iter_stream_csv(path, entry.columns, name, repeated_times=entry.repeated_times)):
+                yield t, (check_plausible(entry, t, values, table, label) if n == 0 else to_si(entry, values, table, label))
+
+        readers[name] = (empty, converted())
+    meta = {k: v for k, v in spec.items() if k not in ("streams", "truth")}
+    pending: dict[str, tuple[FloatArray, FloatArray]] = {}
+    done: set[str] = set()
+
+    def pull(name: str, until_s: float) -> None:  # read the stream on until a sample at or after until_s (or its end)
+        t, values = pending.get(name, (np.zeros(0), np.zeros((0, len(readers[name][0].columns)))))
+        while name not in done and (len(t) == 0 or t[-1] < until_s):
+            nxt = next(readers[name][1], None)
+            if nxt is None:
+                done.add(name)
+                break
+            t, values = np.concatenate([t, nxt[0]]), np.concatenate([values, nxt[1]])
+        pending[name] = (t, values)
+
+    for name in readers:
+        pull(name, -np.inf)
+    lo = min((float(t[0]) for t, _ in pending.values() if len(t)), default=np.inf)
+    while any(len(t) for t, _ in pending.values()):
+        hi = lo + block_s
+        streams = dict(whole)
+        for name, (empty, _) in readers.items():
+            pull(name, hi)
+            t, values = pending[name]
+            n = int(np.searchsorted(t, hi, side="left"))
+            streams[name] = replace(empty, t=t[:n], values=values[:n])
+            pending[name] = (t[n:], values[n:])
+        yield Session(system, streams, None, meta, root)
+        lo = hi
 
 
 STILL_WINDOW_S = 0.5
@@ -416,13 +485,7 @@ def check_plausible(entry: SensorKind, t: FloatArray, values: FloatArray, keys: 
 
     A violation raises ``SessionError`` naming the stream and its likely cause."""
     units = keys.get("units")
-    if units is not None:
-        if units not in entry.unit_conversions:
-            accepted = ", ".join(entry.unit_conversions) or "none (the kind has one unit)"
-            raise SessionError(f"{label}: units = {units!r} is not one this kind converts (accepted: {accepted})")
-        values = values * entry.unit_conversions[units]
-    if keys.get("frame_R_sensor") is not None:
-        values = values @ frame_rotation(keys["frame_R_sensor"], entry.kind, label).T
+    values = to_si(entry, values, keys, label)
     for spec in entry.keys:
         value = keys.get(spec.name)
         positive = spec.name.endswith(("sigma_rad_s", "sigma_deg", "sigma_m", "_sigma")) and spec.name != "markov_sigma_deg"
@@ -480,6 +543,19 @@ def check_plausible(entry: SensorKind, t: FloatArray, values: FloatArray, keys: 
     return values
 
 
+def to_si(entry: SensorKind, values: FloatArray, keys: Mapping[str, Any], label: str) -> FloatArray:
+    """A stream's values in SI and the gyro's axes: its declared ``units`` converted, its ``frame_R_sensor`` applied."""
+    units = keys.get("units")
+    if units is not None:
+        if units not in entry.unit_conversions:
+            accepted = ", ".join(entry.unit_conversions) or "none (the kind has one unit)"
+            raise SessionError(f"{label}: units = {units!r} is not one this kind converts (accepted: {accepted})")
+        values = values * entry.unit_conversions[units]
+    if keys.get("frame_R_sensor") is not None:
+        values = values @ frame_rotation(keys["frame_R_sensor"], entry.kind, label).T
+    return values
+
+
 def frame_rotation(value: Any, kind: str, label: str) -> FloatArray:
     """``frame_R_sensor`` as a 3 x 3 rotation or reflection (orthogonal within 1e-3): a SessionError names what is wrong."""
     if kind not in ("gyro", "accel", "mag"):
@@ -504,54 +580,79 @@ def read_stream_csv(
     ``repeated_times`` lets consecutive rows share a time (one row per value of an epoch).
     UTF-8 with or without a byte-order mark (as spreadsheets write it) and UTF-16 with one are read.
     """
+    blocks = list(iter_stream_csv(path, columns, name, allow_nan, repeated_times))
+    if len(blocks) == 1:
+        return blocks[0]
+    return np.concatenate([b[0] for b in blocks]), np.concatenate([b[1] for b in blocks])
+
+
+CSV_BLOCK_ROWS = 65536
+"""Rows a streamed CSV yields at a time (``iter_stream_csv``): ~5 MB of a 9-axis stream."""
+
+
+def iter_stream_csv(
+    path: Path, columns: tuple[str, ...], name: str = "", allow_nan: bool = False, repeated_times: bool = False,
+    block_rows: int | None = None,
+) -> Iterator[tuple[FloatArray, FloatArray]]:
+    """``read_stream_csv`` a block of ``block_rows`` rows (default ``CSV_BLOCK_ROWS``) at a time (a long recording is never
+    held whole): the same checks, the same errors, at least one block."""
+    block_rows = block_rows or CSV_BLOCK_ROWS
     label = f"{path}" + (f" (stream '{name}')" if name else "")
     if not path.is_file():
         raise SessionError(f"{label}: file not found")
     with path.open("rb") as handle:
         head = handle.read(4)
     encoding = "utf-16" if head[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
+    previous: float | None = None
+    yielded = False
     try:
-        path.read_text(encoding=encoding)
+        with path.open(newline="", encoding=encoding) as handle:
+            reader = csv.reader(handle)
+            try:
+                header = [h.strip() for h in next(reader)]
+            except StopIteration:
+                raise SessionError(f"{label}: empty file (expected a header row: t, {', '.join(columns)})") from None
+            wanted = ("t", *columns)
+            missing = [c for c in wanted if c not in header]
+            if missing:
+                named = ", ".join(repr(c) for c in missing)
+                raise SessionError(f"{label}: column{'s' if len(missing) > 1 else ''} {named} missing (have: {', '.join(header)})")
+            if header[0] != "t":
+                raise SessionError(f"{label}: first column must be 't' (sample time in seconds), found {header[0]!r}")
+            idx = [header.index(c) for c in wanted]
+            rows: list[list[float]] = []
+            for line_no, row in enumerate(reader, start=2):
+                if not row or all(not cell.strip() for cell in row):
+                    continue
+                if len(row) < len(header):
+                    raise SessionError(f"{label}: line {line_no}: {len(row)} fields, header has {len(header)}")
+                try:
+                    values = [float(row[i]) for i in idx]
+                except ValueError:
+                    bad = next(wanted[j] for j, i in enumerate(idx) if not _is_float(row[i]))
+                    raise SessionError(f"{label}: line {line_no}: column '{bad}' is not a number ({row[header.index(bad)]!r})") from None
+                for col, v in zip(wanted, values, strict=True):
+                    if not math.isfinite(v) and not (allow_nan and col != "t" and math.isnan(v)):
+                        raise SessionError(f"{label}: line {line_no}: column '{col}' is {v} (NaN/inf not allowed; leave the row out for a dropout)")
+                if previous is not None:
+                    if values[0] == previous and not repeated_times:
+                        raise SessionError(f"{label}: line {line_no}: duplicate time t = {values[0]!r} (same as line {line_no - 1})")
+                    if values[0] < previous:
+                        raise SessionError(f"{label}: line {line_no}: time goes backwards (t = {values[0]!r} after {previous!r})")
+                previous = values[0]
+                rows.append(values)
+                if len(rows) >= block_rows:
+                    table = np.asarray(rows, dtype=float)
+                    rows = []
+                    yielded = True
+                    yield table[:, 0].copy(), table[:, 1:].copy()
     except UnicodeDecodeError as err:
         raise SessionError(f"{label}: not UTF-8 text ({err.reason} at byte {err.start}); save the CSV as UTF-8") from None
-    with path.open(newline="", encoding=encoding) as handle:
-        reader = csv.reader(handle)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise SessionError(f"{label}: empty file (expected a header row: t, {', '.join(columns)})") from None
-        wanted = ("t", *columns)
-        missing = [c for c in wanted if c not in header]
-        if missing:
-            raise SessionError(f"{label}: column{'s' if len(missing) > 1 else ''} {', '.join(repr(c) for c in missing)} missing (have: {', '.join(header)})")
-        if header[0] != "t":
-            raise SessionError(f"{label}: first column must be 't' (sample time in seconds), found {header[0]!r}")
-        idx = [header.index(c) for c in wanted]
-        rows: list[list[float]] = []
-        for line_no, row in enumerate(reader, start=2):
-            if not row or all(not cell.strip() for cell in row):
-                continue
-            if len(row) < len(header):
-                raise SessionError(f"{label}: line {line_no}: {len(row)} fields, header has {len(header)}")
-            try:
-                values = [float(row[i]) for i in idx]
-            except ValueError:
-                bad = next(wanted[j] for j, i in enumerate(idx) if not _is_float(row[i]))
-                raise SessionError(f"{label}: line {line_no}: column '{bad}' is not a number ({row[header.index(bad)]!r})") from None
-            for col, v in zip(wanted, values, strict=True):
-                if not math.isfinite(v) and not (allow_nan and col != "t" and math.isnan(v)):
-                    raise SessionError(f"{label}: line {line_no}: column '{col}' is {v} (NaN/inf not allowed; leave the row out for a dropout)")
-            if rows:
-                previous = rows[-1][0]
-                if values[0] == previous and not repeated_times:
-                    raise SessionError(f"{label}: line {line_no}: duplicate time t = {values[0]!r} (same as line {line_no - 1})")
-                if values[0] < previous:
-                    raise SessionError(f"{label}: line {line_no}: time goes backwards (t = {values[0]!r} after {previous!r})")
-            rows.append(values)
-    if not rows:
-        raise SessionError(f"{label}: no samples (the stream is empty)")
-    table = np.asarray(rows, dtype=float)
-    return table[:, 0].copy(), table[:, 1:].copy()
+    if rows or not yielded:
+        if not rows:
+            raise SessionError(f"{label}: no samples (the stream is empty)")
+        table = np.asarray(rows, dtype=float)
+        yield table[:, 0].copy(), table[:, 1:].copy()
 
 
 def _is_float(text: str) -> bool:

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Iterable, Sequence
+import time
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -83,6 +84,37 @@ def run_session(path: str | Path, solver: str, out: str | Path | None = None, pl
             written[0] = plot_path
         outcome.files += written
     return outcome
+
+
+def run_streamed(path: str | Path, out: str | Path | None = None, block_s: float = 60.0,
+                 progress: Callable[[str], None] | None = None) -> str:
+    """The 9-axis batch over a session read a block at a time, its estimate written as each window is solved: a recording
+    of any length in memory that does not grow with it (``solvers.windowed``). Nothing is scored (the truth is not read:
+    run the session whole to score it). Returns what a terminal is told."""
+    from ..estimate import save_csv_pieces
+    from ..session import iter_session_blocks, read_session_spec
+    from ..systems.attitude9 import windowed_batch
+
+    system = read_session_spec(Path(path))[2]
+    if system != "attitude9":
+        raise NotApplicableError(f"{Path(path) / 'session.toml'}: --stream runs the attitude9 batch; this session is {system!r} "
+                                 "(run it without --stream)")
+    target = Path(out) if out is not None else Path.cwd() / f"{Path(path).resolve().name}_attitude_batch.csv"
+    if target.is_dir():
+        raise SessionError(f"--out {target}: is a folder; give a file name (e.g. {target / 'attitude_batch.csv'})")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    say = progress or (lambda _line: None)
+    rows, seconds, start = 0, 0.0, time.perf_counter()
+
+    def counted(piece: Estimate) -> None:
+        nonlocal rows, seconds
+        rows += len(piece.t)
+        if len(piece.t):
+            say(f"smoothed to t = {piece.t[-1]:.0f} s ({rows} rows written)")
+        seconds = time.perf_counter() - start
+
+    save_csv_pieces(windowed_batch(iter_session_blocks(path, block_s)), target, counted)
+    return f"wrote {target} ({rows} rows, smoothed window by window in {seconds:.1f} s; not scored: the truth is not read when streaming)"
 
 
 def describe(outcome: Outcome) -> str:

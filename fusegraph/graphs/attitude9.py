@@ -16,7 +16,7 @@ attitude (``heading_factors``).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -265,7 +265,13 @@ class Attitude9Builder:
 
     linear_keys: tuple[int, ...] = ()
 
-    def __init__(self, model: Attitude9Model | None = None, deferred_mag: bool = False, prefix: str = ""):
+    def __init__(self, model: Attitude9Model | None = None, deferred_mag: bool = False, prefix: str = "",
+                 start_reference: FieldReference | None = None, start_attitude: tuple[gtsam.Rot3, float] | None = None):
+        """``start_reference``: the undisturbed field at the first sample when it is known (a window of a long recording
+        takes the one the window before it followed there: its own start may be in a disturbance); else the mean of the
+        first ``MagNoise.reference_s``. ``start_attitude``: (world_R_body, sigma rad) at the first sample when it is
+        known (the window before's estimate there), else gravity and the field's with ``initial_attitude_sigma_deg``."""
+        self._start_attitude = start_attitude
         self.model = model or Attitude9Model()
         self.prefix = prefix
         """Key prefix: '' gives x/v/b keys; another letter ('t' -> 'T'...) lets two bodies share a graph."""
@@ -282,7 +288,10 @@ class Attitude9Builder:
         """(keyframe, calibrated body-frame field) for every heading factor made or deferred."""
         self.reference: FieldReference | None = None
         """The undisturbed field now (the start's, then as ``FieldTracker`` follows it)."""
-        self._start_reference: FieldReference | None = None  # the start's: where a batch pass's tracker begins
+        self._start_reference: FieldReference | None = start_reference  # the start's: where a batch pass's tracker begins
+        self._reference_given = start_reference is not None
+        self.followed: list[FieldReference] = []
+        """The reference each of ``mag_readings`` was levelled against in the last batch pass (``reference_at``)."""
         self._field: FieldTracker | None = None
         self.new_fields: list[tuple[float, FieldReference]] = []
         """New fields taken as the reference (``FieldTracker.adopted``): online as they come; a batch, its last pass's."""
@@ -565,10 +574,9 @@ class Attitude9Builder:
             self._still_tail = None
 
     def _start(self, t: float, accel: FloatArray, mag: FloatArray | None) -> None:
-        rot = initial_attitude(accel, mag)
         model = self.model
+        rot, sigma = self._start_attitude or (initial_attitude(accel, mag), float(np.deg2rad(model.initial_attitude_sigma_deg)))
         self._nav = gtsam.NavState(rot, np.zeros(3), np.zeros(3))
-        sigma = np.deg2rad(model.initial_attitude_sigma_deg)
         pose_noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma] * 3, [0.01] * 3])
         self._pending.add(0, gtsam.PriorFactorPose3(self.X(0), self._nav.pose(), pose_noise))
         self._pending.add(0, velocity_prior_factor(self.V(0), model.motion.velocity_sigma_m_s if np.isfinite(model.motion.velocity_sigma_m_s) else 50.0))
@@ -671,7 +679,9 @@ class Attitude9Builder:
             mag = self._hard_iron.correct(self.keyframe_t[-1], world_R_body, mag)
         self.mag_readings.append((k, mag))
         norm, dip = field_norm_dip(world_R_body, mag)
-        if self.reference is None or self.keyframe_t[-1] - self.keyframe_t[0] <= self.model.mag.reference_s:
+        if self._reference_given and self.reference is None:
+            self.reference = self._start_reference
+        if self.reference is None or (not self._reference_given and self.keyframe_t[-1] - self.keyframe_t[0] <= self.model.mag.reference_s):
             self._reference_samples.append((norm, dip))
             self.reference = self._start_reference = FieldReference(*np.mean(self._reference_samples, axis=0))
         else:
@@ -910,11 +920,28 @@ class Attitude9Builder:
         """Heading factors of every reading, levelled with the given keyframe attitudes (batch passes)."""
         out = []
         field = self.field_tracker()  # the reference followed again with this pass's attitudes
+        self.followed = []
         for k, mag in self.mag_readings:
             norm, dip = field_norm_dip(attitude[k], mag)
-            out.append(self._heading(k, attitude[k], mag, norm, dip, robust, self._followed(field, k, norm, dip)))
+            self.followed.append(self._followed(field, k, norm, dip))
+            out.append(self._heading(k, attitude[k], mag, norm, dip, robust, self.followed[-1]))
         self.new_fields = field.adopted if field is not None else []
         return out
+
+    def heading_residuals_deg(self, attitude: Sequence[gtsam.Rot3]) -> FloatArray:
+        """For every magnetometer reading: the angle between its horizontal field, turned into the world with its
+        keyframe's attitude, and magnetic north (degrees). Unlike the factor's projected error it grows to 180."""
+        out = []
+        for k, mag in self.mag_readings:
+            m_world = attitude[k].rotate(mag)
+            out.append(abs(math.degrees(math.atan2(m_world[0], m_world[1]))))
+        return np.array(out)
+
+    def reference_at(self, t_s: float) -> FieldReference | None:
+        """The undisturbed field the last batch pass followed at ``t_s`` (its last reading's at or before it), or None."""
+        times = [self.keyframe_t[k] for k, _ in self.mag_readings[: len(self.followed)]]
+        n = int(np.searchsorted(times, t_s, side="right")) - 1
+        return self.followed[n] if n >= 0 else (self.followed[0] if self.followed else None)
 
 
 def _first_due(t: FloatArray, dt: FloatArray, start: int, keyframe_s: float, period_s: float, due_s: FloatArray | None = None) -> int:

@@ -12,9 +12,10 @@ the first's attitude and the Cauchy kernel), ``ekf`` (the founding papers' 9-axi
 
 from __future__ import annotations
 
+import itertools
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
 
 import gtsam
@@ -25,13 +26,15 @@ from ..estimate import Estimate
 from ..factors.accel import GravityNoise, declared_gravity
 from ..factors.attitude import AttitudeTrack
 from ..factors.gyro import GyroCalibrationPrior
-from ..factors.mag import MagCalibration, fit_mag_calibration
+from ..factors.mag import FieldReference, MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
 from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, mag_noise_tuned, with_rest
 from ..graphs.increment import GraphIncrement
 from ..progress import progress
 from ..session import NotApplicableError, Session, SessionError, SessionWarning
+from ..solvers.batch import chain_levenberg
 from ..solvers.online import OnlineConfig, OnlineSmoother
+from ..solvers.windowed import Windows, joined, session_blocks, smooth_in_windows
 from ..tuned import tuned
 
 
@@ -176,19 +179,6 @@ def say_notes(where: str, notes: Iterable[str]) -> None:
         warnings.warn(f"{where}: {note}", SessionWarning, stacklevel=3)
 
 
-def _levenberg(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, order: gtsam.Ordering, max_iterations: int) -> gtsam.Values:
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    # stop when a step lowers the cost by less than 1e-5 of it: at 1e-3 the passes stopped short of the optimum and the
-    # result depended on the start (BROAD trial 15: 1.61 deg total, 1.85 from a smoothed start; at 1e-6 both starts reach
-    # one cost, 7583.43, and 0.81 deg, which 1e-5 reaches too). The eleven trials' mean: 2.02 -> 2.01 deg, ~5 % slower.
-    params.setRelativeErrorTol(1e-5)
-    # gtsam's default factor 10 made lambda oscillate 10 <-> 100 on the Cauchy pass (30 tiny steps)
-    params.setlambdaFactor(3.0)
-    params.setOrdering(order)  # the chain's time order: COLAMD would spend longer than the solve
-    return gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
-
-
 def broad_model(solver: str = "online") -> Attitude9Model:
     """The 9-axis model each solver runs with: its settings chosen for it by leave-one-trial-out over the BROAD trials (``fusegraph tune
     broad_mag|broad_motion|broad_bias|broad_rest [--solver batch] --write``, ``tuned.toml`` [broad_mag], [broad_motion], [broad_bias], [broad_rest]
@@ -226,27 +216,64 @@ def with_bias(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9
 DIVERGED_HEADING_DEG = 30.0
 
 
-def heading_residuals_deg(builder: Attitude9Builder, attitude: Sequence[gtsam.Rot3]) -> np.ndarray:
-    """For every magnetometer reading: the angle between its horizontal field, turned into the world with its
-    keyframe's attitude, and magnetic north (degrees). Unlike the factor's projected error it grows to 180."""
-    out = []
-    for k, mag in builder.mag_readings:
-        m_world = attitude[k].rotate(mag)
-        out.append(abs(np.degrees(np.arctan2(m_world[0], m_world[1]))))
-    return np.array(out)
+#: How a long recording is cut for the batch (``solvers.windowed``): BROAD's trials (at most 3.6 min) are solved whole.
+BATCH_WINDOWS = Windows()
+#: How far a window's first attitude may move from the window before's estimate there: the batch's error on the simulations'
+#: test seeds (0.2-0.4 deg RMS) with room for a disturbed stretch.
+CARRIED_ATTITUDE_SIGMA_RAD = float(np.deg2rad(1.0))
 
 
-def run_batch(session: Session, model: Attitude9Model | None = None, max_iterations: int = 30) -> Estimate:
+def run_batch(session: Session, model: Attitude9Model | None = None, max_iterations: int = 30, windows: Windows | None = BATCH_WINDOWS) -> Estimate:
     """fusegraph batch: every factor at once, two Levenberg-Marquardt passes; smoothed attitude per sample.
 
     Checked, never silently wrong: when the median heading residual of the solution exceeds
     ``DIVERGED_HEADING_DEG`` the batch is solved again from the causal (online) estimate; if that too
     fails the check, a warning says so and ``extras["check"]`` is ``"suspect"``.
+
+    A recording longer than ``windows`` allows is smoothed window by window (``windowed_batch``; its worst window's check
+    is said); None: whole.
     """
+    if windows is not None and windows.needed(session.duration_s):
+        pieces = windowed_batch(session_blocks(session, windows.window_s), model, max_iterations, windows)
+        return joined(pieces, ranked={"check": ("ok", "repaired", "suspect")})
+    return _run_batch_whole(session, model, max_iterations)[0]
+
+
+def windowed_batch(blocks: Iterable[Session], model: Attitude9Model | None = None, max_iterations: int = 30,
+                   windows: Windows = BATCH_WINDOWS, progress: Callable[[float], None] | None = None) -> Iterator[Estimate]:
+    """The batch over a recording given in blocks (Sessions in time order: ``session_blocks``, or read from disk a block at
+    a time) in overlapping windows, its pieces in time order as each window is solved: memory bounded by one window. Each
+    window starts from the one before's attitude and field there; without a magnetometer it is turned onto its heading."""
+    iterator = iter(blocks)
+    first = next(iterator, None)
+    if first is None:
+        raise SessionError("attitude9 batch: no samples")
+    align = "mag" not in first.streams or (model is not None and not model.use_mag)
+    before: list[tuple[Estimate, Attitude9Builder]] = []  # the window before: its estimate and field at this one's start
+
+    def solve(window: Session) -> Estimate:
+        start_s = float(window.stream("gyro").t[0])
+        reference, attitude = None, None
+        if before:
+            estimate, builder = before[-1]
+            reference = builder.reference_at(start_s)
+            n = min(int(np.searchsorted(estimate.t, start_s)), len(estimate.t) - 1)
+            if np.isfinite(estimate.quat_wxyz[n]).all():
+                attitude = (rot3_from_quat_wxyz(estimate.quat_wxyz[n]), CARRIED_ATTITUDE_SIGMA_RAD)
+        estimate, builder = _run_batch_whole(window, model, max_iterations, reference, attitude)
+        before[:] = [(estimate, builder)]
+        return estimate
+
+    yield from smooth_in_windows(itertools.chain([first], iterator), solve, windows, align, progress)
+
+
+def _run_batch_whole(session: Session, model: Attitude9Model | None, max_iterations: int,
+                     start_reference: FieldReference | None = None,
+                     start_attitude: tuple[gtsam.Rot3, float] | None = None) -> tuple[Estimate, Attitude9Builder]:
     data = imu9(session)
     start = time.perf_counter()
     model = model_for(session, model, "batch")
-    builder, increment = _build_batch(session, data, model)
+    builder, increment = _build_batch(session, data, model, start_reference, start_attitude)
     kq, kb, residual = _solve_batch(builder, increment, max_iterations, None)
     check = "ok"
     if np.isfinite(residual) and residual > DIVERGED_HEADING_DEG:
@@ -264,12 +291,14 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     runtime = time.perf_counter() - start
     say_notes(session.where, builder.notes())
     extras = {"keyframes": len(builder.keyframe_t), "check": check, "heading_residual_median_deg": residual, **builder.extras()}
-    return Estimate("batch", data.t.copy(), quats, None, runtime, extras)
+    return Estimate("batch", data.t.copy(), quats, None, runtime, extras), builder
 
 
-def _build_batch(session: Session, data: Imu9, model: Attitude9Model | None) -> tuple[Attitude9Builder, GraphIncrement]:
+def _build_batch(session: Session, data: Imu9, model: Attitude9Model | None,
+                 start_reference: FieldReference | None = None,
+                 start_attitude: tuple[gtsam.Rot3, float] | None = None) -> tuple[Attitude9Builder, GraphIncrement]:
     """The whole session's graph, heading factors deferred (``_solve_batch`` levels them)."""
-    builder = Attitude9Builder(model_for(session, model), deferred_mag=True)
+    builder = Attitude9Builder(model_for(session, model), deferred_mag=True, start_reference=start_reference, start_attitude=start_attitude)
     builder.add_samples(data.t, data.gyro, data.accel, data.mag)
     tracker = attitude_tracker(session)
     if tracker is not None:
@@ -303,12 +332,12 @@ def _solve_batch(
             graph.add(factor)
         # the first pass must converge: capping it at 4 iterations left trial 24 levelled badly enough for
         # the Cauchy pass to settle 2.5 deg off in heading
-        values = _levenberg(graph, values, order, max_iterations)
+        values = chain_levenberg(graph, values, order, max_iterations)
         attitude = [values.atPose3(X(k)).rotation() for k in range(keyframes)]
     kq = np.array([quat_wxyz_from_rot3(r) for r in attitude])
     kb = np.array([values.atConstantBias(B(k)).gyroscope() for k in range(keyframes)])
     builder.read_calibration(values)
-    residuals = heading_residuals_deg(builder, attitude)
+    residuals = builder.heading_residuals_deg(attitude)
     return kq, kb, float(np.median(residuals)) if len(residuals) else float("nan")
 
 
