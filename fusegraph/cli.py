@@ -240,7 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--out", type=Path, required=True, help="session directory to write (a folder of sessions for several trials)")
     imp.add_argument("--system", choices=["head", "attitude9", "gaze", "bicycle", "walking", "ultrasonic"],
                      help="csv, xdf: whose session a new --out folder is (an existing session keeps its own); broad: head writes head "
-                     "sessions (recorded gyro, optical attitude as a 50 Hz tracker 100 ms late) instead of attitude9 ones")
+                     "sessions (recorded gyro, optical attitude as a 50 Hz tracker 100 ms late) instead of attitude9 ones; gaze writes gaze "
+                     "sessions: the recorded IMU as the head's, a SIMULATED eye looking at world-fixed targets (scenarios.eye), the eye's "
+                     "true world ray as the truth (report gaze scores gaze_error_deg)")
     imp.add_argument("--kind", help="csv: the stream's kind (`fusegraph sensors` lists them)")
     imp.add_argument("--name", help="csv: the stream's name in the session (default: the kind; e.g. tracker for an attitude stream)")
     imp.add_argument("--columns", metavar="t=COL,wx=COL,...", help="csv: the file's column for t and for each column of the kind")

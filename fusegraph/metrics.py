@@ -329,37 +329,58 @@ WALKING_LABELS = {1: "flat", 2: "stairs_up", 3: "stairs_down"}
 STATIC_LABELS = (4, 5, 6)
 """Label ids of static segments (sitting, standing, lying)."""
 
+NOT_WALKING_LABELS = tuple(range(4, 13))
+"""Label ids of not walking: the static segments and HAPT's postural transitions (7-12: stand to sit, sit to stand, sit to
+lie, lie to sit, stand to lie, lie to stand)."""
+
+CLASSES = (*WALKING_LABELS.values(), "not_walking")
+"""The classes a cycle is scored in (the classifier's, ``frontends.activity.ACTIVITIES``)."""
+
+
+def class_of_label(label: int) -> str | None:
+    """The class a label id scores in (None: unlabelled, 0)."""
+    return WALKING_LABELS.get(int(label)) or ("not_walking" if int(label) in NOT_WALKING_LABELS else None)
+
 
 def activity_counts(cycle_labels: Sequence[int] | np.ndarray, calls: Sequence[str], labels: np.ndarray, label_dt_s: float) -> dict[str, Any]:
-    """One recording's raw activity counts: per labelled walking class how many of its cycles were called each class,
-    the cycles inside static segments, and the seconds labelled with each class (what ``activity_scores`` pools)."""
-    called = {name: {other: 0 for other in WALKING_LABELS.values()} for name in WALKING_LABELS.values()}
+    """One recording's raw activity counts: per labelled class (``CLASSES``; every HAPT label scores) how many of its cycles
+    were called each class, the cycles inside static segments, the calls of cycles where no label is (reported apart:
+    nobody said what happened there), and the seconds labelled with each class (what ``activity_scores`` pools)."""
+    called = {name: dict.fromkeys(CLASSES, 0) for name in CLASSES}
+    unlabelled = dict.fromkeys(CLASSES, 0)
     static = 0
     for label, call in zip(cycle_labels, calls, strict=True):
-        if int(label) in WALKING_LABELS:
-            called[WALKING_LABELS[int(label)]][call] += 1
-        elif int(label) in STATIC_LABELS:
-            static += 1
+        name = class_of_label(int(label))
+        if name is None:
+            unlabelled[call] += 1
+        else:
+            called[name][call] += 1
+        static += int(label) in STATIC_LABELS
     ids = np.asarray(labels, dtype=int)
     seconds = {name: float((ids == i).sum() * label_dt_s) for i, name in WALKING_LABELS.items()}
+    seconds["not_walking"] = float(np.isin(ids, NOT_WALKING_LABELS).sum() * label_dt_s)
     seconds["static"] = float(np.isin(ids, STATIC_LABELS).sum() * label_dt_s)
-    return {"called": called, "static_cycles": static, "labelled_s": seconds}
+    return {"called": called, "unlabelled": unlabelled, "static_cycles": static, "labelled_s": seconds}
 
 
 def activity_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Pooled over recordings (``activity_counts`` each): per class the fraction of its cycles called right, the
-    confusion (label -> fraction called each class), the cycles, cycles per labelled second, cycles per minute static."""
-    names = list(WALKING_LABELS.values())
-    called = {name: {other: sum(c["called"][name][other] for c in counts) for other in names} for name in names}
-    seconds = {name: sum(c["labelled_s"][name] for c in counts) for name in [*names, "static"]}
+    confusion (label -> fraction called each class), the cycles, cycles per labelled second, cycles per minute static,
+    the fraction of walking cycles called any walking class, and the calls of unlabelled cycles."""
+    walking = list(WALKING_LABELS.values())
+    called = {name: {other: sum(c["called"][name][other] for c in counts) for other in CLASSES} for name in CLASSES}
+    seconds = {name: sum(c["labelled_s"][name] for c in counts) for name in [*CLASSES, "static"]}
     total = {name: sum(row.values()) for name, row in called.items()}
     static = sum(c["static_cycles"] for c in counts)
+    walked = sum(total[name] for name in walking)
     return {
-        "correct": {name: called[name][name] / total[name] if total[name] else None for name in names},
+        "correct": {name: called[name][name] / total[name] if total[name] else None for name in CLASSES},
+        "walking_called_walking": sum(called[name][other] for name in walking for other in walking) / walked if walked else None,
         "confusion": {name: {other: n / total[name] if total[name] else None for other, n in row.items()} for name, row in called.items()},
         "cycles": total,
-        "cycles_per_s": {name: total[name] / seconds[name] if seconds[name] else None for name in names},
+        "cycles_per_s": {name: total[name] / seconds[name] if seconds[name] else None for name in CLASSES},
         "static_cycles_per_min": 60.0 * static / seconds["static"] if seconds["static"] else None,
+        "unlabelled_calls": {name: sum(c["unlabelled"][name] for c in counts) for name in CLASSES},
     }
 
 
@@ -448,6 +469,40 @@ def gaze_rms_mm(estimate: FloatArray, session: GazeSession, skip_s: float = 1.0)
     keep = (session.tracker_t >= skip_s) & np.all(np.isfinite(estimate), axis=1) & np.all(np.isfinite(session.truth_gaze_xz_m), axis=1)
     err = (estimate[keep] - session.truth_gaze_xz_m[keep]) * 1000.0
     return {"x_mm": float(np.sqrt(np.mean(err[:, 0] ** 2))), "z_mm": float(np.sqrt(np.mean(err[:, 1] ** 2)))}
+
+
+GAZE_FIXATION_MIN_S = 0.1
+"""A fixation scores the gaze ray when it lasts this long (``frontends.gaze_timing.FIXATION_MIN_S``)."""
+GAZE_SETTLE_S = 1.0
+"""Fixations score from this long after the IMU's first sample (every method's start-up; ``gaze_timing.SETTLE_S``)."""
+
+
+def gaze_ray_errors(world_R_head: FloatArray | None, session: GazeSession, true_world_ray: FloatArray, fixation_id: FloatArray) -> dict[str, Any]:
+    """The angle between a method's world gaze ray (its head attitude at each gaze sample turning the tracker's ray) and
+    the true one, over the samples of the labelled fixations lasting ``GAZE_FIXATION_MIN_S`` from ``GAZE_SETTLE_S`` on:
+    ``gaze_error_deg`` (RMS over those samples), ``gaze_error_fixation_median_deg`` (median over the fixations of each
+    one's RMS), the fixations and samples scored. A sample without an attitude scores as failing (180 deg): a method
+    must not escape its hard samples. ``world_R_head`` None (no attitude at all): the head frame taken as the world."""
+    rays = session.config.camera.ray(session.gaze_px)
+    quat = np.tile([1.0, 0.0, 0.0, 0.0], (len(rays), 1)) if world_R_head is None else np.asarray(world_R_head, dtype=float)
+    from .geometry import matrix_from_quat
+
+    finite = np.all(np.isfinite(quat), axis=1)
+    world = np.einsum("nij,nj->ni", matrix_from_quat(np.where(finite[:, None], quat, [1.0, 0.0, 0.0, 0.0])), rays)
+    angle = np.degrees(np.arccos(np.clip(np.sum(world * true_world_ray, axis=1), -1.0, 1.0)))
+    angle = np.where(finite & np.all(np.isfinite(true_world_ray), axis=1), angle, 180.0)
+    inside = (session.tracker_t >= session.t[0] + GAZE_SETTLE_S) & (session.tracker_t <= session.t[-1])
+    ids = np.nan_to_num(np.asarray(fixation_id, dtype=float))
+    per, rows = [], []
+    for value in np.unique(ids[ids > 0]):
+        mine = np.flatnonzero((ids == value) & inside)
+        if len(mine) and session.tracker_t[mine[-1]] - session.tracker_t[mine[0]] >= GAZE_FIXATION_MIN_S:
+            per.append(float(np.sqrt(np.mean(angle[mine] ** 2))))
+            rows.append(mine)
+    scored = np.concatenate(rows) if rows else np.zeros(0, dtype=int)
+    return {"gaze_error_deg": float(np.sqrt(np.mean(angle[scored] ** 2))) if len(scored) else float("nan"),
+            "gaze_error_fixation_median_deg": float(np.median(per)) if per else float("nan"), "fixations": len(per),
+            "fixation_samples": int(len(scored))}
 
 
 def track_errors(t: FloatArray, xyz: FloatArray, truth_t: FloatArray, truth_xyz_m: FloatArray) -> dict[str, float]:

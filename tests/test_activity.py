@@ -70,16 +70,21 @@ def test_the_expanding_median_is_numpys_median_of_each_prefix() -> None:
 
 
 def test_scoring_counts_each_cycle_against_its_segment() -> None:
-    """Constructed labels: 4 flat cycles (3 called right), 2 up (1), 1 down (1), 1 cycle while sitting over 30 s."""
-    labels = np.array([1, 1, 1, 1, 2, 2, 3, 4])
-    per_second = np.repeat([1, 2, 3, 4], [4, 2, 1, 30])  # the label stream at 1 Hz: 4 s flat, 2 up, 1 down, 30 sitting
-    rec = Recording("r", "u1", np.arange(8.0), np.zeros((8, 1)), labels, ("flat",) * 8, per_second, 1.0)
-    calls = ["flat", "flat", "flat", "stairs_up", "stairs_up", "stairs_down", "stairs_down", "flat"]
+    """Constructed labels: 4 flat cycles (3 called right), 2 up (1), 1 down (1), 1 cycle while sitting over 30 s (called
+    flat), 2 in a sit-to-stand transition (1 called not walking), 2 where no label is (reported apart)."""
+    labels = np.array([1, 1, 1, 1, 2, 2, 3, 4, 8, 8, 0, 0])
+    per_second = np.repeat([1, 2, 3, 4, 8, 0], [4, 2, 1, 30, 2, 5])  # the label stream at 1 Hz: 4 s flat, 2 up, 1 down, 30 sitting, 2 rising
+    rec = Recording("r", "u1", np.arange(12.0), np.zeros((12, 1)), labels, ("flat",) * 12, per_second, 1.0)
+    calls = ["flat", "flat", "flat", "stairs_up", "stairs_up", "stairs_down", "stairs_down", "flat", "not_walking", "stairs_up",
+             "not_walking", "flat"]
     found = score([rec], [calls])
-    assert found["correct"] == {"flat": 0.75, "stairs_up": 0.5, "stairs_down": 1.0}
-    assert found["confusion"]["stairs_up"] == {"flat": 0.0, "stairs_up": 0.5, "stairs_down": 0.5}
-    assert found["cycles_per_s"] == {"flat": 1.0, "stairs_up": 1.0, "stairs_down": 1.0}
+    assert found["correct"] == {"flat": 0.75, "stairs_up": 0.5, "stairs_down": 1.0, "not_walking": 1 / 3}
+    assert found["confusion"]["stairs_up"] == {"flat": 0.0, "stairs_up": 0.5, "stairs_down": 0.5, "not_walking": 0.0}
+    assert found["cycles_per_s"] == {"flat": 1.0, "stairs_up": 1.0, "stairs_down": 1.0, "not_walking": 3 / 32}
     assert found["static_cycles_per_min"] == pytest.approx(2.0)
+    assert found["walking_called_walking"] == 1.0  # every walking cycle was called one of the walking classes
+    assert found["unlabelled_calls"] == {"flat": 1, "stairs_up": 0, "stairs_down": 0, "not_walking": 1}
+    assert sum(found["cycles"].values()) == 10  # the unlabelled two are not among the scored
 
 
 def test_the_model_on_main_matches_this_versions_features() -> None:
@@ -88,7 +93,7 @@ def test_the_model_on_main_matches_this_versions_features() -> None:
 
     model = load_model()
     assert model.features == FEATURE_SETS[model.provenance["feature_set"]] and set(model.features) <= set(FEATURES)
-    assert model.classes == ("flat", "stairs_up", "stairs_down")
+    assert model.classes == ("flat", "stairs_up", "stairs_down", "not_walking")
     assert model.provenance["subjects"] == [f"user{u:02d}" for u in range(1, 11)] and model.context_cycles in range(9)
 
 
@@ -120,7 +125,7 @@ def test_import_hapt_gives_walking_sessions_in_si_units_with_the_labels(tmp_path
     # the bench is the report: run --solver activity on each session, the counts pooled
     assert main(["report", "walking", str(tmp_path / "s"), "--solvers", "activity", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)["sessions"]
-    pooled = {name: sum(row["activity"]["metrics"]["cycles"][name] for row in rows.values()) for name in ("flat", "stairs_up", "stairs_down")}
+    pooled = {name: sum(row["activity"]["metrics"]["cycles"][name] for row in rows.values()) for name in ("flat", "stairs_up", "stairs_down", "not_walking")}
     right = {name: sum(row["activity"]["metrics"]["counts"]["called"][name][name] for row in rows.values()) for name in pooled}
     assert pooled == found["methods"]["fusegraph"]["cycles"]
     assert {name: right[name] / pooled[name] for name in pooled} == found["methods"]["fusegraph"]["correct"]

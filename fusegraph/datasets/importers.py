@@ -51,8 +51,8 @@ def import_recording(fmt: str, source: str | Path, out: str | Path, labelled: bo
     which Pupil Labs device made the export (``invisible``/``neon``; default: what the export says)."""
     if device is not None and fmt != "pupil":
         raise SessionError(f"--device {device}: for import pupil only")
-    if system is not None and not (fmt == "broad" and system in ("head", "attitude9")):
-        raise SessionError(f"--system {system}: import {fmt} writes {'head or attitude9' if fmt == 'broad' else 'its own system'}'s sessions")
+    if system is not None and not (fmt == "broad" and system in ("head", "attitude9", "gaze")):
+        raise SessionError(f"--system {system}: import {fmt} writes {'head, gaze or attitude9' if fmt == 'broad' else 'its own system'}'s sessions")
     if fmt == "plaza":
         return [save_session(plaza_session(str(source)), Path(out))]
     source, out = Path(source), Path(out)
@@ -101,14 +101,18 @@ def recordings_below(source: Path, marker: str) -> list[Path]:
 
 def broad_sessions(source: Path, trials: Sequence[str] = (), system: str = "attitude9") -> list[tuple[str, Session]]:
     """BROAD trials as ``import broad`` writes them (a trial file, or every ``*.mat`` of a folder whose name starts with one
-    of ``trials``), in memory, named by trial: attitude9 sessions, or with ``system="head"`` head sessions
-    (``datasets.broad_head``)."""
+    of ``trials``), in memory, named by trial: attitude9 sessions, with ``system="head"`` head sessions
+    (``datasets.broad_head``), with ``system="gaze"`` gaze sessions of a simulated eye (``datasets.broad_gaze``)."""
     from .broad import load_broad, trial_paths
     from .broad_head import head_session_from_broad
 
     paths = [source] if source.is_file() else [p for p in trial_paths(source) if not trials or any(p.stem.startswith(x) for x in trials)]
     if not paths:
         raise SessionError(f"{source}: no BROAD trial (*.mat)" + (f" starting with {', '.join(trials)}" if trials else ""))
+    if system == "gaze":
+        from .broad_gaze import gaze_session_from_broad
+
+        return [(p.stem, _with_gaze_offset(_portable(gaze_session_from_broad(p)))) for p in paths]
     load = head_session_from_broad if system == "head" else load_broad
     return [(p.stem, _portable(load(p))) for p in paths]
 

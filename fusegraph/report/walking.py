@@ -55,7 +55,7 @@ def plot_gait_statistics(rows: dict[str, dict[str, np.ndarray]], names: tuple[st
 def format_walking_table(result: dict[str, object]) -> str:
     """The bench's tables as text."""
     lines = []
-    cols = [*ACTIVITIES, "none"]
+    cols = [*ACTIVITIES, "not_walking", "none"]  # a step the classifier took for not walking climbs no stairs
     for key, title in (("confusion", "independent (pendulum) gait by fusegraph's waist classifier, which the walk's graph takes"),
                        ("confusion_causal", "independent (pendulum) gait by the classifier run causally (the online, EKF and dead reckoning's steps)"),
                        ("confusion_paper_rules", "independent (pendulum) gait by the paper's rules"),

@@ -244,7 +244,8 @@ def from_session(session: Session) -> GazeSession:
         raise SessionError(f"{where}: {NEEDS_WALL}")
     config = declared_config(header, gaze_stream.meta, float(t[-1] - t[0]))
     truth = np.full((len(gaze_stream), 2), np.nan)
-    if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream):
+    world_ray = header.get("gaze_truth") == "world_ray"  # the truth is the eye's world ray (import broad --system gaze), not a wall point
+    if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream) and not world_ray:
         truth = session.truth.values[:, 1:3].copy()
     tracker_t = gaze_stream.t - float(gaze_stream.meta.get("time_offset_s", 0.0))  # a sample at stamp - the declared delay
     return GazeSession(t=t, gyro_rad_s=imu["gyro"].values, accel_m_s2=imu["accel"].values, mag=mag, tracker_t=tracker_t,

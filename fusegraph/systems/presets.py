@@ -165,11 +165,10 @@ def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | Non
 
 
 def _gaze_run(session: Session, solver: str) -> Result:
-    from dataclasses import replace
-
     from ..baselines.ekf_gaze import GazeEkfConfig
     from ..consistency import stream_range
     from ..frontends.gaze_timing import gyro_attitude
+    from ..metrics import on_truth_times
     from . import attitude9, gaze
 
     data = gaze.from_session(session)
@@ -177,8 +176,11 @@ def _gaze_run(session: Session, solver: str) -> Result:
     if use_mag and "mag" not in session.streams:
         raise SessionError(f"{session.where}: no stream 'mag': declare use_mag = false in [session] to run without a magnetometer")
     start = time.perf_counter()
-    if solver in ("gyro", "head_frame"):
+    if solver in ("gyro", "head_frame", "imu_only"):
         attitude = gyro_attitude(data) if solver == "gyro" else np.tile([1.0, 0.0, 0.0, 0.0], (len(data.tracker_t), 1))
+        if solver == "imu_only":  # the 9-axis online attitude alone (the gaze read by no estimator), at the gaze samples
+            nine = session.without(*(n for n in session.streams if n not in ("gyro", "accel", "mag")))
+            attitude = on_truth_times(attitude9.run_online(nine, replace(attitude9.model_for(nine), use_mag=use_mag)), data.tracker_t).quat_wxyz
         points = gaze.wall_points(data, attitude)
         return PointEstimate(solver, data.tracker_t.copy(), points[:, None, :], ("X_m", "Z_m"), time.perf_counter() - start,
                              {"world_R_head": None if solver == "head_frame" else attitude})
@@ -198,7 +200,7 @@ def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     fixations that no scored method's input picked (``frontends.gaze_timing.scoring_fixations``: the device's own where
     the session has a ``fixation`` stream, else eye-in-head velocity), degrees: the median over fixations (and the mean)."""
     from ..frontends.gaze_timing import dispersions_deg, scoring_fixations
-    from ..metrics import gaze_rms_mm
+    from ..metrics import gaze_ray_errors, gaze_rms_mm
     from . import gaze
 
     data = gaze.from_session(session)
@@ -208,6 +210,8 @@ def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
         return {"rms": gaze_rms_mm(estimate.points[:, 0, :], data)}
     if "world_R_head" not in estimate.extras:
         return None
+    if session.meta.get("session", {}).get("gaze_truth") == "world_ray" and session.truth is not None:
+        return gaze_ray_errors(estimate.extras["world_R_head"], data, session.truth.values, session.stream("fixation").values[:, 0])
     ids = session.stream("fixation").values[:, 0] if "fixation" in session.streams else None
     found, source = scoring_fixations(data, ids)  # the stamps are already moved by the declared time_offset_s
     per = dispersions_deg(estimate.extras["world_R_head"], data, found)
@@ -270,7 +274,7 @@ def _walking_run(session: Session, solver: str) -> Result:
             run = walking.run_batch(walk, events, walk.fixes.pose)
         else:
             run = walking.run_ekf(walk, events, walk.fixes.pose)
-    activity = {a: sum(c.activity == a for c in cycles) for a in ("flat", "stairs_up", "stairs_down")}
+    activity = {a: sum(c.activity == a for c in cycles) for a in ("flat", "stairs_up", "stairs_down", "not_walking")}
     return PointEstimate(solver, run.t, run.xyz[:, None, :], ("x", "y", "z"), time.perf_counter() - start,
                          {"steps": len(cycles), "activity": activity, "rides": len(rides), "solver_s": run.seconds})
 
@@ -288,7 +292,7 @@ def _count_steps(session: Session) -> PointEstimate:
 
 def _waist_analysis(session: Session, solver: str) -> PointEstimate:
     """``activity``: each walking cycle's class by the waist classifier (``frontends.activity``; points: its index in
-    flat, stairs_up, stairs_down); ``gait``: strides from the pelvis's vertical excursion (``frontends.gait``; points: length m,
+    flat, stairs_up, stairs_down, not_walking); ``gait``: strides from the pelvis's vertical excursion (``frontends.gait``; points: length m,
     speed m/s; the steps in ``extras``). Both on the waist gyro and accelerometer with the walking front end's cycles."""
     from ..frontends.activity import ACTIVITIES, classify_waist
     from ..frontends.gait import StepLengthConfig, waist_gait
@@ -458,11 +462,13 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("switch_s", None, "simulations: when the subject switches to the second mark, s (documentation)"),
                       KeySpec("gaze_untracked", None, "imports: gaze lines without a measurement (blinks), count (documentation)"),
                       KeySpec("use_mag", True, "false: no method reads the magnetometer (one that cannot be calibrated: the imports say why)"),
+                      KeySpec("gaze_truth", None, "world_ray: the truth is the eye's world ray per gaze sample (import broad --system gaze): gaze_error_deg"),
                       KeySpec("mag_rate_hz", None, "imports: the magnetometer's own rate before it was interpolated onto the IMU times, Hz "
                               "(documentation)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)",
                  "gyro": "the raw gyro integrated from identity (no fusion, no bias estimate)",
-                 "head_frame": "no head attitude at all: the gaze in the head frame"},
+                 "head_frame": "no head attitude at all: the gaze in the head frame",
+                 "imu_only": "the 9-axis online attitude alone (attitude9's, as BROAD chose it) turning the tracker's rays: no gaze fused"},
         truth="truth.csv, kind position: t, x, y, z, the true gaze point in the world (ENU; the wall is x = wall_m) at the gaze samples' "
         "times (one row per gaze sample); scored as RMS of X = world y and Z = world z in mm. Without truth (a recording): the "
         "dispersion of the world gaze ray in the fixations with head motion that the gaze and gyro find, degrees",

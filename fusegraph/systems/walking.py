@@ -71,10 +71,11 @@ class Event:
 
 
 def events_from(cycles: list[Cycle], rides: list[Ride], speed: SpeedModel, building: Building) -> list[Event]:
-    """Steps and rides as odometry increments in time order."""
+    """Steps and rides as odometry increments in time order (a cycle called not walking is a level step)."""
     out: list[Event] = []
     for c in cycles:
-        if c.activity == "flat":
+        # not walking (a postural transition): no stairs; the step kept (dropped, a swapped gyro's misled calls cost 8.7 m)
+        if c.activity in ("flat", "not_walking"):
             length, up = speed.speed(c.vertical_pp_m_s2) * c.period_s, 0.0
         else:
             length, up = building.tread_m, building.riser_m * (1.0 if c.activity == "stairs_up" else -1.0)
