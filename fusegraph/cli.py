@@ -384,7 +384,9 @@ def build_parser() -> argparse.ArgumentParser:
     ben.add_argument("--device", choices=["invisible", "neon"], help="gaze-recorded: which Pupil Labs device made a Pupil export (default: what "
                      "the export says, as import pupil)")
     ben.add_argument("--workers", type=int, default=2,
-                     help="head-recorded: trials run side by side in processes; activity: leave-one-user-out folds (default 2)")
+                     help="head-recorded: trials run side by side in processes; activity: leave-one-user-out folds; speed: sessions (default 2)")
+    ben.add_argument("--scheduler", default=None, help="head-recorded, activity, speed: the same jobs on a Dask scheduler: local, or "
+                     "tcp://host:port of a running cluster")
     ben.add_argument("--json", action="store_true", help="print JSON")
     return parser
 
@@ -815,7 +817,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from .evaluation.speed import bench_speed, format_speed
 
         broad = args.directory or Path(__file__).resolve().parents[1].parent / "shared" / "data" / "broad"
-        found = bench_speed(broad if broad.is_dir() else None, workers=args.workers or 1, progress=_on_terminal)
+        found = bench_speed(broad if broad.is_dir() else None, workers=args.workers or 1, scheduler=args.scheduler, progress=_on_terminal)
         print(_dump(found) if args.json else format_speed(found))
         return 0
     if args.system == "live":
@@ -829,7 +831,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         trials = tuple(t.strip() for t in args.trials.split(",")) if args.trials else ()
         found = head_recorded.bench_head_recorded(args.directory, workers=args.workers, trials=trials,
-                                                  progress=_on_terminal)
+                                                  progress=_on_terminal, scheduler=args.scheduler)
         print(_dump(found) if args.json else head_recorded.format_head_recorded(found))
         if args.plot:
             print(f"wrote {head_recorded.plot_head_recorded(found, args.plot)}", file=sys.stderr if args.json else sys.stdout)
@@ -847,7 +849,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.system == "activity":
         from .evaluation.activity import bench_activity, format_activity
 
-        found = bench_activity(args.directory, progress=_on_terminal, workers=args.workers)
+        found = bench_activity(args.directory, progress=_on_terminal, workers=args.workers, scheduler=args.scheduler)
         print(_dump(found) if args.json else format_activity(found))
         if args.plot:
             from .report.gait import plot_confusions

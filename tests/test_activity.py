@@ -11,7 +11,7 @@ import pytest
 from conftest import requires_shared_data
 
 from fusegraph.evaluation.activity import Recording, _export, score
-from fusegraph.frontends.activity import FEATURES, in_context, load_model
+from fusegraph.frontends.activity import ACTIVITIES, BASE_FEATURES, FEATURES, GATE_CLASSES, in_context, load_model, with_reference
 
 
 def test_exported_trees_give_scikit_learns_probabilities() -> None:
@@ -23,14 +23,38 @@ def test_exported_trees_give_scikit_learns_probabilities() -> None:
     x = rng.normal(size=(600, len(FEATURES)))
     y = 1 + (x[:, 0] > 0.3).astype(int) + (x[:, 5] + 0.5 * x[:, 7] > 0.8).astype(int)
     model = GradientBoostingClassifier(n_estimators=30, max_depth=3, random_state=0).fit(x, y)
-    exported = _export(model, 0, {})
+    exported = _export(model, 0, {}, FEATURES, ACTIVITIES[:3])
     probe = rng.normal(size=(200, len(FEATURES)))
     np.testing.assert_allclose(np.exp(exported.log_proba(probe)), model.predict_proba(probe), atol=1e-9)
     # a model on a chosen subset of the features reads its own columns of the full rows
     subset = FEATURES[::3]
     cols = [FEATURES.index(f) for f in subset]
     on_subset = GradientBoostingClassifier(n_estimators=30, max_depth=3, random_state=0).fit(x[:, cols], y)
-    np.testing.assert_allclose(np.exp(_export(on_subset, 0, {}, subset).log_proba(probe)), on_subset.predict_proba(probe[:, cols]), atol=1e-9)
+    np.testing.assert_allclose(np.exp(_export(on_subset, 0, {}, subset, ACTIVITIES[:3]).log_proba(probe)), on_subset.predict_proba(probe[:, cols]),
+                               atol=1e-9)
+    # the walking-or-not gate: two classes, one tree per stage whose score is the log-odds
+    gate = GradientBoostingClassifier(n_estimators=30, max_depth=3, random_state=0).fit(x, (y == 3).astype(int))
+    np.testing.assert_allclose(np.exp(_export(gate, 0, {}, FEATURES, GATE_CLASSES).log_proba(probe)), gate.predict_proba(probe), atol=1e-9)
+
+
+def test_the_gate_overrides_the_walking_class_only_where_it_says_not_walking() -> None:
+    """A walking model (mostly flat) and a gate that says not walking on the rows whose first feature is positive: those
+    rows are not walking, the rest keep the walking model's call."""
+    from dataclasses import replace
+
+    from sklearn.ensemble import GradientBoostingClassifier
+
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(400, len(FEATURES)))
+    walking = _export(GradientBoostingClassifier(n_estimators=5, random_state=0).fit(x, np.where(np.arange(400) < 390, 1, 2)), 0, {},
+                      FEATURES, ACTIVITIES[:2])
+    gate = _export(GradientBoostingClassifier(n_estimators=30, random_state=0).fit(x, (x[:, 0] > 0).astype(int)), 0, {}, FEATURES, GATE_CLASSES)
+    base = rng.normal(size=(50, len(BASE_FEATURES)))
+    t = np.arange(50) * 0.5
+    calls = replace(walking, gate=gate).classify(base, t)
+    inputs = with_reference(base)
+    assert calls == ["not_walking" if row[0] > 0 else walking.classify(base, t)[n] for n, row in enumerate(inputs)]
+    assert {"flat", "not_walking"} <= set(calls)  # both occur: the comparison above is not empty of either
 
 
 def test_context_stays_inside_a_bout() -> None:
@@ -93,7 +117,8 @@ def test_the_model_on_main_matches_this_versions_features() -> None:
 
     model = load_model()
     assert model.features == FEATURE_SETS[model.provenance["feature_set"]] and set(model.features) <= set(FEATURES)
-    assert model.classes == ("flat", "stairs_up", "stairs_down", "not_walking")
+    assert model.classes == ("flat", "stairs_up", "stairs_down") and model.gate is not None
+    assert model.gate.classes == ("walking", "not_walking") and model.gate.features == model.features
     assert model.provenance["subjects"] == [f"user{u:02d}" for u in range(1, 11)] and model.context_cycles in range(9)
 
 

@@ -103,6 +103,12 @@ def test_run_many_sessions_into_a_folder(tmp_path: Path, capsys: pytest.CaptureF
     # resumable: a second call runs nothing new
     assert main(["run", str(tmp_path / "study"), "--solver", "online", "--out", str(tmp_path / "out"), "--workers", "1"]) == 0
     assert len((tmp_path / "out" / "results.jsonl").read_text().splitlines()) == 2
+    # a session whose data changed since is run again (its row keyed by its content), the other is not
+    toml = tmp_path / "study" / "u1" / "session.toml"
+    toml.write_text(toml.read_text() + "\n")
+    assert main(["run", str(tmp_path / "study"), "--solver", "online", "--out", str(tmp_path / "out"), "--workers", "1"]) == 0
+    rows = [json.loads(line) for line in (tmp_path / "out" / "results.jsonl").read_text().splitlines()]
+    assert [Path(r["path"]).name for r in rows] == ["u0", "u1", "u1"] and rows[1]["key"] != rows[2]["key"]
 
 
 def test_ablate_any_system_drops_streams_and_varies_catalogued_keys(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

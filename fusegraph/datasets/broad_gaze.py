@@ -51,8 +51,8 @@ def gaze_session_from_broad(path: str | Path, config: EyeConfig | None = None, s
                   {"rate_hz": cfg.rate_hz, "focal_px": FOCAL_PX, "width_px": WIDTH_PX, "height_px": HEIGHT_PX, "pixel_sigma": PIXEL_SIGMA,
                    "description": "simulated eye (scenarios.eye) driven by the trial's optical head motion"})
     streams = {name: trial.stream(name) for name in ("gyro", "accel", "mag")}
-    header = {"system": "gaze", "dataset": "BROAD + simulated eye", "trial": Path(path).stem, "target_depth_m": TARGET_DEPTH_M,
-              "gaze_truth": "world_ray", "world_frame": "ENU (optical)",
+    header = {"system": "gaze", "dataset": "BROAD's recorded head with a SIMULATED eye (scenarios.eye)", "trial": Path(path).stem,
+              "target_depth_m": TARGET_DEPTH_M, "gaze_truth": "world_ray", "world_frame": "ENU (optical)",
               "description": f"gaze session from BROAD trial {Path(path).stem}: recorded head IMU, SIMULATED eye (scenarios.eye)"}
     fixation = Stream("fixation", "flag", eye.t, eye.fixation[:, None], KIND_COLUMNS["flag"], 0.0,
                       {"role": "scoring only", "description": "the simulated eye's own fixations"})

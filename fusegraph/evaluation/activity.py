@@ -32,11 +32,12 @@ from ..frontends.activity import (
     ACTIVITIES,
     BASE_FEATURES,
     FEATURES,
+    GATE_CLASSES,
     ActivityModel,
     Tree,
     cycle_features,
-    decide,
     feature_columns,
+    in_context,
     load_model,
     with_reference,
 )
@@ -159,40 +160,44 @@ def recording(name: str, session: Session) -> Recording:
 # ------------------------------------------------------------------------------------ fitting
 
 
-def _export(model: Any, context: int, provenance: dict[str, Any], features: tuple[str, ...] = FEATURES) -> ActivityModel:
+def _export(model: Any, context: int, provenance: dict[str, Any], features: tuple[str, ...], classes: tuple[str, ...]) -> ActivityModel:
     """A fitted ``GradientBoostingClassifier`` (on the columns ``features`` of ``FEATURES``) as plain trees (its start score
-    read back from its own decision function)."""
+    read back from its own decision function; a two-class one has one tree per stage, its score the log-odds of the
+    second class)."""
     trees = tuple(tuple(Tree(e.tree_.children_left.copy(), e.tree_.children_right.copy(), e.tree_.feature.copy(), e.tree_.threshold.copy(),
                              e.tree_.value[:, 0, 0].copy()) for e in stage) for stage in model.estimators_)
     probe = np.zeros((1, len(features)))
-    raw = model.decision_function(probe)[0]
-    from_trees = np.array([sum(model.learning_rate * stage[k].predict(probe)[0] for stage in trees) for k in range(len(model.classes_))])
-    classes = tuple(ACTIVITIES[int(c) - 1] for c in model.classes_)
+    raw = np.atleast_1d(model.decision_function(probe)[0])
+    from_trees = np.array([sum(model.learning_rate * stage[k].predict(probe)[0] for stage in trees) for k in range(len(trees[0]))])
     return ActivityModel(classes, features, raw - from_trees, float(model.learning_rate), trees, context, provenance)
 
 
-def _fit(x: np.ndarray, y: np.ndarray, stages: int) -> Any:
-    """Boosted trees with every class weighing alike (scikit-learn's "balanced" sample weights, n / (classes x n_class)):
-    the settings are chosen by the mean of the classes' fractions correct, and not walking has ~200 cycles against ~3,700
-    walking on HAPT's users 1-10 (unweighted, the held-out users' not-walking cycles were 87 % right, weighted 91 %, at
-    the model on main's settings; walking called walking 99.6 and 99.8 %)."""
+def _fit(x: np.ndarray, y: np.ndarray, stages: int, balanced: bool = False) -> Any:
+    """Boosted trees; ``balanced``: every class weighing alike (scikit-learn's "balanced" sample weights, n / (classes x
+    n_class)), as the gate's settings are chosen by the mean of its two classes' fractions correct and not walking has
+    ~200 cycles against ~3,900 walking on HAPT's users 1-10."""
     from sklearn.ensemble import GradientBoostingClassifier
     from sklearn.utils.class_weight import compute_sample_weight
 
-    weights = compute_sample_weight("balanced", y)
+    weights = compute_sample_weight("balanced", y) if balanced else None
     return GradientBoostingClassifier(n_estimators=stages, **FIXED).fit(x, y, sample_weight=weights)  # type: ignore[arg-type]
 
 
-def _design(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Features (with each recording's own reference), labels, recording index and cycle times of every labelled walking cycle."""
+NOT_WALKING_ID = 1 + ACTIVITIES.index("not_walking")
+"""The class id of not walking (``class_ids``)."""
+
+
+def _design(recordings: Sequence[Recording], walking_only: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Features (with each recording's own reference), class ids (``class_ids``), recording index and cycle times of every
+    labelled walking cycle (``walking_only``) or every labelled cycle."""
     rows, labels, which, times = [], [], [], []
     for n, rec in enumerate(recordings):
         y = class_ids(rec.label)
-        labelled = y > 0
-        rows.append(with_reference(rec.base)[labelled])
-        labels.append(y[labelled])
-        which.append(np.full(int(labelled.sum()), n))
-        times.append(rec.cycle_t[labelled])
+        kept = (y > 0) & ((y != NOT_WALKING_ID) if walking_only else True)
+        rows.append(with_reference(rec.base)[kept])
+        labels.append(y[kept])
+        which.append(np.full(int(kept.sum()), n))
+        times.append(rec.cycle_t[kept])
     return np.vstack(rows), np.concatenate(labels), np.concatenate(which), np.concatenate(times)
 
 
@@ -203,44 +208,46 @@ def class_ids(label: np.ndarray) -> np.ndarray:
 
 
 def _balanced_correct(predicted: np.ndarray, label: np.ndarray) -> float:
-    return float(np.mean([np.mean(predicted[label == i] == i) for i in range(1, len(ACTIVITIES) + 1) if np.any(label == i)]))
+    return float(np.mean([np.mean(predicted[label == i] == i) for i in np.unique(label)]))
 
 
-def _calls(model: Any, log_p: np.ndarray, times: np.ndarray, groups: np.ndarray, context: int, not_walking_context: int) -> np.ndarray:
-    """The class ids of cycles whose log-probabilities are ``log_p``, each recording (``groups``) in its own context
-    (``frontends.activity.decide``)."""
-    classes = [ACTIVITIES[int(c) - 1] for c in model.classes_]
+def _calls(model: Any, log_p: np.ndarray, times: np.ndarray, groups: np.ndarray, context: int) -> np.ndarray:
+    """The class ids of cycles whose log-probabilities are ``log_p``, each recording (``groups``) in its own context."""
     predicted = np.empty(len(log_p), dtype=int)
     for group in np.unique(groups):
         rows = groups == group
-        predicted[rows] = model.classes_[decide(log_p[rows], times[rows], classes, context, not_walking_context)]
+        predicted[rows] = model.classes_[in_context(log_p[rows], times[rows], context).argmax(axis=1)]
     return predicted
 
 
-def choose_settings(recordings: Sequence[Recording], simulated: Sequence[SimulatedCycles] = (),
-                    feature_sets: Sequence[str] = tuple(FEATURE_SETS)) -> tuple[tuple[str, int, int, int], dict[str, float]]:
-    """Features, stages and context by grouped ``INNER_FOLDS``-fold cross-validation over the recordings' subjects (every
-    recording's cycles, the model's log-probabilities smoothed within each recording): the mean of the classes' fractions
-    correct, or with ``simulated`` walks the lower of that and the same mean on the walks' labelled cycles (each fold's
-    model calling them). Returns ((feature set, stages, context, not-walking context), every point's score)."""
+def _simulated_design(simulated: Sequence[SimulatedCycles]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The walks' labelled cycles (features, class ids, cycle times, walk index: each walk its own group)."""
+    kept = [w.label > 0 for w in simulated]
+    return (np.vstack([with_reference(w.base)[k] for w, k in zip(simulated, kept, strict=True)]),
+            np.concatenate([w.label[k] for w, k in zip(simulated, kept, strict=True)]),
+            np.concatenate([w.cycle_t[k] for w, k in zip(simulated, kept, strict=True)]),
+            np.concatenate([np.full(int(k.sum()), n) for n, k in enumerate(kept)]))
+
+
+def _grid_scores(x: np.ndarray, y: np.ndarray, which: np.ndarray, times: np.ndarray, subjects: np.ndarray, feature_sets: Sequence[str],
+                 contexts: Sequence[int], simulated: Sequence[SimulatedCycles], balanced: bool,
+                 sim_target: Callable[[np.ndarray], np.ndarray]) -> dict[tuple[str, int, int], float]:
+    """Every (feature set, stages, context)'s grouped ``INNER_FOLDS``-fold score over the subjects: the mean of the classes'
+    fractions correct, each recording's log-probabilities smoothed within it; with ``simulated`` walks the lower of that and
+    the same mean on the walks' labelled cycles (their ids mapped by ``sim_target``), as each fold's model calls them."""
     from sklearn.model_selection import GroupKFold
 
-    x, y, which, times = _design(recordings)
-    subjects = np.array([recordings[i].subject for i in which])
     folds = min(INNER_FOLDS, len(set(subjects)))
-    if simulated:  # the walks' labelled cycles, each walk its own group (its context smoothing stays within it)
-        kept = [w.label > 0 for w in simulated]
-        sim_x = np.vstack([with_reference(w.base)[k] for w, k in zip(simulated, kept, strict=True)])
-        sim_label = np.concatenate([w.label[k] for w, k in zip(simulated, kept, strict=True)])
-        sim_t = np.concatenate([w.cycle_t[k] for w, k in zip(simulated, kept, strict=True)])
-        sim_walk = np.concatenate([np.full(int(k.sum()), n) for n, k in enumerate(kept)])
-    points = [(f, s, c, n) for f in feature_sets for s in STAGES for c in CONTEXTS for n in NOT_WALKING_CONTEXTS]
-    scores: dict[tuple[str, int, int, int], list[float]] = {p: [] for p in points}
-    on_walks: dict[tuple[str, int, int, int], list[float]] = {p: [] for p in points}
+    if simulated:
+        sim_x, sim_label, sim_t, sim_walk = _simulated_design(simulated)
+        sim_label = sim_target(sim_label)
+    points = [(f, s, c) for f in feature_sets for s in STAGES for c in contexts]
+    scores: dict[tuple[str, int, int], list[float]] = {p: [] for p in points}
+    on_walks: dict[tuple[str, int, int], list[float]] = {p: [] for p in points}
     for name in feature_sets:
         cols = feature_columns(FEATURE_SETS[name])
         for train, test in GroupKFold(n_splits=folds).split(x, y, subjects):
-            model = _fit(x[train][:, cols], y[train], max(STAGES))
+            model = _fit(x[train][:, cols], y[train], max(STAGES), balanced)
             on_test = model.staged_predict_proba(x[test][:, cols])
             on_sim = model.staged_predict_proba(sim_x[:, cols]) if simulated else repeat(None)
             for stage_n, (proba, sim_proba) in enumerate(zip(on_test, on_sim, strict=False), start=1):
@@ -248,36 +255,65 @@ def choose_settings(recordings: Sequence[Recording], simulated: Sequence[Simulat
                     continue
                 log_p = np.log(np.maximum(proba, 1e-12))
                 sim_log_p = np.log(np.maximum(sim_proba, 1e-12)) if sim_proba is not None else None
-                for context in CONTEXTS:
-                    for near in NOT_WALKING_CONTEXTS:
-                        point = (name, stage_n, context, near)
-                        scores[point].append(_balanced_correct(_calls(model, log_p, times[test], which[test], context, near), y[test]))
-                        if sim_log_p is not None:
-                            on_walks[point].append(_balanced_correct(_calls(model, sim_log_p, sim_t, sim_walk, context, near), sim_label))
+                for context in contexts:
+                    scores[(name, stage_n, context)].append(_balanced_correct(_calls(model, log_p, times[test], which[test], context), y[test]))
+                    if sim_log_p is not None:
+                        on_walks[(name, stage_n, context)].append(_balanced_correct(_calls(model, sim_log_p, sim_t, sim_walk, context), sim_label))
+    return {p: min(float(np.mean(scores[p])), float(np.mean(on_walks[p]))) if simulated else float(np.mean(scores[p])) for p in points}
 
-    def value(point: tuple[str, int, int, int]) -> float:
-        real = float(np.mean(scores[point]))
-        return min(real, float(np.mean(on_walks[point]))) if simulated else real
 
-    grid = {f"features={f} stages={s} context={c} not_walking_context={n}": value((f, s, c, n)) for f, s, c, n in points}
-    # ties: the earlier set, the smaller model, the shorter contexts
-    best = max(points, key=lambda p: (value(p), -feature_sets.index(p[0]), -p[1], -p[2], -p[3]))
-    return best, grid
+def _best(values: dict[tuple[str, int, int], float], feature_sets: Sequence[str]) -> tuple[str, int, int]:
+    """The best point; ties: the earlier feature set, the smaller model, the shorter context."""
+    return max(values, key=lambda p: (values[p], -list(feature_sets).index(p[0]), -p[1], -p[2]))
+
+
+def choose_settings(recordings: Sequence[Recording], simulated: Sequence[SimulatedCycles] = (),
+                    feature_sets: Sequence[str] = tuple(FEATURE_SETS)) -> tuple[str, int, int, dict[str, float]]:
+    """The walking classes' model: features, stages and context by grouped ``INNER_FOLDS``-fold cross-validation over the
+    recordings' subjects on their walking cycles (``_grid_scores``). Returns (feature set, stages, context, every point's
+    score)."""
+    x, y, which, times = _design(recordings)
+    subjects = np.array([recordings[i].subject for i in which])
+    values = _grid_scores(x, y, which, times, subjects, feature_sets, CONTEXTS, simulated, False, lambda label: label)
+    best = _best(values, feature_sets)
+    return best[0], best[1], best[2], {f"features={f} stages={s} context={c}": v for (f, s, c), v in values.items()}
+
+
+def choose_gate(recordings: Sequence[Recording], features: str, simulated: Sequence[SimulatedCycles] = ()) -> tuple[int, int, dict[str, float]]:
+    """The walking-or-not gate on every labelled cycle (walking 0, not walking 1; balanced weights): its stages and context
+    by the same rule on the walking model's features (a simulated walk's every cycle is walking). Returns (stages,
+    context, every point's score)."""
+    x, y, which, times = _design(recordings, walking_only=False)
+    subjects = np.array([recordings[i].subject for i in which])
+    gate = (y == NOT_WALKING_ID).astype(int)
+    values = _grid_scores(x, gate, which, times, subjects, [features], NOT_WALKING_CONTEXTS, simulated, True, lambda label: np.zeros_like(label))
+    best = _best(values, [features])
+    return best[1], best[2], {f"gate stages={s} context={c}": v for (_, s, c), v in values.items()}
 
 
 def fit_model(recordings: Sequence[Recording], dataset: str = "", simulated: Sequence[SimulatedCycles] = (),
               feature_sets: Sequence[str] = tuple(FEATURE_SETS)) -> ActivityModel:
-    """The classifier on these recordings, its features, stages and context chosen by ``choose_settings``."""
-    (features, stages, context, near), grid = choose_settings(recordings, simulated, feature_sets)
+    """The classifier on these recordings: the walking classes' model (``choose_settings``) and the walking-or-not gate
+    on its features (``choose_gate``)."""
+    features, stages, context, grid = choose_settings(recordings, simulated, feature_sets)
+    all_x, all_y, _, _ = _design(recordings, walking_only=False)
+    gate_y = (all_y == NOT_WALKING_ID).astype(int)
+    # recordings without a not-walking cycle (no such label) make no gate: every cycle is then a walking class
+    gate_stages, gate_context, gate_grid = choose_gate(recordings, features, simulated) if gate_y.any() else (None, None, {})
     x, y, _, _ = _design(recordings)
     cols = feature_columns(FEATURE_SETS[features])
     rule = (f"features x stages x context chosen by grouped {INNER_FOLDS}-fold cross-validation over the subjects (mean of the "
             "classes' fractions correct" + (f"; the lower of it and the same mean on the simulated walks of seeds "
-                                             f"{min(SIMULATED_SEEDS)}-{max(SIMULATED_SEEDS)})" if simulated else ")"))
+                                             f"{min(SIMULATED_SEEDS)}-{max(SIMULATED_SEEDS)})" if simulated else ")")
+            + "; the gate's stages x context by the same rule on its two classes, on the walking model's features")
     provenance = {"dataset": dataset, "subjects": sorted({r.subject for r in recordings}), "recordings": [r.name for r in recordings],
-                  "cycles": int(len(y)), "feature_set": features, "stages": stages, "context_cycles": context, "not_walking_context": near, "fixed": FIXED,
-                  "rule": rule, "grid_scores": grid}
-    return replace(_export(_fit(x[:, cols], y, stages), context, provenance, FEATURE_SETS[features]), not_walking_context=near)
+                  "cycles": int(len(y)), "feature_set": features, "stages": stages, "context_cycles": context, "gate_stages": gate_stages,
+                  "not_walking_context": gate_context, "fixed": FIXED, "rule": rule, "grid_scores": {**grid, **gate_grid}}
+    walking = _export(_fit(x[:, cols], y, stages), context, provenance, FEATURE_SETS[features], ACTIVITIES[:3])
+    if gate_stages is None or gate_context is None:
+        return walking
+    gate = _export(_fit(all_x[:, cols], gate_y, gate_stages, balanced=True), gate_context, {}, FEATURE_SETS[features], GATE_CLASSES)
+    return replace(walking, gate=gate)
 
 
 # ------------------------------------------------------------------------------------ scoring
@@ -307,11 +343,11 @@ def _held_out_fold(job: tuple[Sequence[Recording], str, Sequence[SimulatedCycles
     fitted = fit_model([r for r in recordings if r.subject != subject], simulated=simulated)
     calls = {i: fitted.classify(rec.base, rec.cycle_t) for i, rec in enumerate(recordings) if rec.subject == subject}
     return {"feature_set": fitted.provenance["feature_set"], "stages": fitted.provenance["stages"], "context_cycles": fitted.context_cycles,
-            "not_walking_context": fitted.not_walking_context}, calls
+            "not_walking_context": fitted.gate.context_cycles if fitted.gate else None}, calls
 
 
 def leave_one_user_out(recordings: Sequence[Recording], simulated: Sequence[SimulatedCycles] = (), workers: int = 1,
-                       progress: Callable[[str], None] | None = None) -> tuple[list[list[str]], dict[str, dict[str, Any]]]:
+                       progress: Callable[[str], None] | None = None, scheduler: str | None = None) -> tuple[list[list[str]], dict[str, dict[str, Any]]]:
     """Each subject's recordings called by a model fitted (its settings chosen) without the subject (``_held_out_fold``),
     the folds side by side in ``workers`` processes: the calls per recording, and each subject's fold's choices."""
     from .cluster import completed
@@ -320,7 +356,7 @@ def leave_one_user_out(recordings: Sequence[Recording], simulated: Sequence[Simu
     held_out: list[list[str]] = [[] for _ in recordings]
     choices = {}
     jobs = [(recordings, subject, simulated) for subject in subjects]
-    for n, ((_, subject, _), future) in enumerate(completed(_held_out_fold, jobs, workers, None)):
+    for n, ((_, subject, _), future) in enumerate(completed(_held_out_fold, jobs, workers, scheduler)):
         choices[subject], calls = future.result()
         for i, called in calls.items():
             held_out[i] = called
@@ -330,7 +366,7 @@ def leave_one_user_out(recordings: Sequence[Recording], simulated: Sequence[Simu
 
 
 def bench_activity(directory: str | Path | None = None, sessions: Sequence[str | Path] = (),
-                   progress: Callable[[str], None] | None = None, workers: int = 1) -> dict[str, Any]:
+                   progress: Callable[[str], None] | None = None, workers: int = 1, scheduler: str | None = None) -> dict[str, Any]:
     """The JSON of ``fusegraph bench activity`` (see the module docstring): ``directory`` is HAPT's raw folder or a folder
     of imported sessions (``sessions``: session directories instead). The model on main scores through ``run --solver
     activity`` (``runner.solve_session``): its figures are ``report walking DIR --solvers activity``'s counts pooled.
@@ -351,7 +387,7 @@ def bench_activity(directory: str | Path | None = None, sessions: Sequence[str |
     if cross_validated:
         if progress is not None:
             progress(f"simulated walks of seeds {min(SIMULATED_SEEDS)}-{max(SIMULATED_SEEDS)} (the fit's pace check)")
-        held_out, choices = leave_one_user_out(recordings, simulated_cycles(), workers, progress)
+        held_out, choices = leave_one_user_out(recordings, simulated_cycles(), workers, progress, scheduler)
         fusegraph = score(recordings, held_out)
         in_sample = score(recordings, on_main)
         fusegraph["correct_in_sample"] = in_sample["correct"]

@@ -214,6 +214,7 @@ def _choose(runs: dict[str, TrialRuns], method: str, stems: list[str], scored_wi
 
 def bench_head_recorded(
     directory: str | Path | None = None, workers: int = 2, progress: Callable[[str], None] | None = None, trials: Sequence[str] = (),
+    scheduler: str | None = None,
     ekf_grid: Sequence[tuple[float, float]] = EKF_GRID, graph_grid: Sequence[tuple[float, float]] = GRAPH_GYRO_GRID,
 ) -> dict[str, Any]:
     """Every trial in ``directory`` (BROAD's ``*.mat``, imported here as ``import broad --system head`` would, or a folder
@@ -231,7 +232,7 @@ def bench_head_recorded(
                          f"found {len(paths)}")
     jobs = [TrialJob(p, tuple(ekf_grid), tuple(graph_grid)) for p in paths]
     runs: dict[str, TrialRuns] = {}
-    for n, (_job, future) in enumerate(completed(run_trial, jobs, workers, None)):
+    for n, (_job, future) in enumerate(completed(run_trial, jobs, workers, scheduler)):
         run = future.result()
         runs[run.stem] = run
         if progress is not None:

@@ -170,19 +170,55 @@ def unique_names(paths: Sequence[Path]) -> list[str]:
     return ["__".join(r.relative_to(common).parts) or r.name for r in resolved]
 
 
-def _run_one_to_folder(args: tuple[str, str, str, str]) -> dict[str, Any]:
+def settings_digest() -> str:
+    """What every solver's settings are made of, hashed: the package version, the chosen settings (``tuned.toml``) and the
+    fitted models (``models/``). A change to any of them makes a study's finished runs stale."""
+    import hashlib
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        release = version("fusegraph")
+    except PackageNotFoundError:  # run from a source tree that was not installed
+        release = "source"
+    package = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256(release.encode())
+    for path in [package / "tuned.toml", *sorted((package / "models").glob("*"))]:
+        digest.update(path.name.encode() + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def session_digest(path: str | Path) -> str:
+    """A session directory's content hashed (every file in it, by name and bytes), so a run is known to be of this data."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for file in sorted(p for p in Path(path).rglob("*") if p.is_file()):
+        digest.update(str(file.relative_to(path)).encode())
+        with file.open("rb") as handle:
+            for chunk in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(chunk)
+    return digest.hexdigest()[:16]
+
+
+def run_key(path: str | Path, solver: str, settings: str) -> str:
+    """The key a study's row is kept under: the session's content, the solver and the settings (``settings_digest``)."""
+    return f"{session_digest(path)}-{solver}-{settings}"
+
+
+def _run_one_to_folder(args: tuple[str, str, str, str, str]) -> dict[str, Any]:
     """Worker: one session into the study folder; a failure is a row, not an exception."""
-    path, solver, out_dir, name = args
+    path, solver, out_dir, name, key = args
     try:
         outcome = run_session(path, solver, Path(out_dir) / f"{name}_{solver}.csv")
-        row = {"session": name, "path": path, "status": "ok", **outcome.as_json(), "runtime_s": outcome.estimate.runtime_s}
+        row = {"session": name, "path": path, "status": "ok", **outcome.as_json(), "runtime_s": outcome.estimate.runtime_s, "key": key}
     except Exception as exc:  # noqa: BLE001 - recorded, the study goes on
-        row = {"session": name, "path": path, "status": "failed", "solver": solver, "error": f"{type(exc).__name__}: {exc}"}
+        row = {"session": name, "path": path, "status": "failed", "solver": solver, "error": f"{type(exc).__name__}: {exc}", "key": key}
     return row
 
 
 def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: int = 1, scheduler: str | None = None) -> list[dict[str, Any]]:
-    """Run every session into ``out_dir`` (estimate CSVs and ``results.jsonl``); sessions already done are skipped.
+    """Run every session into ``out_dir`` (estimate CSVs and ``results.jsonl``); a session already done there with the same
+    content, solver and settings (``run_key``) is skipped, one whose data or settings changed since is run again.
 
     ``scheduler``: None = local processes, ``local`` = a Dask LocalCluster, ``tcp://host:port`` = an existing cluster.
     """
@@ -201,7 +237,10 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
             if row.get("status") == "ok" and row.get("solver") == solver:
                 done[row["path"]] = row
     names = unique_names(paths)
-    todo = [(str(p), solver, str(out), name) for p, name in zip(paths, names, strict=True) if str(p) not in done]
+    settings = settings_digest()
+    keys = {str(p): run_key(p, solver, settings) for p in paths}
+    done = {path: row for path, row in done.items() if row.get("key") == keys.get(path)}  # data or settings changed: run again
+    todo = [(str(p), solver, str(out), name, keys[str(p)]) for p, name in zip(paths, names, strict=True) if str(p) not in done]
     if log.exists() and log.stat().st_size and not log.read_bytes().endswith(b"\n"):
         with log.open("a") as handle:
             handle.write("\n")  # end the torn line, so the next row starts a line of its own
@@ -213,7 +252,7 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
     return [done.get(str(p), {"session": p.name, "path": str(p), "status": "failed", "error": "not run"}) for p in paths]
 
 
-def _map(todo: list[tuple[str, str, str, str]], workers: int, scheduler: str | None) -> Iterable[dict[str, Any]]:
+def _map(todo: list[tuple[str, str, str, str, str]], workers: int, scheduler: str | None) -> Iterable[dict[str, Any]]:
     from .cluster import completed
 
     for _, future in completed(_run_one_to_folder, todo, workers, scheduler):
@@ -380,7 +419,9 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
                            "sessions_not_applicable": sum(rows[name][solver]["status"] == "n/a" for name, _ in sessions),
                            "sessions_not_scored": sum("not_scored" in r for r in done),
                            "sessions_suspect": sum("suspect" in r for r in done), "suspect_in_means": include_suspect}
-    return {"system": system, "solvers": names, "metric_keys": list(preset.metric_keys), "sessions": rows, "methods": methods}
+    datasets = sorted({str(session.meta.get("session", {}).get("dataset", "")) for _, session in sessions} - {""})
+    return {"system": system, "solvers": names, "metric_keys": list(preset.metric_keys), "sessions": rows, "methods": methods,
+            "datasets": datasets}
 
 
 def _report_one_session(job: tuple[str, Session, tuple[str, ...], bool]) -> tuple[dict[str, dict[str, Any]], list[Any]]:

@@ -76,7 +76,7 @@ def _speeds(report: dict[str, Any], solvers: dict[str, str]) -> dict[str, dict[s
     return {key: {"x_realtime": float(report["methods"][solver]["x_realtime"])} for key, solver in solvers.items()}
 
 
-def bench_speed(broad: Path | None = None, head_trials: int = 3, hours: float = 24.0, workers: int = 1,
+def bench_speed(broad: Path | None = None, head_trials: int = 3, hours: float = 24.0, workers: int = 1, scheduler: str | None = None,
                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The speed bench; ``broad``: BROAD's folder (None: simulations), ``head_trials``: how many trials the recorded head
     rows run on (each is slow: Method II and iSAM2 on 285 Hz motion), ``hours``: the longest recording whose memory is
@@ -97,7 +97,7 @@ def bench_speed(broad: Path | None = None, head_trials: int = 3, hours: float = 
         found["data"]["attitude9"] = "simulated (no BROAD folder): seeds 0-2, 120 s"
         found["data"]["head_recorded"] = "simulated (no BROAD folder): head seed 0, 120 s"
     say("attitude9")
-    report = report_sessions("attitude9", nine, ["online", "batch", "vqf", "vqf_offline"], show_progress=False, workers=workers)
+    report = report_sessions("attitude9", nine, ["online", "batch", "vqf", "vqf_offline"], show_progress=False, workers=workers, scheduler=scheduler)
     rows = _speeds(report, {"online": "online", "batch": "batch", "vqf": "vqf", "vqf_offline": "vqf_offline"})
     rows["online"]["peer"], rows["online"]["ratio_to_peer"] = "vqf", rows["online"]["x_realtime"] / rows["vqf"]["x_realtime"]
     rows["batch"]["peer"], rows["batch"]["ratio_to_peer"] = "vqf_offline", rows["batch"]["x_realtime"] / rows["vqf_offline"]["x_realtime"]
@@ -106,13 +106,13 @@ def bench_speed(broad: Path | None = None, head_trials: int = 3, hours: float = 
     found["cohort"] = {"recordings_per_hour_per_core_online": 3600.0 / float(np.mean(seconds)) if seconds else None,
                        "mean_recording_s": float(np.mean([s.duration_s for _, s in nine]))}
     say("head on recorded motion")
-    report = report_sessions("head", head_recorded, ["online", "batch", "ekf"], show_progress=False, workers=workers)
+    report = report_sessions("head", head_recorded, ["online", "batch", "ekf"], show_progress=False, workers=workers, scheduler=scheduler)
     rows = _speeds(report, {"isam2": "online", "batch": "batch", "method2": "ekf"})
     for key in ("isam2", "batch"):
         rows[key]["peer"], rows[key]["ratio_to_peer"] = "method2", rows[key]["x_realtime"] / rows["method2"]["x_realtime"]
     found["systems"]["head_recorded"] = rows
     say("head simulated")
-    report = report_sessions("head", simulated_sessions("head", [0, 1, 2], 60.0), ["online", "ekf"], show_progress=False, workers=workers)
+    report = report_sessions("head", simulated_sessions("head", [0, 1, 2], 60.0), ["online", "ekf"], show_progress=False, workers=workers, scheduler=scheduler)
     rows = _speeds(report, {"online": "online", "method2": "ekf"})
     rows["online"]["peer"], rows["online"]["ratio_to_peer"] = "method2", rows["online"]["x_realtime"] / rows["method2"]["x_realtime"]
     found["systems"]["head"] = rows

@@ -653,12 +653,14 @@ def _main_activity(args: argparse.Namespace) -> int:
     recordings = [recording(name, session) for name, session in loaded]
     dataset = str(loaded[0][1].meta.get("session", {}).get("dataset", "")) if loaded else ""
     model = fit_model(recordings, dataset, simulated_cycles())
-    for setting, value in sorted(model.provenance["grid_scores"].items(), key=lambda row: -row[1])[:15]:
+    grid = model.provenance["grid_scores"]
+    for setting, value in [*sorted(((k, v) for k, v in grid.items() if not k.startswith("gate")), key=lambda row: -row[1])[:10],
+                           *sorted(((k, v) for k, v in grid.items() if k.startswith("gate")), key=lambda row: -row[1])[:5]]:
         print(f"{setting:<88} cross-validated {value:.4f}")
     print(f"({len(model.provenance['grid_scores'])} points; each: {model.provenance['rule']})")
     in_sample = score(recordings, [model.classify(r.base, r.cycle_t) for r in recordings])["correct"]
     print(f"chosen: features={model.provenance['feature_set']} stages={model.provenance['stages']} context={model.context_cycles} "
-          f"not_walking_context={model.not_walking_context} on "
+          f"gate stages={model.provenance['gate_stages']} not_walking_context={model.provenance['not_walking_context']} on "
           f"{', '.join(model.provenance['subjects'])}; "
           "in-sample correct " + ", ".join(f"{k} {v:.3f}" for k, v in in_sample.items()) + " (leave-one-user-out: fusegraph bench activity)")
     if args.write:

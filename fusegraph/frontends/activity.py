@@ -38,6 +38,9 @@ from ..geometry import FloatArray
 from .gait import pelvis_excursion
 from .pdr import Cycle, PdrConfig, front_end, vertical_horizontal
 
+GATE_CLASSES = ("walking", "not_walking")
+"""The gate's classes (``ActivityModel.gate``)."""
+
 ACTIVITIES = ("flat", "stairs_up", "stairs_down", "not_walking")
 """The classes, in the model's order. Not walking: a cycle the front end found in standing, sitting, lying or getting up or
 down (HAPT's labels 4-12): a postural transition moves the pelvis like a step or two, and an elevator or a sway like one."""
@@ -187,23 +190,6 @@ def in_context(log_proba: FloatArray, cycle_t: FloatArray, context_cycles: int, 
     return out
 
 
-def decide(log_proba: FloatArray, cycle_t: FloatArray, classes: Sequence[str], context_cycles: int, not_walking_context: int | None,
-           causal: bool = False) -> np.ndarray:
-    """Each cycle's class index from its log-probabilities: walking or not over ``not_walking_context`` cycles either side
-    (a postural transition lasts a cycle or two: the walking classes' longer context would wash it out), and which
-    walking class over ``context_cycles`` (``in_context``); None, or a model without a not-walking class: every class
-    over ``context_cycles``."""
-    scores = in_context(log_proba, cycle_t, context_cycles, causal)
-    if not_walking_context is None or "not_walking" not in classes or not len(scores):
-        return np.asarray(scores.argmax(axis=1))
-    other = classes.index("not_walking")
-    walking = [i for i in range(len(classes)) if i != other]
-    near = in_context(log_proba, cycle_t, not_walking_context, causal)
-    peak = near[:, walking].max(axis=1)
-    walked = peak + np.log(np.exp(near[:, walking] - peak[:, None]).sum(axis=1))  # log of the walking classes' probability
-    return np.where(near[:, other] > walked, other, np.array(walking)[scores[:, walking].argmax(axis=1)])
-
-
 @dataclass(frozen=True)
 class Tree:
     """One regression tree as arrays (scikit-learn's ``tree_`` layout: a leaf has ``left == -1``)."""
@@ -249,8 +235,9 @@ class ActivityModel:
     """Cycles either side (in the bout) whose log-probabilities are averaged."""
     provenance: dict[str, Any]
     """What it was fitted on and how its settings were chosen (dataset, subjects, rule, scores)."""
-    not_walking_context: int | None = None
-    """Cycles either side that decide walking or not (``decide``); None: ``context_cycles`` for every class."""
+    gate: ActivityModel | None = None
+    """Walking or not (classes ``GATE_CLASSES``, its own context: a postural transition lasts a cycle or two), asked first;
+    None: every cycle is one of ``classes``."""
 
     def log_proba(self, x: FloatArray) -> FloatArray:
         """Log-probability of each class per row of ``x`` (rows of ``FEATURES``; the model reads its ``features``)."""
@@ -260,6 +247,8 @@ class ActivityModel:
         for stage in self.trees:
             for k, tree in enumerate(stage):
                 raw[:, k] += self.learning_rate * tree.predict(x)
+        if raw.shape[1] == 1:  # two classes: the score is the second's log-odds
+            raw = np.hstack([np.zeros_like(raw), raw])
         raw -= raw.max(axis=1, keepdims=True)
         return raw - np.log(np.exp(raw).sum(axis=1, keepdims=True))
 
@@ -268,13 +257,17 @@ class ActivityModel:
         up to each one only: the reference and the context of a live estimate)."""
         if not len(base):
             return []
-        called = decide(self.log_proba(with_reference(base, causal)), cycle_t, self.classes, self.context_cycles, self.not_walking_context, causal)
-        return [self.classes[k] for k in called]
+        x = with_reference(base, causal)
+        calls = [self.classes[k] for k in in_context(self.log_proba(x), cycle_t, self.context_cycles, causal).argmax(axis=1)]
+        if self.gate is None:
+            return calls
+        gate = in_context(self.gate.log_proba(x), cycle_t, self.gate.context_cycles, causal).argmax(axis=1)
+        return ["not_walking" if self.gate.classes[g] == "not_walking" else call for g, call in zip(gate, calls, strict=True)]
 
     def as_json(self) -> dict[str, Any]:
         return {"classes": list(self.classes), "features": list(self.features), "init_raw": self.init_raw.tolist(),
-                "learning_rate": self.learning_rate, "context_cycles": self.context_cycles, "not_walking_context": self.not_walking_context,
-                "provenance": self.provenance,
+                "learning_rate": self.learning_rate, "context_cycles": self.context_cycles, "provenance": self.provenance,
+                "gate": None if self.gate is None else self.gate.as_json(),
                 "trees": [[{"left": t.left.tolist(), "right": t.right.tolist(), "feature": t.feature.tolist(),
                             "threshold": [round(float(v), 9) for v in t.threshold], "value": [round(float(v), 9) for v in t.value]}
                            for t in stage] for stage in self.trees]}
@@ -295,7 +288,10 @@ def load_model(path: str | Path = MODEL_PATH) -> ActivityModel:
 
 @functools.lru_cache(maxsize=4)
 def _read_model(path: Path, mtime_ns: int) -> ActivityModel:
-    data = json.loads(path.read_text())
+    return _model_from(json.loads(path.read_text()), path)
+
+
+def _model_from(data: dict[str, Any], path: Path) -> ActivityModel:
     unknown = [name for name in data["features"] if name not in FEATURES]
     if unknown:
         raise ValueError(f"{path}: fitted on features this version does not compute ({', '.join(unknown)}): refit it (fusegraph tune activity --write)")
@@ -304,7 +300,7 @@ def _read_model(path: Path, mtime_ns: int) -> ActivityModel:
                   for stage in data["trees"])
     return ActivityModel(tuple(data["classes"]), tuple(data["features"]), np.array(data["init_raw"], dtype=float), float(data["learning_rate"]),
                          trees, int(data["context_cycles"]), dict(data["provenance"]),
-                         None if data.get("not_walking_context") is None else int(data["not_walking_context"]))
+                         None if data.get("gate") is None else _model_from(data["gate"], path))
 
 
 def with_activity(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, gravity: FloatArray, cycles: Sequence[Cycle],

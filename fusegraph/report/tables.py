@@ -30,7 +30,8 @@ def format_session_report(report: dict[str, Any]) -> str:
     count = len(report["sessions"])
     suspect_in = any(m.get("suspect_in_means") for m in methods.values())
     lines = [f"{system}: {count} session{'s' if count != 1 else ''}; means over the sessions each solver scored"
-             + ("" if suspect_in else " (suspect runs left out)"),
+             + ("" if suspect_in else " (suspect runs left out)")
+             + (f"; data: {', '.join(report['datasets'])}" if report.get("datasets") else ""),
              f"{'solver':<{width}}" + "".join(f"{k:>{cell}}" for k in keys) + f"{'x real time':>13}{'scored':>8}{'not scored':>12}{'suspect':>9}{'failed':>8}"]
     for name, row in methods.items():
         flat = flatten(row["metrics"])
