@@ -117,3 +117,6 @@ def test_import_broad_as_gaze_scores_the_world_ray_of_each_method(tmp_path: Path
     # the raw gyro drifts tens of degrees in 200 s; the 9-axis attitude holds the gaze within a few
     assert found["imu_only"]["gaze_error_deg"] < 3.0 < found["gyro"]["gaze_error_deg"]
     assert found["imu_only"]["fixations"] == found["gyro"]["fixations"] > 100
+    # its picture: the world gaze against the eye's and the angle between them (not a wall the eye never looked at)
+    assert main(["run", str(tmp_path / "g"), "--solver", "imu_only", "--out", str(tmp_path / "i.csv"), "--plot", str(tmp_path / "g.png")]) == 0
+    assert (tmp_path / "g.png").stat().st_size > 20_000

@@ -38,12 +38,48 @@ def _head_picture(session: Session, estimates: list[Result], out: Path) -> list[
     return written + write_head_scene(scene, out)
 
 
+def _gaze_ray_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
+    """A session whose truth is the eye's world ray (``import broad --system gaze``): the world gaze azimuth over time, each
+    estimate's (its head attitude turning the tracker's ray) against the truth, and the angle between them."""
+    import matplotlib.pyplot as plt
+
+    from ..factors.gaze import SceneCamera
+    from ..geometry import matrix_from_quat
+    from .plots import save_figure
+
+    gaze, truth = session.stream("gaze"), session.truth
+    assert truth is not None
+    camera = SceneCamera(**{k: type(getattr(SceneCamera(), k))(gaze.meta[k]) for k in ("focal_px", "width_px", "height_px") if k in gaze.meta})
+    rays = camera.ray(gaze.values)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
+    axes[0].plot(truth.t, np.degrees(np.arctan2(truth.values[:, 1], truth.values[:, 0])), color="black", lw=1.5, label="truth (simulated eye)")
+    for e in estimates:
+        attitude = e.extras.get("world_R_head") if isinstance(e, PointEstimate) else None
+        if attitude is None or len(attitude) != len(rays):
+            continue
+        quat = np.asarray(attitude, dtype=float)
+        known = np.isfinite(quat).all(axis=1)
+        world = np.einsum("nij,nj->ni", matrix_from_quat(np.where(known[:, None], quat, [1.0, 0.0, 0.0, 0.0])), rays)
+        world[~known] = np.nan  # no attitude yet: nothing drawn
+        axes[0].plot(e.t, np.degrees(np.arctan2(world[:, 1], world[:, 0])), lw=0.8, label=e.method)
+        error = np.degrees(np.arccos(np.clip(np.sum(world * truth.values, axis=1), -1.0, 1.0)))
+        axes[1].plot(e.t, np.maximum(error, 1e-3), lw=0.8, label=e.method)
+    axes[0].set(xlabel="time [s]", ylabel="world gaze azimuth [deg]", title="where the eye looked in the world")
+    axes[1].set(xlabel="time [s]", ylabel="angle to the true gaze ray [deg]", title="gaze error (saccades included)", yscale="log")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    return [save_figure(fig, out / f"gaze_{'_'.join(e.method for e in estimates)}.png")]
+
+
 def _gaze_picture(session: Session, estimates: list[Result], out: Path) -> list[Path]:
     """The gaze point on the wall (X right, Z up), each estimate against the truth."""
     import matplotlib.pyplot as plt
 
     from .plots import save_figure
 
+    if session.meta.get("session", {}).get("gaze_truth") == "world_ray" and session.truth is not None:
+        return _gaze_ray_picture(session, estimates, out)
     fig, axes = plt.subplots(1, 2, figsize=(13, 5))
     truth = session.truth
     if truth is not None:
