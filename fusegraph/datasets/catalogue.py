@@ -51,7 +51,8 @@ DATASETS: tuple[Dataset, ...] = (
             "D. Laidig, M. Caruso, A. Cereatti, T. Seel, \"BROAD - A Benchmark for Robust Inertial Orientation Estimation\", Data 6(7):72, 2021",
             "https://github.com/dlaidig/broad (folder data_mat/)", "CC BY 4.0 (data)", "attitude9",
             (LayoutPart("*.mat", "one trial per file: imu_gyr (rad/s), imu_acc (m/s^2), imu_mag (uT), opt_quat (w, x, y, z, sensor to ENU), movement"),),
-            "fusegraph import broad data_mat --out sessions/broad   (--system head: the motion as head sessions)",
+            "fusegraph import broad data_mat --out sessions/broad   (--system head: the motion as head sessions; --system gaze: "
+            "the head of a simulated eye, scored against the eye's world ray)",
             "a folder of trials or one .mat file"),
     Dataset("uwb", "LIAS UWB: three tags on a rigid trolley, eight anchors, motion capture (fast, medium, slow runs)",
             "H. Jiang et al., \"Efficient Planar Pose Estimation via UWB Measurements\", ICRA 2023",
