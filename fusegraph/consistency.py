@@ -271,7 +271,7 @@ def check_streams(streams: Mapping[str, Any], truth: Any | None = None) -> list[
     accels = [s for s in streams.values() if s.kind == "accel" and len(s) > 20]
     for gyro in gyros:
         mag = _body_stream(gyro, [s for s in streams.values() if s.kind == "mag" and len(s) > 20
-                                  and s.meta.get("role") != "calibration recording"], "mag")
+                                  and not s.own_recording], "mag")
         if mag is not None and not _declared_units(gyro.meta):
             still = field_against_still_gyro(gyro, _body_stream(gyro, accels, "accel"), mag)
             if still is not None:
@@ -528,7 +528,7 @@ def frames_found(streams: Mapping[str, Any]) -> list[dict[str, Any]]:
     out = []
     gyros = [s for s in streams.values() if s.kind == "gyro" and len(s) > 20]
     accels = [s for s in streams.values() if s.kind == "accel" and len(s) > 20]
-    mags = [s for s in streams.values() if s.kind == "mag" and len(s) > 20 and s.meta.get("role") != "calibration recording"]
+    mags = [s for s in streams.values() if s.kind == "mag" and len(s) > 20 and not s.own_recording]
     for gyro in gyros:
         for stream, gravity in ((_body_stream(gyro, accels, "accel"), True), (_body_stream(gyro, mags, "mag"), False)):
             if stream is None:

@@ -119,6 +119,11 @@ def matrix_from_quat(q_wxyz: FloatArray) -> FloatArray:
     )
 
 
+def rotate_by_quat(q_wxyz: FloatArray, vectors: FloatArray) -> FloatArray:
+    """Vectors (N, 3) turned by unit quaternions (N, 4) row by row: ``R(q_i) v_i`` (NaN where a quaternion is)."""
+    return np.einsum("nij,nj->ni", matrix_from_quat(q_wxyz), vectors)
+
+
 def euler_zyx_from_quat(q_wxyz: FloatArray) -> FloatArray:
     """ZYX Euler angles (azimuth, elevation, roll) in rad of R = Rz(az) Ry(el) Rx(roll).
 

@@ -471,35 +471,21 @@ def gaze_rms_mm(estimate: FloatArray, session: GazeSession, skip_s: float = 1.0)
     return {"x_mm": float(np.sqrt(np.mean(err[:, 0] ** 2))), "z_mm": float(np.sqrt(np.mean(err[:, 1] ** 2)))}
 
 
-GAZE_FIXATION_MIN_S = 0.1
-"""A fixation scores the gaze ray when it lasts this long (``frontends.gaze_timing.FIXATION_MIN_S``)."""
-GAZE_SETTLE_S = 1.0
-"""Fixations score from this long after the IMU's first sample (every method's start-up; ``gaze_timing.SETTLE_S``)."""
-
-
-def gaze_ray_errors(world_R_head: FloatArray | None, session: GazeSession, true_world_ray: FloatArray, fixation_id: FloatArray) -> dict[str, Any]:
+def gaze_ray_errors(world_R_head: FloatArray | None, session: GazeSession, true_world_ray: FloatArray,
+                    fixations: Sequence[np.ndarray]) -> dict[str, Any]:
     """The angle between a method's world gaze ray (its head attitude at each gaze sample turning the tracker's ray) and
-    the true one, over the samples of the labelled fixations lasting ``GAZE_FIXATION_MIN_S`` from ``GAZE_SETTLE_S`` on:
-    ``gaze_error_deg`` (RMS over those samples), ``gaze_error_fixation_median_deg`` (median over the fixations of each
-    one's RMS), the fixations and samples scored. A sample without an attitude scores as failing (180 deg): a method
-    must not escape its hard samples. ``world_R_head`` None (no attitude at all): the head frame taken as the world."""
-    rays = session.config.camera.ray(session.gaze_px)
-    quat = np.tile([1.0, 0.0, 0.0, 0.0], (len(rays), 1)) if world_R_head is None else np.asarray(world_R_head, dtype=float)
-    from .geometry import matrix_from_quat
+    the true one, over ``fixations`` (each the rows of its gaze samples: ``frontends.gaze_timing.device_fixations`` of the
+    labels): ``gaze_error_deg`` (RMS over those samples), ``gaze_error_fixation_median_deg`` (median over the fixations
+    of each one's RMS), the fixations and samples scored. A sample without an attitude scores as failing (180 deg): a
+    method must not escape its hard samples. ``world_R_head`` None (no attitude at all): the head frame taken as the world."""
+    from .geometry import rotate_by_quat
 
-    finite = np.all(np.isfinite(quat), axis=1)
-    world = np.einsum("nij,nj->ni", matrix_from_quat(np.where(finite[:, None], quat, [1.0, 0.0, 0.0, 0.0])), rays)
+    rays = session.config.camera.ray(session.gaze_px)
+    world = rays if world_R_head is None else rotate_by_quat(np.asarray(world_R_head, dtype=float), rays)
     angle = np.degrees(np.arccos(np.clip(np.sum(world * true_world_ray, axis=1), -1.0, 1.0)))
-    angle = np.where(finite & np.all(np.isfinite(true_world_ray), axis=1), angle, 180.0)
-    inside = (session.tracker_t >= session.t[0] + GAZE_SETTLE_S) & (session.tracker_t <= session.t[-1])
-    ids = np.nan_to_num(np.asarray(fixation_id, dtype=float))
-    per, rows = [], []
-    for value in np.unique(ids[ids > 0]):
-        mine = np.flatnonzero((ids == value) & inside)
-        if len(mine) and session.tracker_t[mine[-1]] - session.tracker_t[mine[0]] >= GAZE_FIXATION_MIN_S:
-            per.append(float(np.sqrt(np.mean(angle[mine] ** 2))))
-            rows.append(mine)
-    scored = np.concatenate(rows) if rows else np.zeros(0, dtype=int)
+    angle = np.where(np.isfinite(angle), angle, 180.0)
+    per = [float(np.sqrt(np.mean(angle[rows] ** 2))) for rows in fixations]
+    scored = np.concatenate(list(fixations)) if len(fixations) else np.zeros(0, dtype=int)
     return {"gaze_error_deg": float(np.sqrt(np.mean(angle[scored] ** 2))) if len(scored) else float("nan"),
             "gaze_error_fixation_median_deg": float(np.median(per)) if per else float("nan"), "fixations": len(per),
             "fixation_samples": int(len(scored))}

@@ -61,6 +61,10 @@ class SessionWarning(UserWarning):
     """Something in a session that was repaired on loading (e.g. quaternions normalised); the message says what."""
 
 
+CALIBRATION_ROLE = "calibration recording"
+"""The ``role`` of a stream that is a calibration recording (``Stream.own_recording``)."""
+
+
 @dataclass(frozen=True)
 class Stream:
     """One sensor stream: sample times and values, with its metadata from session.toml."""
@@ -96,6 +100,12 @@ class Stream:
         median = float(np.median(dt))
         idx = np.nonzero(dt > GAP_FACTOR * median)[0]
         return [(float(self.t[i]), float(self.t[i + 1])) for i in idx]
+
+    @property
+    def own_recording(self) -> bool:
+        """A calibration recording (``role = 'calibration recording'``: e.g. the magnetometer's figure-eight): a recording of
+        its own, on its own clock, taken whole wherever the session is cut."""
+        return self.meta.get("role") == CALIBRATION_ROLE
 
     def select(self, mask: NDArray[np.bool_]) -> Stream:
         """The same stream restricted to the samples where ``mask`` is true."""
@@ -317,7 +327,7 @@ def replay_in_arrival_order(session: Session, last_streams: tuple[str, ...] = ()
 def check_overlap(streams: Mapping[str, Stream], where: str) -> None:
     """Every stream (a calibration recording, ``role = 'calibration recording'``, aside) must share time with
     the others: one that starts after they end (or ends before they start) is on another clock."""
-    timed = {n: s for n, s in streams.items() if len(s) and s.meta.get("role") != "calibration recording"}
+    timed = {n: s for n, s in streams.items() if len(s) and not s.own_recording}
     if len(timed) < 2:
         return
     for name, stream in timed.items():
@@ -417,7 +427,7 @@ def iter_session_blocks(directory: str | Path, block_s: float = 60.0) -> Iterato
     whole: dict[str, Stream] = {}
     readers: dict[str, tuple[Stream, Iterator[tuple[FloatArray, FloatArray]]]] = {}
     for name, table in spec["streams"].items():
-        if table.get("role") == "calibration recording":
+        if table.get("role") == CALIBRATION_ROLE:
             whole[name] = _load_stream(root, toml_path, name, table)
             continue
         empty, path = _stream_spec(root, toml_path, name, table)
@@ -620,6 +630,13 @@ def iter_stream_csv(
             yield t[skip:], values[skip:]
 
 
+def _csv_encoding(path: Path) -> str:
+    """UTF-16 where the file starts with its byte-order mark, else UTF-8 with or without one (as spreadsheets write it)."""
+    with path.open("rb") as handle:
+        head = handle.read(2)
+    return "utf-16" if head in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
+
+
 class _NotFastError(Exception):
     """The fast reader cannot vouch for a block: the row-by-row reader reads the file and says what is wrong, if anything."""
 
@@ -627,9 +644,7 @@ class _NotFastError(Exception):
 def _iter_fast(path: Path, columns: tuple[str, ...], allow_nan: bool, repeated_times: bool, block_rows: int) -> Iterator[tuple[FloatArray, FloatArray]]:
     import pandas as pd
 
-    with path.open("rb") as handle:
-        head = handle.read(4)
-    encoding = "utf-16" if head[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
+    encoding = _csv_encoding(path)
     try:
         with path.open(newline="", encoding=encoding) as handle:
             header = [h.strip() for h in next(csv.reader(handle))]
@@ -648,7 +663,7 @@ def _iter_fast(path: Path, columns: tuple[str, ...], allow_nan: bool, repeated_t
                     or (steps < 0).any() or (not repeated_times and (steps == 0).any())):
                 raise _NotFastError
             previous = float(t[-1]) if len(t) else previous
-            yield t.copy(), values.copy()
+            yield t.copy(), values.copy()  # contiguous, as the row reader gives them
     except (ValueError, UnicodeDecodeError, StopIteration, pd.errors.ParserError, pd.errors.EmptyDataError):
         raise _NotFastError from None
 
@@ -658,9 +673,7 @@ def _iter_rows(
 ) -> Iterator[tuple[FloatArray, FloatArray]]:
     """``iter_stream_csv`` row by row in Python: every check with the line it fails on."""
     label = f"{path}" + (f" (stream '{name}')" if name else "")
-    with path.open("rb") as handle:
-        head = handle.read(4)
-    encoding = "utf-16" if head[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
+    encoding = _csv_encoding(path)
     previous: float | None = None
     yielded = False
     try:

@@ -104,16 +104,16 @@ def run_streamed(path: str | Path, out: str | Path | None = None, block_s: float
         raise SessionError(f"--out {target}: is a folder; give a file name (e.g. {target / 'attitude_batch.csv'})")
     target.parent.mkdir(parents=True, exist_ok=True)
     say = progress or (lambda _line: None)
-    rows, seconds, start = 0, 0.0, time.perf_counter()
+    rows, start = 0, time.perf_counter()
 
     def counted(piece: Estimate) -> None:
-        nonlocal rows, seconds
+        nonlocal rows
         rows += len(piece.t)
         if len(piece.t):
             say(f"smoothed to t = {piece.t[-1]:.0f} s ({rows} rows written)")
-        seconds = time.perf_counter() - start
 
     save_csv_pieces(windowed_batch(iter_session_blocks(path, block_s)), target, counted)
+    seconds = time.perf_counter() - start
     return f"wrote {target} ({rows} rows, smoothed window by window in {seconds:.1f} s; not scored: the truth is not read when streaming)"
 
 

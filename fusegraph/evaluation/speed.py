@@ -45,8 +45,8 @@ its estimate would."""
 def repeated_blocks(session: Session, duration_s: float, block_s: float = 60.0) -> Iterator[Session]:
     """A long recording made of one repeated end to end (each copy's times moved on; the attitude jumps at the seams),
     ``block_s`` at a time in time order: the IMU streams only (a calibration recording in every block as it is), no truth."""
-    streams = {name: s for name, s in session.streams.items() if s.kind in ("gyro", "accel", "mag") and s.meta.get("role") != "calibration recording"}
-    kept = {name: s for name, s in session.streams.items() if s.meta.get("role") == "calibration recording"}  # as recorded
+    streams = {name: s for name, s in session.streams.items() if s.kind in ("gyro", "accel", "mag") and not s.own_recording}
+    kept = {name: s for name, s in session.streams.items() if s.own_recording}  # as recorded
     span = max(float(s.t[-1] - s.t[0]) for s in streams.values())
     period = float(np.median(np.diff(next(iter(streams.values())).t)))
     lo = 0.0
@@ -68,8 +68,7 @@ def repeated_blocks(session: Session, duration_s: float, block_s: float = 60.0) 
 
 def repeated(session: Session, duration_s: float) -> Session:
     """``repeated_blocks`` as one Session (held whole in memory)."""
-    blocks = list(repeated_blocks(session, duration_s, block_s=duration_s))
-    return blocks[0]
+    return next(repeated_blocks(session, duration_s, block_s=duration_s))
 
 
 def _speeds(report: dict[str, Any], solvers: dict[str, str]) -> dict[str, dict[str, Any]]:

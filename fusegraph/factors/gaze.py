@@ -43,6 +43,11 @@ class SceneCamera:
     cauchy_k: float = 3.0
     """Cauchy kernel width in sigmas (blinks, tracker glitches)."""
 
+    @classmethod
+    def from_meta(cls, meta: Mapping[str, Any], keys: tuple[str, ...] = ("focal_px", "width_px", "height_px", "pixel_sigma")) -> SceneCamera:
+        """The camera a gaze stream's metadata declares (``keys`` of it; the rest this class's defaults)."""
+        return cls(**{k: type(getattr(cls(), k))(meta[k]) for k in keys if k in meta})
+
     def calibration(self) -> gtsam.Cal3_S2:
         return gtsam.Cal3_S2(self.focal_px, self.focal_px, 0.0, 0.0, 0.0)
 

@@ -44,23 +44,19 @@ def _gaze_ray_picture(session: Session, estimates: list[Result], out: Path) -> l
     import matplotlib.pyplot as plt
 
     from ..factors.gaze import SceneCamera
-    from ..geometry import matrix_from_quat
+    from ..geometry import rotate_by_quat
     from .plots import save_figure
 
     gaze, truth = session.stream("gaze"), session.truth
     assert truth is not None
-    camera = SceneCamera(**{k: type(getattr(SceneCamera(), k))(gaze.meta[k]) for k in ("focal_px", "width_px", "height_px") if k in gaze.meta})
-    rays = camera.ray(gaze.values)
+    rays = SceneCamera.from_meta(gaze.meta, ("focal_px", "width_px", "height_px")).ray(gaze.values)
     fig, axes = plt.subplots(1, 2, figsize=(13, 5))
     axes[0].plot(truth.t, np.degrees(np.arctan2(truth.values[:, 1], truth.values[:, 0])), color="black", lw=1.5, label="truth (simulated eye)")
     for e in estimates:
         attitude = e.extras.get("world_R_head") if isinstance(e, PointEstimate) else None
         if attitude is None or len(attitude) != len(rays):
             continue
-        quat = np.asarray(attitude, dtype=float)
-        known = np.isfinite(quat).all(axis=1)
-        world = np.einsum("nij,nj->ni", matrix_from_quat(np.where(known[:, None], quat, [1.0, 0.0, 0.0, 0.0])), rays)
-        world[~known] = np.nan  # no attitude yet: nothing drawn
+        world = rotate_by_quat(np.asarray(attitude, dtype=float), rays)  # NaN (nothing drawn) where no attitude yet
         axes[0].plot(e.t, np.degrees(np.arctan2(world[:, 1], world[:, 0])), lw=0.8, label=e.method)
         error = np.degrees(np.arccos(np.clip(np.sum(world * truth.values, axis=1), -1.0, 1.0)))
         axes[1].plot(e.t, np.maximum(error, 1e-3), lw=0.8, label=e.method)

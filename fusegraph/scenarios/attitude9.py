@@ -20,7 +20,7 @@ import numpy as np
 from ..catalogue import check_sensors
 from ..factors.imu import GRAVITY_M_S2
 from ..geometry import FloatArray, matrix_from_quat, quat_conjugate, quat_from_euler_zyx, quat_from_rotvec, quat_multiply, rotvec_from_quat
-from ..session import KIND_COLUMNS, Session, Stream
+from ..session import CALIBRATION_ROLE, KIND_COLUMNS, Session, Stream
 
 
 @dataclass(frozen=True)
@@ -172,7 +172,7 @@ def simulate_attitude9(seed: int = 0, config: Attitude9ScenarioConfig | None = N
     }
     if "mag" in cfg.sensors:
         streams["mag"] = Stream("mag", "mag", t, mag_raw, KIND_COLUMNS["mag"], 0.0, {**meta, "unit": "uT"})
-        streams["mag_cal"] = Stream("mag_cal", "mag", t_cal, cal_raw, KIND_COLUMNS["mag"], 0.0, {**meta, "unit": "uT", "role": "calibration recording"})
+        streams["mag_cal"] = Stream("mag_cal", "mag", t_cal, cal_raw, KIND_COLUMNS["mag"], 0.0, {**meta, "unit": "uT", "role": CALIBRATION_ROLE})
     if "tracker" in cfg.sensors:
         streams["tracker"] = attitude_tracker_stream(t, q, np.random.default_rng([seed, 2]), cfg.tracker_rate_hz, cfg.tracker_latency_s,
                                                      cfg.tracker_sigma_deg, cfg.noise)

@@ -46,24 +46,18 @@ class Windows:
         return duration_s > self.window_s + 2.0 * self.margin_s
 
 
-#: A calibration recording (e.g. the magnetometer's figure-eight) is its own recording, on its own clock: every window
-#: takes it whole.
-_WHOLE_ROLE = "calibration recording"
-
-
-def _whole(stream: Stream) -> bool:
-    return stream.meta.get("role") == _WHOLE_ROLE
+def recording_span(session: Session) -> tuple[float, float]:
+    """First and last sample time over the session's streams, a calibration recording (its own clock) aside."""
+    timed = [s for s in session.streams.values() if not s.own_recording and len(s)]
+    return min(float(s.t[0]) for s in timed), max(float(s.t[-1]) for s in timed)
 
 
 def session_blocks(session: Session, block_s: float) -> Iterator[Session]:
     """``session`` cut into blocks of ``block_s`` seconds in time order (the truth left out: a smoother never reads it)."""
-    timed = [s for s in session.streams.values() if not _whole(s)]
-    start = min(float(s.t[0]) for s in timed)
-    end = max(float(s.t[-1]) for s in timed)
-    lo = start
+    lo, end = recording_span(session)
     while lo <= end:
         hi = lo + block_s
-        yield Session(session.system, {name: (s if _whole(s) else s.select((s.t >= lo) & (s.t < hi))) for name, s in session.streams.items()},
+        yield Session(session.system, {name: (s if s.own_recording else s.select((s.t >= lo) & (s.t < hi))) for name, s in session.streams.items()},
                       None, session.meta, session.path)
         lo = hi
 
@@ -79,7 +73,7 @@ class _Buffer:
     def add(self, block: Session) -> None:
         self.template = self.template or block
         for name, stream in block.streams.items():
-            if _whole(stream):
+            if stream.own_recording:
                 self.whole[name] = stream
             elif len(stream):
                 self.parts.setdefault(name, []).append(stream)

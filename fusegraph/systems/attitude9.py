@@ -34,7 +34,7 @@ from ..progress import progress
 from ..session import NotApplicableError, Session, SessionError, SessionWarning
 from ..solvers.batch import chain_levenberg
 from ..solvers.online import OnlineConfig, OnlineSmoother
-from ..solvers.windowed import Windows, joined, session_blocks, smooth_in_windows
+from ..solvers.windowed import Windows, joined, recording_span, session_blocks, smooth_in_windows
 from ..tuned import tuned
 
 
@@ -233,7 +233,8 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     A recording longer than ``windows`` allows is smoothed window by window (``windowed_batch``; its worst window's check
     is said); None: whole.
     """
-    if windows is not None and windows.needed(session.duration_s):
+    start_s, end_s = recording_span(session)
+    if windows is not None and windows.needed(end_s - start_s):
         pieces = windowed_batch(session_blocks(session, windows.window_s), model, max_iterations, windows)
         return joined(pieces, ranked={"check": ("ok", "repaired", "suspect")})
     return _run_batch_whole(session, model, max_iterations)[0]

@@ -27,7 +27,7 @@ from ..baselines.ekf_gaze import GazeEkfConfig, run_gaze_ekf_full
 from ..factors.gaze import FixationNoise, SceneCamera, depth_prior, fixation_tuned, fixation_walk, gaze_factor, sample_points, wall_plane_prior
 from ..factors.imu import MotionPriors
 from ..factors.mag import MagNoise
-from ..geometry import FloatArray, quat_wxyz_from_rot3
+from ..geometry import FloatArray, quat_wxyz_from_rot3, rotate_by_quat
 from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
 from ..records import GazeData, GazeScenarioConfig, GazeSession
 from ..session import Session, SessionError
@@ -217,7 +217,7 @@ NEEDS_WALL = "[session] needs wall_m (distance to the wall, metres) or, without 
 def declared_config(header: Mapping[str, Any], gaze_meta: Mapping[str, Any], duration_s: float) -> GazeScenarioConfig:
     """What the graph needs from a session's declarations: the wall (``wall_m``) or the fixation depth (``target_depth_m``)
     from ``[session]``, the scene camera from the gaze stream's metadata (``focal_px``, ``width_px``, ``height_px``, ``pixel_sigma``)."""
-    camera = SceneCamera(**{k: type(getattr(SceneCamera(), k))(gaze_meta[k]) for k in ("focal_px", "width_px", "height_px", "pixel_sigma") if k in gaze_meta})
+    camera = SceneCamera.from_meta(gaze_meta)
     return GazeScenarioConfig(
         duration_s=duration_s,
         switch_s=float(header.get("switch_s", np.nan)),
@@ -256,10 +256,8 @@ def from_session(session: Session) -> GazeSession:
 def wall_points(session: GazeSession, world_R_head: FloatArray) -> FloatArray:
     """Where each gaze ray, turned by a head attitude (quaternions at the gaze samples), meets the wall x = ``wall_m``
     (or the plane at ``target_depth_m``): (X, Z) = (world y, z), metres; NaN where the ray does not reach it."""
-    from ..geometry import matrix_from_quat
-
     depth = session.config.wall_m if session.config.target_depth_m is None else session.config.target_depth_m
-    rays = np.einsum("nij,nj->ni", matrix_from_quat(world_R_head), session.config.camera.ray(session.gaze_px))
+    rays = rotate_by_quat(world_R_head, session.config.camera.ray(session.gaze_px))
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(rays[:, 0] > 1e-6, depth / rays[:, 0], np.nan)
     return rays[:, 1:] * scale[:, None]

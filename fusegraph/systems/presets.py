@@ -210,10 +210,10 @@ def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
         return {"rms": gaze_rms_mm(estimate.points[:, 0, :], data)}
     if "world_R_head" not in estimate.extras:
         return None
-    if session.meta.get("session", {}).get("gaze_truth") == "world_ray" and session.truth is not None:
-        return gaze_ray_errors(estimate.extras["world_R_head"], data, session.truth.values, session.stream("fixation").values[:, 0])
     ids = session.stream("fixation").values[:, 0] if "fixation" in session.streams else None
     found, source = scoring_fixations(data, ids)  # the stamps are already moved by the declared time_offset_s
+    if session.meta.get("session", {}).get("gaze_truth") == "world_ray" and session.truth is not None:  # the simulator's fixations
+        return gaze_ray_errors(estimate.extras["world_R_head"], data, session.truth.values, [f.rows for f in found])
     per = dispersions_deg(estimate.extras["world_R_head"], data, found)
     samples = int(sum(len(f.rows) for f in found))
     return {"dispersion_deg": float(np.median(per)) if len(per) else float("nan"), "dispersion_mean_deg": float(np.mean(per)) if len(per) else float("nan"),
