@@ -272,6 +272,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "per --solver, written as broad_mag / broad_mag_batch ...; broad_online: the online solver's relinearisation "
                          f"checks; each trial scored by its total RMSE, except {' and '.join(BROAD_OBJECTIVES)}, whose settings level the "
                          "sensor: its total over VQF's plus its inclination over VQF's, the offline VQF for the batch); "
+                         "broad_nested (not a choice but a check: every BROAD study of --solver re-chosen in its order without each "
+                         "held-out trial, from the code's defaults, and the trial scored with what its fold chose; printed beside the "
+                         "same procedure on all trials and beside tuned.toml's settings; --write files the figure for bench broad); "
                          "uwb_calibrated (the UWB tracker's range noise, leave-one-run-out over the LIAS "
                          "runs or --sessions); activity (the waist activity classifier on "
                          "../shared/data/hapt or --sessions: feature set, boosting stages and context by grouped cross-validation over the "
@@ -279,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "stairs); --write makes it the model on main, fusegraph/models/activity_waist.json).",
                          epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune head_ekf --write --workers 2\n"
                          "  fusegraph tune broad_mag --solver batch --write\n  fusegraph tune broad_motion --workers 2\n"
+                         "  fusegraph tune broad_nested --solver batch --workers 2 --write\n"
                          "  fusegraph tune activity --write",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     tun.add_argument("study", help="the study's name (see above)")
@@ -290,6 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="BROAD studies: choose on these sessions (or folders of them, e.g. imported trials) by leave-one-recording-out")
     tun.add_argument("--workers", type=int, default=1, help="processes: a simulated study's settings, BROAD's trials or the UWB runs (default 1)")
     tun.add_argument("--scheduler", default=None, help="a Dask scheduler for the same jobs: local, or tcp://host:port of a running cluster")
+    tun.add_argument("--passes", type=int, default=2, help="broad_nested: passes over the studies in their order at most (default 2; it "
+                     "stops when no choice moves)")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
                          description="Read each declared input from an LSL stream (sample times from LSL's clock, moved onto this machine's "
@@ -945,7 +951,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def _cmd_tune(args: argparse.Namespace) -> int:
     from .evaluation.tuning import main as tune_main
 
-    argv = [args.study, "--solver", args.solver, "--workers", str(args.workers)] + (["--write"] if args.write else [])
+    argv = [args.study, "--solver", args.solver, "--workers", str(args.workers), "--passes", str(args.passes)] + (["--write"] if args.write else [])
     argv += ["--scheduler", args.scheduler] if args.scheduler else []
     if args.sessions:
         argv += ["--sessions", *(str(p) for p in args.sessions)]

@@ -56,6 +56,28 @@ def bench_broad(
     out["published"] = published_baselines(Path(directory or DEFAULT_DIR))
     out["settings"] = tuning_provenance()
     out["figures_are"] = figures_are(list(out["trials"]))
+    out["nested"] = nested_figures(list(out["trials"]))
+    return out
+
+
+def nested_figures(trials: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """Per solver, the end-to-end nested leave-one-trial-out figure ``tune broad_nested --write`` filed (every study re-chosen
+    without the held-out trial), where it was measured on these trials: its ``cross_validated`` and ``in_sample`` mean totals
+    (deg), ``in_sample_on_main`` (the settings on main on the same trials) and ``current``: whether the settings on main are
+    still those it was measured against (a stale figure is reported as stale, not dropped)."""
+    from ..tuned import tuned, tuned_studies
+    from .nested import settings_key
+    from .tuning import tuned_compare
+
+    out = {}
+    for solver, study in (("online", "broad_nested"), ("batch", "broad_nested_batch")):
+        if study not in tuned_studies():
+            continue
+        table = tuned(study)
+        if sorted(table.get("trials", [])) != sorted(trials):
+            continue
+        out[solver] = {key: value for key, value in table.items() if key not in ("trials", "settings_on_main")}
+        out[solver]["current"] = table.get("settings_on_main") == settings_key(tuned_compare(solver))
     return out
 
 

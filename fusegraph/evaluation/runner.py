@@ -397,6 +397,8 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
     from .cluster import completed
 
     jobs = [(name, session, tuple(names), traces is not None) for name, session in sessions]
+    if workers > 1 or scheduler is not None:  # longest first: the last job to start is a short one, so the workers end together
+        jobs.sort(key=lambda job: -job[1].duration_s)
     finished: dict[str, tuple[dict[str, dict[str, Any]], list[Any]]] = {}
     for (name, _, _, _), future in progress(completed(_report_one_session, jobs, workers, scheduler), len(jobs), f"report {system}",
                                             enabled=None if show_progress else False):

@@ -159,6 +159,42 @@ def with_rest(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9
     return replace(model, motion=replace(model.motion, rest_rate_sigma_rad_s=float(settings["rest_rate_sigma_rad_s"])))
 
 
+def with_motion(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
+    """``model`` with a ``broad_motion`` setting (a grid point, or the chosen one): the velocity prior, the gyro and
+    accelerometer densities, the gravity direction's sigma and inflation."""
+    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(settings["gyro_noise_rad_s_sqrt_hz"]),
+                  accel_noise_m_s2_sqrt_hz=float(settings["accel_noise_m_s2_sqrt_hz"]))
+    gravity = replace(model.gravity or GravityNoise(), sigma_deg=float(settings["gravity_sigma_deg"]),
+                      inflation_deg_per_m_s2=float(settings["gravity_inflation_deg_per_m_s2"]))
+    motion = replace(model.motion, velocity_sigma_m_s=float(settings["velocity_sigma_m_s"]))
+    return replace(model, imu=imu, gravity=gravity, motion=motion)
+
+
+def with_bias(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
+    """``model`` with a ``broad_bias`` setting (a grid point, or the chosen one): the accelerometer bias's start-up sigma
+    and random walk, the gyro bias's random walk."""
+    imu = replace(model.imu, accel_bias_prior_m_s2=float(settings["accel_bias_prior_m_s2"]),
+                  accel_bias_walk_m_s2_sqrt_s=float(settings["accel_bias_walk_m_s2_sqrt_s"]),
+                  gyro_bias_walk_rad_s_sqrt_s=float(settings["gyro_bias_walk_rad_s_sqrt_s"]))
+    return replace(model, imu=imu)
+
+
+MODEL_STUDIES: tuple[str, ...] = ("broad_mag", "broad_motion", "broad_bias", "broad_hard_iron", "broad_field", "broad_rest")
+"""The BROAD studies that set the 9-axis model, in the order they are chosen (``_batch`` appended for the batch's)."""
+
+
+def model_from_settings(settings: Mapping[str, Mapping[str, float]]) -> Attitude9Model:
+    """The 9-axis model from each study's setting (``MODEL_STUDIES`` name, without ``_batch`` -> its setting); a study not
+    given keeps the code's default (``MagNoise()``, ``ImuNoise()``, ...: none of them read ``tuned.toml``)."""
+    noise = mag_noise_from(settings["broad_mag"]) if "broad_mag" in settings else MagNoise()
+    for layer, apply in MAG_LAYERS:
+        noise = apply(noise, settings[layer]) if layer in settings else noise
+    model = Attitude9Model(mag=noise)
+    model = with_motion(model, settings["broad_motion"]) if "broad_motion" in settings else model
+    model = with_bias(model, settings["broad_bias"]) if "broad_bias" in settings else model
+    return with_rest(model, settings["broad_rest"]) if "broad_rest" in settings else model
+
+
 def mag_noise_tuned(study: str) -> MagNoise:
     """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``), with the
     hard-iron model its ``broad_hard_iron`` study chose (``broad_hard_iron_batch``) and the field tracking its

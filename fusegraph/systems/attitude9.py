@@ -23,19 +23,19 @@ import numpy as np
 
 from ..consistency import stream_range
 from ..estimate import Estimate
-from ..factors.accel import GravityNoise, declared_gravity
+from ..factors.accel import declared_gravity
 from ..factors.attitude import AttitudeTrack
 from ..factors.gyro import GyroCalibrationPrior
 from ..factors.mag import FieldReference, MagCalibration, fit_mag_calibration
 from ..geometry import quat_wxyz_from_rot3, rot3_from_quat_wxyz
-from ..graphs.attitude9 import TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, mag_noise_tuned, with_rest
+from ..graphs.attitude9 import MODEL_STUDIES, TRACKER_WORLD, Attitude9Builder, Attitude9Model, B, V, X, fill_samples, model_from_settings, with_rest
 from ..graphs.increment import GraphIncrement
 from ..progress import progress
 from ..session import NotApplicableError, Session, SessionError, SessionWarning
 from ..solvers.batch import chain_levenberg
 from ..solvers.online import OnlineConfig, OnlineSmoother
 from ..solvers.windowed import Windows, joined, recording_span, session_blocks, smooth_in_windows
-from ..tuned import tuned
+from ..tuned import tuned, tuned_studies
 
 
 def online_config(setting: Mapping[str, float]) -> OnlineConfig:
@@ -186,29 +186,13 @@ def broad_model(solver: str = "online") -> Attitude9Model:
     ``unmodelled_acceleration`` stays off: with it the thirteen trials scored 4.51 deg online and 2.17 batch (mean total
     RMSE, at these settings) against 1.93 and 1.67: a hand's accelerations average out over the tuned velocity prior,
     which then levels the sensor through the IMU factor."""
+    return model_from_settings(broad_settings(solver))
+
+
+def broad_settings(solver: str = "online") -> dict[str, dict[str, float]]:
+    """Each model study's setting in ``tuned.toml`` for the solver (``broad_mag`` -> ``[broad_mag]`` or ``[broad_mag_batch]``)."""
     suffix = "" if solver == "online" else "_batch"
-    model = with_bias(with_motion(Attitude9Model(mag=mag_noise_tuned(f"broad_mag{suffix}")), tuned(f"broad_motion{suffix}")), tuned(f"broad_bias{suffix}"))
-    return with_rest(model, tuned(f"broad_rest{suffix}"))
-
-
-def with_motion(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
-    """``model`` with a ``broad_motion`` setting (a grid point, or the chosen one): the velocity prior, the gyro and
-    accelerometer densities, the gravity direction's sigma and inflation."""
-    imu = replace(model.imu, gyro_noise_rad_s_sqrt_hz=float(settings["gyro_noise_rad_s_sqrt_hz"]),
-                  accel_noise_m_s2_sqrt_hz=float(settings["accel_noise_m_s2_sqrt_hz"]))
-    gravity = replace(model.gravity or GravityNoise(), sigma_deg=float(settings["gravity_sigma_deg"]),
-                      inflation_deg_per_m_s2=float(settings["gravity_inflation_deg_per_m_s2"]))
-    motion = replace(model.motion, velocity_sigma_m_s=float(settings["velocity_sigma_m_s"]))
-    return replace(model, imu=imu, gravity=gravity, motion=motion)
-
-
-def with_bias(model: Attitude9Model, settings: Mapping[str, float]) -> Attitude9Model:
-    """``model`` with a ``broad_bias`` setting (a grid point, or the chosen one): the accelerometer bias's start-up sigma
-    and random walk, the gyro bias's random walk."""
-    imu = replace(model.imu, accel_bias_prior_m_s2=float(settings["accel_bias_prior_m_s2"]),
-                  accel_bias_walk_m_s2_sqrt_s=float(settings["accel_bias_walk_m_s2_sqrt_s"]),
-                  gyro_bias_walk_rad_s_sqrt_s=float(settings["gyro_bias_walk_rad_s_sqrt_s"]))
-    return replace(model, imu=imu)
+    return {study: tuned(study + suffix) for study in MODEL_STUDIES if study + suffix in tuned_studies()}
 
 
 #: Median heading residual (angle between the levelled field and north) above which a batch solution is

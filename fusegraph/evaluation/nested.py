@@ -1,0 +1,190 @@
+"""Leave-one-trial-out nested end to end: every BROAD study of a solver re-chosen without the held-out trial.
+
+``tune broad_mag`` and its siblings each choose one study's setting by leave-one-trial-out with the other studies' settings
+as ``tuned.toml`` holds them, i.e. chosen on all trials, the held-out one among them. Here the whole procedure is repeated
+per held-out trial: starting from the code's defaults (``graphs.attitude9.model_from_settings({})``, which reads no
+``tuned.toml``), the studies are chosen in their order (``MODEL_STUDIES``, then ``broad_online`` for the online solver),
+each on the other trials only and by its own objective (``tuning.BROAD_OBJECTIVES``), and the order is passed over again
+until no choice moves (at most ``passes`` times). The trial is then scored with what its fold chose. The same procedure on
+all trials gives the in-sample figure beside it. Runs are shared: a fold whose choices so far are those of another path
+reuses that path's scores (each distinct model is run once per trial).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .cluster import in_order
+from .tuning import _broad_objective, _recording, broad_grid, grid_settings, recordings
+
+ALL = "(all trials)"
+"""The path that chooses on every trial: the procedure's in-sample choice."""
+
+DEFAULT_ONLINE = {"relinearize_skip": 10.0}
+"""``broad_online`` before it is chosen: gtsam's default check interval (``ISAM2Params.relinearizeSkip``)."""
+
+Settings = dict[str, dict[str, float]]
+
+
+def study_order(solver: str) -> tuple[str, ...]:
+    """The studies a solver's settings come from, in the order they are chosen."""
+    from ..graphs.attitude9 import MODEL_STUDIES
+
+    return (*MODEL_STUDIES, "broad_online") if solver == "online" else MODEL_STUDIES
+
+
+def settings_key(settings: Mapping[str, Mapping[str, float]]) -> str:
+    """A path's settings as one string (the cache's key): every run of these settings gives the same figures."""
+    return json.dumps({study: dict(sorted(point.items())) for study, point in sorted(settings.items())})
+
+
+def _trial_runs(job: tuple[str, str, list[str]]) -> dict[str, tuple[float, float]]:
+    """One trial under each of several settings (``job``: the trial's path, the solver, the settings' keys): each key's
+    total and inclination RMSE, degrees."""
+    from ..graphs.attitude9 import model_from_settings
+    from ..metrics import broad_errors
+    from ..session import SessionWarning
+    from ..systems import attitude9
+
+    path, solver, keys = job
+    session = _recording(Path(path))
+    movement = session.stream("movement").values[:, 0]
+    truth = session.truth.values  # type: ignore[union-attr]
+    out = {}
+    for key in keys:
+        settings = json.loads(key)
+        model = model_from_settings(settings)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SessionWarning)
+            if solver == "online":
+                estimate = attitude9.run_online(session, model, attitude9.online_config(settings.get("broad_online", DEFAULT_ONLINE)))
+            else:
+                estimate = attitude9.run_batch(session, model)
+        errors = broad_errors(estimate.quat_wxyz, truth, movement)
+        out[key] = (float(errors.total), float(errors.inclination))
+    return out
+
+
+def _peer_run(job: tuple[str, str]) -> tuple[float, float]:
+    """VQF's total and inclination RMSE on one trial (offline VQF for the batch), degrees: the peer-ratio objective's
+    denominators."""
+    from ..baselines.peers import run_vqf
+    from ..metrics import broad_errors
+
+    path, solver = job
+    session = _recording(Path(path))
+    errors = broad_errors(run_vqf(session, offline=solver == "batch").quat_wxyz, session.truth.values,  # type: ignore[union-attr]
+                          session.stream("movement").values[:, 0])
+    return float(errors.total), float(errors.inclination)
+
+
+def nested_broad(solver: str = "online", directory: str | None = None, sessions: Sequence[str | Path] = (), passes: int = 2,
+                 workers: int = 1, scheduler: str | None = None, say: Callable[[str], None] = print,
+                 compare: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Any]:
+    """The end-to-end nested leave-one-trial-out figure of one solver on the BROAD trials (or imported ``sessions``).
+
+    Returns ``trials`` (held-out trial -> its fold's ``settings``, ``total`` and ``inclination`` there, and the peer's),
+    ``in_sample`` (the same procedure on every trial: its ``settings`` and per-trial figures), ``cross_validated`` and
+    ``in_sample_mean`` (mean total and inclination, degrees, and their ratios to the peer's means), ``passes`` run, and
+    ``compare`` (``compare``'s settings, e.g. ``tuned.toml``'s, scored on every trial) when given."""
+    paths = [str(p) for p in recordings(directory, sessions)]
+    trials = [Path(p).stem for p in paths]
+    peers = dict(zip(trials, in_order(_peer_run, [(p, solver) for p in paths], workers, scheduler), strict=True))
+    runs: dict[str, dict[str, tuple[float, float]]] = {}  # settings key -> trial -> (total, inclination)
+
+    def run(keys: set[str]) -> None:
+        todo = sorted(k for k in keys if k not in runs)
+        if not todo:
+            return
+        per_trial = in_order(_trial_runs, [(p, solver, todo) for p in paths], workers, scheduler)
+        for key in todo:
+            runs[key] = {trial: figures[key] for trial, figures in zip(trials, per_trial, strict=True)}
+
+    grids = {study: grid_settings(broad_grid(study, solver)) for study in study_order(solver)}
+
+    def score(study: str, key: str, trial: str) -> float:
+        total, inclination = runs[key][trial]
+        return total if _broad_objective(study) == "total" else total / peers[trial][0] + inclination / peers[trial][1]
+
+    paths_settings, done = choose_nested(trials, grids, score, run, passes, say)
+    if compare is not None:
+        run({settings_key(compare)})
+
+    def figures(settings: Settings, trial: str) -> dict[str, float]:
+        total, inclination = runs[settings_key(settings)][trial]
+        return {"total": total, "inclination": inclination, "peer_total": peers[trial][0], "peer_inclination": peers[trial][1]}
+
+    held_out = {trial: {"settings": paths_settings[trial], **figures(paths_settings[trial], trial)} for trial in trials}
+    in_sample = {trial: figures(paths_settings[ALL], trial) for trial in trials}
+    out = {"solver": solver, "passes": done, "trials": held_out, "in_sample": {"settings": paths_settings[ALL], "trials": in_sample},
+           "cross_validated": _means(held_out), "in_sample_mean": _means(in_sample), "objectives": {s: _broad_objective(s) for s in study_order(solver)}}
+    if compare is not None:
+        out["compare"] = {"settings": compare, "mean": _means({trial: figures(dict(compare), trial) for trial in trials})}  # type: ignore[arg-type]
+    return out
+
+
+def choose_nested(trials: Sequence[str], grids: Mapping[str, Mapping[str, dict[str, float]]], score: Callable[[str, str, str], float],
+                  run: Callable[[set[str]], None], passes: int = 2, say: Callable[[str], None] = print) -> tuple[dict[str, Settings], int]:
+    """Coordinate descent over the studies (``grids``: study -> its grid points by name, in the order they are chosen), from
+    no setting chosen, once on every trial (``ALL``) and once per held-out trial on the others; passed over again until
+    no choice moves (at most ``passes`` times). ``run(keys)`` makes every settings key's runs available to ``score(study,
+    key, trial)`` (lower is better; the study names its objective). Returns each path's settings and the passes run."""
+    paths_settings: dict[str, Settings] = {ALL: {}, **{trial: {} for trial in trials}}
+    done = 0
+    for done in range(1, passes + 1):
+        moved = False
+        for study, grid in grids.items():
+            candidates = {name: {path: {**chosen, study: point} for path, chosen in paths_settings.items()} for name, point in grid.items()}
+            run({settings_key(s) for per_path in candidates.values() for s in per_path.values()})
+            for path in paths_settings:
+                train = [t for t in trials if t != path]
+                best = min(grid, key=lambda name, path=path, train=train, study=study: float(  # type: ignore[misc]
+                    np.mean([score(study, settings_key(candidates[name][path]), t) for t in train])))
+                moved |= paths_settings[path].get(study) != grid[best]
+                paths_settings[path] = candidates[best][path]
+            differ = sum(paths_settings[t][study] != paths_settings[ALL][study] for t in trials)
+            say(f"pass {done} {study:<16} {len(grid):>3} points; on all trials: {_point(paths_settings[ALL][study])}"
+                f"; {differ} of {len(trials)} folds chose otherwise")
+        if not moved:
+            break
+    return paths_settings, done
+
+
+def _means(per_trial: Mapping[str, Mapping[str, Any]]) -> dict[str, float]:
+    """Mean total and inclination over trials, degrees, and each as a ratio to the peer's mean."""
+    mean = {key: float(np.mean([row[key] for row in per_trial.values()])) for key in ("total", "inclination", "peer_total", "peer_inclination")}
+    return {**mean, "total_ratio": mean["total"] / mean["peer_total"], "inclination_ratio": mean["inclination"] / mean["peer_inclination"]}
+
+
+def _point(point: Mapping[str, float]) -> str:
+    return " ".join(f"{k}={v:g}" for k, v in point.items())
+
+
+def format_nested(result: Mapping[str, Any]) -> str:
+    """The nested figure as the table ``tune broad_nested`` and ``bench broad --nested`` print."""
+    peer = "VQF" if result["solver"] == "online" else "offline VQF"
+    lines = [f"{result['solver']}: every study re-chosen without the held-out trial ({result['passes']} pass(es) over "
+             f"{', '.join(result['objectives'])}), degrees",
+             f"{'held-out trial':<46}{'total':>8}{'incl':>8}{'peer':>8}{'ratio':>8}  settings its fold chose unlike all trials"]
+    chosen_all = result["in_sample"]["settings"]
+    for trial, row in result["trials"].items():
+        differs = "; ".join(f"{s}: {_point(p)}" for s, p in row["settings"].items() if p != chosen_all.get(s)) or "-"
+        lines.append(f"{trial:<46}{row['total']:8.3f}{row['inclination']:8.3f}{row['peer_total']:8.3f}{row['total'] / row['peer_total']:8.3f}  {differs}")
+    rows = [("cross-validated, every study re-chosen", result["cross_validated"]), ("in-sample, the same procedure on all trials", result["in_sample_mean"])]
+    if "compare" in result:
+        rows.append(("in-sample, tuned.toml's settings", result["compare"]["mean"]))
+    lines.append(f"{'mean':<46}{'total':>8}{'incl':>8}{'/' + peer:>14}{'incl/' + peer:>18}")
+    lines += [f"{name:<46}{m['total']:8.3f}{m['inclination']:8.3f}{m['total_ratio']:14.3f}{m['inclination_ratio']:18.3f}" for name, m in rows]
+    gap = result["cross_validated"]["total"] / result["in_sample_mean"]["total"] - 1.0
+    lines.append(f"cross-validated / in-sample, total: {gap:+.1%}")
+    lines.append("chosen on all trials: " + "; ".join(f"{s}: {_point(p)}" for s, p in chosen_all.items()))
+    return "\n".join(lines)
+
+
+__all__ = ["ALL", "format_nested", "nested_broad", "settings_key", "study_order"]
