@@ -745,7 +745,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int:
     """``report SYSTEM DIR ...``: every solver on the user's sessions."""
-    from .evaluation.runner import load_sessions, report_sessions
+    from .evaluation.runner import named_session_dirs, report_sessions
     from .report.tables import format_session_report, plot_session_report
 
     fixed = {"--seeds": args.seeds is not None, "--duration": args.duration is not None, "--latency-true": args.latency_true is not None,
@@ -756,7 +756,7 @@ def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int
     traces: dict[str, list[Any]] | None = {} if args.html else None
     import os
 
-    found = report_sessions(args.system, load_sessions(args.sessions), solvers, include_suspect=args.include_suspect, traces=traces,
+    found = report_sessions(args.system, named_session_dirs(args.sessions), solvers, include_suspect=args.include_suspect, traces=traces,
                             workers=args.workers or os.cpu_count() or 1, scheduler=args.scheduler)
     table = format_session_report(found)
     print(_dump(found) if args.json else table)

@@ -151,7 +151,7 @@ def test_a_long_session_name_keeps_the_solver_column_and_many_sessions_make_a_su
 
 
 def test_a_report_in_two_processes_is_the_report_in_one(tmp_path: Path) -> None:
-    from fusegraph.evaluation.runner import load_sessions, report_sessions
+    from fusegraph.evaluation.runner import load_sessions, named_session_dirs, report_sessions
 
     for seed in (0, 1, 2):
         assert main(["simulate", "attitude9", "--seed", str(seed), "--duration", "10", "--out", str(tmp_path / f"seed{seed}")]) == 0
@@ -161,3 +161,13 @@ def test_a_report_in_two_processes_is_the_report_in_one(tmp_path: Path) -> None:
     assert list(two["sessions"]) == ["seed0", "seed1", "seed2"]  # in the order of the sessions
     for solver in ("online", "batch"):
         assert two["methods"][solver]["metrics"] == one["methods"][solver]["metrics"]
+    # given as folders, the workers read them: the same report; a session that cannot be read is a row saying why
+    (tmp_path / "seed1" / "gyro.csv").write_text("t,x,y,z\n0.0,1,2\n")
+    folders = named_session_dirs([tmp_path])
+    read_there = report_sessions("attitude9", folders, ["online", "batch"], show_progress=False, workers=2)
+    assert list(read_there["sessions"]) == ["seed0", "seed1", "seed2"]
+    broken = read_there["sessions"]["seed1"]
+    assert {row["status"] for row in broken.values()} == {"failed"} and "gyro.csv" in broken["online"]["error"]
+    for solver in ("online", "batch"):
+        assert read_there["sessions"]["seed2"][solver]["metrics"] == one["sessions"]["seed2"][solver]["metrics"]
+        assert read_there["methods"][solver]["sessions_failed"] == 1

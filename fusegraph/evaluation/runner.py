@@ -367,7 +367,7 @@ def _without_truth(outcome: Outcome) -> dict[str, float]:
     return out
 
 
-def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solvers: Sequence[str] | None = None,
+def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]], solvers: Sequence[str] | None = None,
                     show_progress: bool = True, include_suspect: bool = False, traces: dict[str, list[Any]] | None = None,
                     workers: int = 1, scheduler: str | None = None) -> dict[str, Any]:
     """Every solver of ``system`` on every session (imported, hand-made or simulated), each through ``solve_session``
@@ -381,7 +381,9 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
     ``suspect`` run (its own diagnostics) stays out of the means unless ``include_suspect``: neither is averaged silently.
     ``traces``: a dict to fill with each session's ``results.Trace`` per solver that ran (what ``report --html`` draws).
     ``workers``/``scheduler``: sessions in parallel (processes, or Dask: ``local`` or ``tcp://host:port``), gathered in
-    the order of the sessions.
+    the order of the sessions. A session given as its folder (``named_session_dirs``) is read by the worker that runs it, so
+    reading runs in parallel too and this process holds no recording; one that cannot be read is a failed row per solver
+    with the reader's error (its file and line), and the report goes on.
     """
 
     from ..progress import progress
@@ -392,14 +394,15 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
     if unknown:
         raise SessionError(f"--solvers {','.join(unknown)}: {system} has {', '.join(preset.solvers)}")
     for name, session in sessions:
-        if session.system != system:
-            raise SessionError(f"{name}: a {session.system} session, not {system} (report one system at a time)")
+        kind = session.system if isinstance(session, Session) else _declared_system(session)
+        if kind is not None and kind != system:
+            raise SessionError(f"{name}: a {kind} session, not {system} (report one system at a time)")
     from .cluster import completed
 
     jobs = [(name, session, tuple(names), traces is not None) for name, session in sessions]
     if workers > 1 or scheduler is not None:  # longest first: the last job to start is a short one, so the workers end together
-        jobs.sort(key=lambda job: -job[1].duration_s)
-    finished: dict[str, tuple[dict[str, dict[str, Any]], list[Any]]] = {}
+        jobs.sort(key=lambda job: -_size(job[1]))
+    finished: dict[str, tuple[dict[str, dict[str, Any]], list[Any], float, str]] = {}
     for (name, _, _, _), future in progress(completed(_report_one_session, jobs, workers, scheduler), len(jobs), f"report {system}",
                                             enabled=None if show_progress else False):
         finished[name] = future.result()
@@ -413,7 +416,7 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
         scored = [flatten(r["metrics"]) for r in counted]
         keys = sorted(set().union(*[set(r) for r in scored])) if scored else []
         means = {k: float(np.mean([r[k] for r in scored if k in r])) for k in keys}
-        data_s = sum(session.duration_s for name, session in sessions if rows[name][solver]["status"] == "ok")
+        data_s = sum(finished[name][2] for name, _ in sessions if rows[name][solver]["status"] == "ok")
         seconds = sum(r["runtime_s"] for r in done)
         methods[solver] = {"metrics": unflatten(means), "x_realtime": data_s / seconds if seconds > 0 else float("nan"),
                            "sessions_scored": len(scored),
@@ -421,19 +424,47 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session]], solver
                            "sessions_not_applicable": sum(rows[name][solver]["status"] == "n/a" for name, _ in sessions),
                            "sessions_not_scored": sum("not_scored" in r for r in done),
                            "sessions_suspect": sum("suspect" in r for r in done), "suspect_in_means": include_suspect}
-    datasets = sorted({str(session.meta.get("session", {}).get("dataset", "")) for _, session in sessions} - {""})
+    datasets = sorted({finished[name][3] for name, _ in sessions} - {""})
     return {"system": system, "solvers": names, "metric_keys": list(preset.metric_keys), "sessions": rows, "methods": methods,
             "datasets": datasets}
 
 
-def _report_one_session(job: tuple[str, Session, tuple[str, ...], bool]) -> tuple[dict[str, dict[str, Any]], list[Any]]:
-    """Worker: every solver on one session, each through ``solve_session`` with its warnings; a solver that fails or cannot
-    take the session is a row saying why. Returns the rows by solver and, when asked, the traces a page draws."""
+def _declared_system(directory: Path) -> str | None:
+    """The system a session folder declares (its session.toml alone), or None when that cannot be read (the worker that
+    reads the session says why)."""
+    from ..session import read_session_spec
+
+    try:
+        return read_session_spec(directory)[2]
+    except SessionError:
+        return None
+
+
+def _size(session: Session | Path) -> float:
+    """How long a session takes to run, for ordering: its duration, or its files' bytes when not read yet."""
+    if isinstance(session, Session):
+        return session.duration_s
+    return float(sum(f.stat().st_size for f in directory_files(session)))
+
+
+def directory_files(directory: Path) -> list[Path]:
+    """The files of a session folder (not below it)."""
+    return [f for f in directory.iterdir() if f.is_file()] if directory.is_dir() else []
+
+
+def _report_one_session(job: tuple[str, Session | Path, tuple[str, ...], bool]) -> tuple[dict[str, dict[str, Any]], list[Any], float, str]:
+    """Worker: every solver on one session (read here when given as a folder), each through ``solve_session`` with its
+    warnings; a solver that fails or cannot take the session is a row saying why, and so is every solver of a session that
+    cannot be read. Returns the rows by solver, when asked the traces a page draws, the session's duration (s) and dataset."""
     import warnings
 
     from ..results import trace_of
 
-    name, session, names, want_traces = job
+    name, source, names, want_traces = job
+    try:
+        session = source if isinstance(source, Session) else load_session(source)
+    except (SessionError, OSError, ValueError) as exc:  # one unreadable session is a row per solver, the report goes on
+        return {solver: {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "metrics": {}} for solver in names}, [], 0.0, ""
     preset = PRESETS[session.system]
     rows: dict[str, dict[str, Any]] = {}
     traces: list[Any] = []
@@ -463,7 +494,7 @@ def _report_one_session(job: tuple[str, Session, tuple[str, ...], bool]) -> tupl
         if unscored:
             row["not_scored"] = unscored
         rows[solver] = row
-    return rows, traces
+    return rows, traces, session.duration_s, str(session.meta.get("session", {}).get("dataset", ""))
 
 
 def not_scored_reason(preset: Preset, metrics: dict[str, Any] | None, said: Sequence[str]) -> str | None:
@@ -482,8 +513,14 @@ def not_scored_reason(preset: Preset, metrics: dict[str, Any] | None, said: Sequ
 def load_sessions(paths: Iterable[str | Path]) -> list[tuple[str, Session]]:
     """Sessions from directories (each a session, or a folder of them at any depth), named by their folder (where two
     share a name: by their path below the folder they share, ``unique_names``)."""
+    return [(name, load_session(p)) for name, p in named_session_dirs(paths)]
+
+
+def named_session_dirs(paths: Iterable[str | Path]) -> list[tuple[str, Path]]:
+    """The session directories ``load_sessions`` would read, with the same names, unread (``report_sessions`` has its
+    workers read them)."""
     dirs = session_dirs(paths)
-    return [(name, load_session(p)) for name, p in zip(unique_names(dirs), dirs, strict=True)]
+    return list(zip(unique_names(dirs), dirs, strict=True))
 
 
 def simulated_sessions(system: str, seeds: Sequence[int], duration_s: float | None = None, **options: Any) -> list[tuple[str, Session]]:
