@@ -186,3 +186,18 @@ def test_jobs_on_a_dask_cluster_come_back_in_order() -> None:
     from fusegraph.evaluation.cluster import in_order
 
     assert in_order(abs, [-3, 1, -2, 5], 2, "local") == [3, 1, 2, 5]  # what tune --scheduler hands its studies' jobs to
+
+
+def test_costliest_jobs_start_first_and_still_come_back_in_order(monkeypatch: pytest.MonkeyPatch) -> None:
+    import fusegraph.evaluation.cluster as cluster
+
+    started: list[int] = []
+    run_here = cluster.completed
+
+    def record(fn, order, workers, scheduler):  # type: ignore[no-untyped-def]
+        started.extend(order)
+        return run_here(fn, order, 1, None)
+
+    monkeypatch.setattr(cluster, "completed", record)
+    assert cluster.in_order(abs, [1, 5, 2, 4], 2, cost=float) == [1, 5, 2, 4]
+    assert started == [5, 4, 2, 1]

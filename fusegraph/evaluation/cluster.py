@@ -75,11 +75,23 @@ def completed(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, sche
             yield pending[future], future
 
 
-def in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, scheduler: str | None = None) -> list[Any]:
+def in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, scheduler: str | None = None,
+             cost: Callable[[Any], float] | None = None) -> list[Any]:
     """``fn`` over ``items`` through ``completed`` (here, a local process pool, or Dask with ``scheduler``), the results in
-    item order."""
+    item order. ``cost``: how long an item takes, roughly; the costliest start first, so the workers finish together."""
     position = {id(item): i for i, item in enumerate(items)}  # completed() hands back the very item objects
     results: list[Any] = [None] * len(items)
-    for item, future in completed(fn, items, workers, scheduler):
+    started = sorted(items, key=lambda item: -cost(item)) if cost is not None and (workers > 1 or scheduler is not None) else items
+    for item, future in completed(fn, started, workers, scheduler):
         results[position[id(item)]] = future.result()
     return results
+
+
+def file_bytes(job: Sequence[Any]) -> float:
+    """A job's cost for ``in_order``: the size of the file or folder its first element names (a recording's path)."""
+    from pathlib import Path
+
+    path = Path(job[0])
+    if path.is_dir():
+        return float(sum(f.stat().st_size for f in path.iterdir() if f.is_file()))
+    return float(path.stat().st_size) if path.is_file() else 0.0

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .cluster import in_order
+from .cluster import file_bytes, in_order
 from .tuning import _broad_objective, _recording, broad_grid, grid_settings, recordings
 
 ALL = "(all trials)"
@@ -102,7 +102,7 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
         todo = sorted(k for k in keys if k not in runs)
         if not todo:
             return
-        per_trial = in_order(_trial_runs, [(p, solver, todo) for p in paths], workers, scheduler)
+        per_trial = in_order(_trial_runs, [(p, solver, todo) for p in paths], workers, scheduler, cost=file_bytes)
         for key in todo:
             runs[key] = {trial: figures[key] for trial, figures in zip(trials, per_trial, strict=True)}
 

@@ -444,12 +444,9 @@ def _size(session: Session | Path) -> float:
     """How long a session takes to run, for ordering: its duration, or its files' bytes when not read yet."""
     if isinstance(session, Session):
         return session.duration_s
-    return float(sum(f.stat().st_size for f in directory_files(session)))
+    from .cluster import file_bytes
 
-
-def directory_files(directory: Path) -> list[Path]:
-    """The files of a session folder (not below it)."""
-    return [f for f in directory.iterdir() if f.is_file()] if directory.is_dir() else []
+    return file_bytes((session,))
 
 
 def _report_one_session(job: tuple[str, Session | Path, tuple[str, ...], bool]) -> tuple[dict[str, dict[str, Any]], list[Any], float, str]:

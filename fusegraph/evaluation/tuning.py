@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..tuned import write_tuned
-from .cluster import in_order
+from .cluster import file_bytes, in_order
 
 TUNING_SEEDS: tuple[int, ...] = tuple(range(100, 120))
 """Seeds every free setting is chosen on."""
@@ -315,7 +315,7 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     ``total_cross_validated``: the chosen settings' mean total RMSE (deg) on the trials, and each held-out trial's under
     the settings its fold chose."""
     paths = [str(p) for p in recordings(directory, sessions)]
-    per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers, scheduler)
+    per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers, scheduler, cost=file_bytes)
     names = list(grid_settings(broad_grid(study, solver)))
     scores: dict[str, dict[str, float]] = {name: {} for name in names}
     totals: dict[str, dict[str, float]] = {name: {} for name in names}
