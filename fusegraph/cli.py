@@ -951,7 +951,12 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def _cmd_tune(args: argparse.Namespace) -> int:
     from .evaluation.tuning import main as tune_main
 
-    argv = [args.study, "--solver", args.solver, "--workers", str(args.workers), "--passes", str(args.passes)] + (["--write"] if args.write else [])
+    if args.study == "broad_nested":
+        from .evaluation.nested import main_nested
+
+        return main_nested(args.solver, args.sessions, args.passes, args.workers, args.scheduler, args.write)
+
+    argv = [args.study, "--solver", args.solver, "--workers", str(args.workers)] + (["--write"] if args.write else [])
     argv += ["--scheduler", args.scheduler] if args.scheduler else []
     if args.sessions:
         argv += ["--sessions", *(str(p) for p in args.sessions)]

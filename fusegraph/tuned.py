@@ -58,6 +58,9 @@ SYSTEM_STUDIES: dict[str, tuple[str, ...]] = {
     "ultrasonic": ("stonesoup_gnn", "stonesoup_jpda", "uwb_calibrated"),
 }
 """The studies whose chosen values each system's methods (its baselines and its graphs) run with."""
+CHECK_STUDIES: dict[str, tuple[str, ...]] = {"attitude9": ("broad_nested", "broad_nested_batch")}
+"""Tables that hold no choice but a check of the system's choices (``tune broad_nested``: every study re-chosen per held-out
+trial), which its bench prints beside its in-sample figures."""
 
 
 def settings_of(system: str) -> dict[str, dict[str, Any]]:

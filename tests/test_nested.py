@@ -23,14 +23,15 @@ def _score(study: str, key: str, trial: str) -> float:
 
 def test_each_fold_chooses_without_its_trial_and_later_studies_follow_the_fold() -> None:
     asked: list[set[str]] = []
-    chosen, passes = choose_nested(["a", "b", "c", "d"], _grids(), _score, asked.append, passes=5, say=lambda _: None)
+    chosen, passes, converged = choose_nested(["a", "b", "c", "d"], _grids(), _score, asked.append, passes=5, say=lambda _: None)
     # on all four trials x = 1 (mean squared error 1.75 against 2.25 at x = 0); without d, x = 0 (0 against 1); without a, b or
     # c the two remaining zeros and the 3 still choose x = 1 (2 against 3)
     assert chosen[ALL] == {"first": {"x": 1.0}, "second": {"y": 1.0}}
     assert chosen["d"] == {"first": {"x": 0.0}, "second": {"y": 0.0}}  # the second study chosen on the fold's own first choice
     for trial in "abc":
         assert chosen[trial] == chosen[ALL]
-    assert passes == 2  # the second pass moved nothing, so it stopped there
+    assert passes == 2 and converged  # the second pass moved nothing, so it stopped there
+    assert not choose_nested(["a", "b", "c", "d"], _grids(), _score, asked.append, passes=1, say=lambda _: None)[2]  # one pass cannot know
     assert all(asked)  # every step asked for its runs before scoring them
 
 

@@ -65,12 +65,13 @@ def nested_figures(trials: Sequence[str]) -> dict[str, dict[str, Any]]:
     without the held-out trial), where it was measured on these trials: its ``cross_validated`` and ``in_sample`` mean totals
     (deg), ``in_sample_on_main`` (the settings on main on the same trials) and ``current``: whether the settings on main are
     still those it was measured against (a stale figure is reported as stale, not dropped)."""
-    from ..tuned import tuned, tuned_studies
+    from ..tuned import CHECK_STUDIES, tuned, tuned_studies
     from .nested import settings_key
     from .tuning import tuned_compare
 
     out = {}
-    for solver, study in (("online", "broad_nested"), ("batch", "broad_nested_batch")):
+    for study in CHECK_STUDIES["attitude9"]:
+        solver = "batch" if study.endswith("_batch") else "online"
         if study not in tuned_studies():
             continue
         table = tuned(study)

@@ -20,8 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from ..tuned import write_tuned
 from .cluster import file_bytes, in_order
-from .tuning import _broad_objective, _recording, broad_grid, grid_settings, recordings
+from .tuning import _broad_objective, _recording, broad_grid, grid_settings, recordings, tuned_compare
 
 ALL = "(all trials)"
 """The path that chooses on every trial: the procedure's in-sample choice."""
@@ -112,7 +113,7 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
         total, inclination = runs[key][trial]
         return total if _broad_objective(study) == "total" else total / peers[trial][0] + inclination / peers[trial][1]
 
-    paths_settings, done = choose_nested(trials, grids, score, run, passes, say)
+    paths_settings, done, converged = choose_nested(trials, grids, score, run, passes, say)
     if compare is not None:
         run({settings_key(compare)})
 
@@ -122,7 +123,7 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
 
     held_out = {trial: {"settings": paths_settings[trial], **figures(paths_settings[trial], trial)} for trial in trials}
     in_sample = {trial: figures(paths_settings[ALL], trial) for trial in trials}
-    out = {"solver": solver, "passes": done, "trials": held_out, "in_sample": {"settings": paths_settings[ALL], "trials": in_sample},
+    out = {"solver": solver, "passes": done, "converged": converged, "trials": held_out, "in_sample": {"settings": paths_settings[ALL], "trials": in_sample},
            "cross_validated": _means(held_out), "in_sample_mean": _means(in_sample), "objectives": {s: _broad_objective(s) for s in study_order(solver)}}
     if compare is not None:
         out["compare"] = {"settings": compare, "mean": _means({trial: figures(dict(compare), trial) for trial in trials})}  # type: ignore[arg-type]
@@ -130,13 +131,14 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
 
 
 def choose_nested(trials: Sequence[str], grids: Mapping[str, Mapping[str, dict[str, float]]], score: Callable[[str, str, str], float],
-                  run: Callable[[set[str]], None], passes: int = 2, say: Callable[[str], None] = print) -> tuple[dict[str, Settings], int]:
+                  run: Callable[[set[str]], None], passes: int = 2, say: Callable[[str], None] = print) -> tuple[dict[str, Settings], int, bool]:
     """Coordinate descent over the studies (``grids``: study -> its grid points by name, in the order they are chosen), from
     no setting chosen, once on every trial (``ALL``) and once per held-out trial on the others; passed over again until
     no choice moves (at most ``passes`` times). ``run(keys)`` makes every settings key's runs available to ``score(study,
-    key, trial)`` (lower is better; the study names its objective). Returns each path's settings and the passes run."""
+    key, trial)`` (lower is better; the study names its objective). Returns each path's settings, the passes run and whether
+    the last pass moved no choice (converged)."""
     paths_settings: dict[str, Settings] = {ALL: {}, **{trial: {} for trial in trials}}
-    done = 0
+    done, moved = 0, True
     for done in range(1, passes + 1):
         moved = False
         for study, grid in grids.items():
@@ -153,7 +155,7 @@ def choose_nested(trials: Sequence[str], grids: Mapping[str, Mapping[str, dict[s
                 f"; {differ} of {len(trials)} folds chose otherwise")
         if not moved:
             break
-    return paths_settings, done
+    return paths_settings, done, not moved
 
 
 def _means(per_trial: Mapping[str, Mapping[str, Any]]) -> dict[str, float]:
@@ -170,7 +172,8 @@ def format_nested(result: Mapping[str, Any]) -> str:
     """The nested figure as the table ``tune broad_nested`` and ``bench broad --nested`` print."""
     peer = "VQF" if result["solver"] == "online" else "offline VQF"
     lines = [f"{result['solver']}: every study re-chosen without the held-out trial ({result['passes']} pass(es) over "
-             f"{', '.join(result['objectives'])}), degrees",
+             f"{', '.join(result['objectives'])}; " + ("no choice moved in the last" if result.get("converged") else "choices still moved in the last")
+             + "), degrees",
              f"{'held-out trial':<46}{'total':>8}{'incl':>8}{'peer':>8}{'ratio':>8}  settings its fold chose unlike all trials"]
     chosen_all = result["in_sample"]["settings"]
     for trial, row in result["trials"].items():
@@ -187,4 +190,35 @@ def format_nested(result: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["ALL", "format_nested", "nested_broad", "settings_key", "study_order"]
+def main_nested(solver: str, sessions: Sequence[str | Path] = (), passes: int = 2, workers: int = 1, scheduler: str | None = None,
+                write: bool = False) -> int:
+    """Print the end-to-end nested leave-one-trial-out figure (``evaluation.nested``) beside the in-sample ones; with
+    ``--write`` file it in ``tuned.toml`` as ``broad_nested`` / ``broad_nested_batch`` with the settings it was measured
+    against, which ``bench broad`` prints beside its in-sample table while they are still the settings on main (``fusegraph
+    tune broad_nested``)."""
+    compare = tuned_compare(solver)
+    result = nested_broad(solver, sessions=sessions, passes=passes, workers=workers, scheduler=scheduler, compare=compare)
+    print(format_nested(result))
+    if write:
+        print(f"wrote {write_nested(result)}")
+    return 0
+
+
+def write_nested(result: Mapping[str, Any]) -> Path:
+    """File a ``nested_broad`` result (with its ``compare``: the settings on main) in ``tuned.toml`` as ``broad_nested`` or
+    ``broad_nested_batch``: the mean figures, the trials, and the settings they were measured against."""
+    solver, compare = result["solver"], result["compare"]["settings"]
+    cv, inside, held = result["cross_validated"], result["in_sample_mean"], result["compare"]["mean"]
+    entries = {"trials": sorted(result["trials"]), "passes": result["passes"], "converged": bool(result.get("converged", False)),
+               "settings_on_main": settings_key(compare),
+               "procedure_chose_main": settings_key(result["in_sample"]["settings"]) == settings_key(compare),
+               "cross_validated": round(cv["total"], 4), "cross_validated_inclination": round(cv["inclination"], 4),
+               "cross_validated_peer_ratio": round(cv["total_ratio"], 4), "cross_validated_inclination_peer_ratio": round(cv["inclination_ratio"], 4),
+               "in_sample": round(inside["total"], 4), "in_sample_inclination": round(inside["inclination"], 4),
+               "in_sample_on_main": round(held["total"], 4), "in_sample_on_main_inclination": round(held["inclination"], 4),
+               "unit": f"deg, mean total (and inclination) RMSE of the {solver} estimate; peer ratios: means over "
+                       f"{'VQF' if solver == 'online' else 'offline VQF'}'s"}
+    return write_tuned("broad_nested" + ("_batch" if solver == "batch" else ""), entries)
+
+
+__all__ = ["ALL", "format_nested", "main_nested", "write_nested", "nested_broad", "settings_key", "study_order"]

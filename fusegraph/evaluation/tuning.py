@@ -667,50 +667,24 @@ def tuned_compare(solver: str) -> dict[str, dict[str, float]]:
     return {study: {key: float(held[study][key]) for key in broad_grid(study, solver)} for study in held}
 
 
-def _main_nested(args: argparse.Namespace) -> int:
-    """Print the end-to-end nested leave-one-trial-out figure (``evaluation.nested``) beside the in-sample ones; with
-    ``--write`` file it in ``tuned.toml`` as ``broad_nested`` / ``broad_nested_batch`` with the settings it was measured
-    against, which ``bench broad`` prints beside its in-sample table while they are still the settings on main."""
-    from .nested import format_nested, nested_broad, settings_key
-
-    compare = tuned_compare(args.solver)
-    result = nested_broad(args.solver, sessions=args.sessions, passes=args.passes, workers=args.workers, scheduler=args.scheduler, compare=compare)
-    print(format_nested(result))
-    if args.write:
-        cv, inside, held = result["cross_validated"], result["in_sample_mean"], result["compare"]["mean"]
-        entries = {"trials": sorted(result["trials"]), "passes": result["passes"], "settings_on_main": settings_key(compare),
-                   "procedure_chose_main": settings_key(result["in_sample"]["settings"]) == settings_key(compare),
-                   "cross_validated": round(cv["total"], 4), "cross_validated_inclination": round(cv["inclination"], 4),
-                   "cross_validated_peer_ratio": round(cv["total_ratio"], 4), "cross_validated_inclination_peer_ratio": round(cv["inclination_ratio"], 4),
-                   "in_sample": round(inside["total"], 4), "in_sample_inclination": round(inside["inclination"], 4),
-                   "in_sample_on_main": round(held["total"], 4), "in_sample_on_main_inclination": round(held["inclination"], 4),
-                   "unit": f"deg, mean total (and inclination) RMSE of the {args.solver} estimate; peer ratios: means over "
-                           f"{'VQF' if args.solver == 'online' else 'offline VQF'}'s"}
-        print(f"wrote {write_tuned('broad_nested' + ('_batch' if args.solver == 'batch' else ''), entries)}")
-    return 0
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusegraph.evaluation.tuning", description=__doc__)
     parser.add_argument("study",
                         help="a simulated study (tuning seeds), or broad_ekf / broad_mag / broad_motion / broad_bias / broad_online / "
                         "broad_hard_iron / broad_field / broad_rest "
-                        "(leave-one-trial-out on BROAD), or broad_nested (all of them re-chosen per held-out trial)")
+                        "(leave-one-trial-out on BROAD)")
     parser.add_argument("--solver", default="online", choices=["online", "batch"], help="broad_mag, broad_motion, broad_bias, broad_hard_iron, broad_field, "
                         "broad_rest: "
                         "which estimate they tune")
     parser.add_argument("--seeds", type=int, nargs=2, default=(TUNING_SEEDS[0], TUNING_SEEDS[-1]), metavar=("FIRST", "LAST"))
     parser.add_argument("--write", action="store_true", help="write the chosen values to fusegraph/tuned.toml (what the reports read)")
     parser.add_argument("--workers", type=int, default=1, help="processes scoring the grid (simulated studies)")
-    parser.add_argument("--passes", type=int, default=2, help="broad_nested: passes over the studies at most (stops when no choice moves)")
     parser.add_argument("--scheduler", default=None, help="a Dask scheduler for the jobs: local, or tcp://host:port of a running cluster")
     parser.add_argument("--sessions", nargs="+", default=[], help="BROAD studies: session directories (or folders of them) to choose on "
                         "by leave-one-recording-out, instead of ../shared/data/broad's trial files")
     args = parser.parse_args(argv)
     if args.study == "activity":
         return _main_activity(args)
-    if args.study == "broad_nested":
-        return _main_nested(args)
     if args.study == "uwb_calibrated":
         return _main_recorded(args, uwb_calibrated_logo(args.sessions, workers=args.workers, scheduler=args.scheduler),
                               UWB_CALIBRATED_GRID, "m, every estimate's RMSE of the unlabelled "
