@@ -95,7 +95,8 @@ def figures_are(trials: Sequence[str]) -> str:
     if not inside:
         return f"held out: no setting on main was chosen on any of these {len(trials)} trials"
     return (f"in-sample: the settings on main were chosen on {len(inside)} of these {len(trials)} trials (tuned.toml); "
-            "the leave-one-trial-out figures below are cross-validated within each study only")
+            "the settings table's leave-one-trial-out figures are cross-validated within each study only, the lines 'every study "
+            "re-chosen' end to end")
 
 
 PEERS = (("online", "vqf"), ("batch", "vqf_offline"), ("online", "imufusion"))
