@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 #: How long to wait for an existing scheduler before giving up, seconds.
@@ -81,17 +82,22 @@ def in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, sched
     item order. ``cost``: how long an item takes, roughly; the costliest start first, so the workers finish together."""
     position = {id(item): i for i, item in enumerate(items)}  # completed() hands back the very item objects
     results: list[Any] = [None] * len(items)
-    started = sorted(items, key=lambda item: -cost(item)) if cost is not None and (workers > 1 or scheduler is not None) else items
-    for item, future in completed(fn, started, workers, scheduler):
+    for item, future in completed(fn, costliest_first(items, cost, workers, scheduler), workers, scheduler):
         results[position[id(item)]] = future.result()
     return results
 
 
-def file_bytes(job: Sequence[Any]) -> float:
-    """A job's cost for ``in_order``: the size of the file or folder its first element names (a recording's path)."""
-    from pathlib import Path
+def costliest_first(items: Sequence[Any], cost: Callable[[Any], float] | None, workers: int, scheduler: str | None) -> Sequence[Any]:
+    """``items`` in the order to start them: the costliest first when they run in parallel (the last to start is a short
+    one, so the workers finish together); as given otherwise or without a ``cost``."""
+    if cost is None or (workers <= 1 and scheduler is None):
+        return items
+    return sorted(items, key=lambda item: -cost(item))
 
-    path = Path(job[0])
+
+def path_bytes(where: str | Path) -> float:
+    """A recording's cost for ``costliest_first``: the bytes of its file, or of the files of its folder."""
+    path = Path(where)
     if path.is_dir():
         return float(sum(f.stat().st_size for f in path.iterdir() if f.is_file()))
     return float(path.stat().st_size) if path.is_file() else 0.0

@@ -221,7 +221,7 @@ def bench_head_recorded(
     of head sessions that command wrote) through every row; the JSON of ``fusegraph bench head-recorded`` (see the module
     docstring). ``trials``: name prefixes to keep."""
     from ..datasets.broad import DEFAULT_DIR, trial_paths
-    from .cluster import completed, file_bytes
+    from .cluster import completed, costliest_first, path_bytes
     from .runner import session_dirs
 
     folder = Path(directory or DEFAULT_DIR)
@@ -230,10 +230,10 @@ def bench_head_recorded(
     if len(paths) < 2:
         raise ValueError(f"{folder}: need at least two trials (BROAD .mat files or head sessions; settings are chosen leaving one out), "
                          f"found {len(paths)}")
-    # the longest trials first, so that two workers finish together (results are keyed by trial, not by order)
-    jobs = sorted((TrialJob(p, tuple(ekf_grid), tuple(graph_grid)) for p in paths), key=lambda job: -file_bytes((job.source,)))
+    jobs = [TrialJob(p, tuple(ekf_grid), tuple(graph_grid)) for p in paths]
     runs: dict[str, TrialRuns] = {}
-    for n, (_job, future) in enumerate(completed(run_trial, jobs, workers, scheduler)):
+    started = costliest_first(jobs, lambda job: path_bytes(job.source), workers, scheduler)  # results are keyed by trial
+    for n, (_job, future) in enumerate(completed(run_trial, started, workers, scheduler)):
         run = future.result()
         runs[run.stem] = run
         if progress is not None:

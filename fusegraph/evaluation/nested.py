@@ -13,7 +13,6 @@ reuses that path's scores (each distinct model is run once per trial).
 from __future__ import annotations
 
 import json
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,14 +20,11 @@ from typing import Any
 import numpy as np
 
 from ..tuned import write_tuned
-from .cluster import file_bytes, in_order
-from .tuning import _broad_objective, _recording, broad_grid, grid_settings, recordings, tuned_compare
+from .cluster import in_order, path_bytes
+from .tuning import _broad_objective, _recording, broad_grid, grid_settings, peer_errors, recordings, settings_errors, tuned_compare
 
 ALL = "(all trials)"
 """The path that chooses on every trial: the procedure's in-sample choice."""
-
-DEFAULT_ONLINE = {"relinearize_skip": 10.0}
-"""``broad_online`` before it is chosen: gtsam's default check interval (``ISAM2Params.relinearizeSkip``)."""
 
 Settings = dict[str, dict[str, float]]
 
@@ -48,40 +44,18 @@ def settings_key(settings: Mapping[str, Mapping[str, float]]) -> str:
 def _trial_runs(job: tuple[str, str, list[str]]) -> dict[str, tuple[float, float]]:
     """One trial under each of several settings (``job``: the trial's path, the solver, the settings' keys): each key's
     total and inclination RMSE, degrees."""
-    from ..graphs.attitude9 import model_from_settings
-    from ..metrics import broad_errors
-    from ..session import SessionWarning
-    from ..systems import attitude9
-
     path, solver, keys = job
     session = _recording(Path(path))
-    movement = session.stream("movement").values[:, 0]
-    truth = session.truth.values  # type: ignore[union-attr]
     out = {}
     for key in keys:
-        settings = json.loads(key)
-        model = model_from_settings(settings)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SessionWarning)
-            if solver == "online":
-                estimate = attitude9.run_online(session, model, attitude9.online_config(settings.get("broad_online", DEFAULT_ONLINE)))
-            else:
-                estimate = attitude9.run_batch(session, model)
-        errors = broad_errors(estimate.quat_wxyz, truth, movement)
+        errors = settings_errors(session, solver, json.loads(key))
         out[key] = (float(errors.total), float(errors.inclination))
     return out
 
 
 def _peer_run(job: tuple[str, str]) -> tuple[float, float]:
-    """VQF's total and inclination RMSE on one trial (offline VQF for the batch), degrees: the peer-ratio objective's
-    denominators."""
-    from ..baselines.peers import run_vqf
-    from ..metrics import broad_errors
-
-    path, solver = job
-    session = _recording(Path(path))
-    errors = broad_errors(run_vqf(session, offline=solver == "batch").quat_wxyz, session.truth.values,  # type: ignore[union-attr]
-                          session.stream("movement").values[:, 0])
+    """VQF's total and inclination RMSE on one trial (``job``: its path, the solver), degrees."""
+    errors = peer_errors(_recording(Path(job[0])), job[1])
     return float(errors.total), float(errors.inclination)
 
 
@@ -103,7 +77,7 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
         todo = sorted(k for k in keys if k not in runs)
         if not todo:
             return
-        per_trial = in_order(_trial_runs, [(p, solver, todo) for p in paths], workers, scheduler, cost=file_bytes)
+        per_trial = in_order(_trial_runs, [(p, solver, todo) for p in paths], workers, scheduler, cost=lambda job: path_bytes(job[0]))
         for key in todo:
             runs[key] = {trial: figures[key] for trial, figures in zip(trials, per_trial, strict=True)}
 

@@ -397,11 +397,10 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]],
         kind = session.system if isinstance(session, Session) else _declared_system(session)
         if kind is not None and kind != system:
             raise SessionError(f"{name}: a {kind} session, not {system} (report one system at a time)")
-    from .cluster import completed
+    from .cluster import completed, costliest_first
 
     jobs = [(name, session, tuple(names), traces is not None) for name, session in sessions]
-    if workers > 1 or scheduler is not None:  # longest first: the last job to start is a short one, so the workers end together
-        jobs.sort(key=lambda job: -_size(job[1]))
+    jobs = list(costliest_first(jobs, lambda job: _size(job[1]), workers, scheduler))
     finished: dict[str, tuple[dict[str, dict[str, Any]], list[Any], float, str]] = {}
     for (name, _, _, _), future in progress(completed(_report_one_session, jobs, workers, scheduler), len(jobs), f"report {system}",
                                             enabled=None if show_progress else False):
@@ -444,9 +443,9 @@ def _size(session: Session | Path) -> float:
     """How long a session takes to run, for ordering: its duration, or its files' bytes when not read yet."""
     if isinstance(session, Session):
         return session.duration_s
-    from .cluster import file_bytes
+    from .cluster import path_bytes
 
-    return file_bytes((session,))
+    return path_bytes(session)
 
 
 def _report_one_session(job: tuple[str, Session | Path, tuple[str, ...], bool]) -> tuple[dict[str, dict[str, Any]], list[Any], float, str]:

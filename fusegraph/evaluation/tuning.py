@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..tuned import write_tuned
-from .cluster import file_bytes, in_order
+from .cluster import in_order, path_bytes
 
 TUNING_SEEDS: tuple[int, ...] = tuple(range(100, 120))
 """Seeds every free setting is chosen on."""
@@ -272,34 +272,52 @@ def _broad_objective(study: str) -> str:
 
 
 def _broad_trial_scores(job: tuple[str, str, str]) -> dict[str, dict[str, float]]:
-    """Every grid point of a BROAD study on one trial (``job``: path, study, solver): ``score``, what the study chooses by
-    (``BROAD_OBJECTIVES``; else the total RMSE), and ``total``, the total RMSE in degrees. What each grid point's run notes
-    (a new field taken, a gap bridged) is not repeated per point: the study chooses, ``run`` says."""
+    """Every grid point of a BROAD study on one trial (``job``: path, study, solver), the other studies' settings as
+    ``tuned.toml`` holds them: ``score``, what the study chooses by (``BROAD_OBJECTIVES``; else the total RMSE), and
+    ``total``, the total RMSE in degrees."""
+    path, study, solver = job
+    session = _recording(Path(path))
+    peer = peer_errors(session, solver) if _broad_objective(study) == "peer_ratio" else None
+    held = tuned_compare(solver)
+    out = {}
+    for name, point in grid_settings(broad_grid(study, solver)).items():
+        errors = settings_errors(session, solver, {**held, study: point})
+        score = errors.total if peer is None else errors.total / peer.total + errors.inclination / peer.inclination
+        out[name] = {"score": score, "total": errors.total}
+    return out
+
+
+DEFAULT_ONLINE = {"relinearize_skip": 10.0}
+"""``broad_online`` before it is chosen: gtsam's default check interval (``ISAM2Params.relinearizeSkip``)."""
+
+
+def settings_errors(session: Any, solver: str, settings: Mapping[str, Mapping[str, float]]) -> Any:
+    """A BROAD recording's errors (``metrics.broad_errors``) under each study's setting (``model_from_settings``; the
+    online solver's checks from ``broad_online``, gtsam's default before it is chosen). What a run notes (a new field
+    taken, a gap bridged) is not repeated per setting: the study chooses, ``run`` says."""
     import warnings
 
-    from ..baselines.peers import run_vqf
+    from ..graphs.attitude9 import model_from_settings
     from ..metrics import broad_errors
     from ..session import SessionWarning
     from ..systems import attitude9
 
-    path, study, solver = job
-    session = _recording(Path(path))
-    movement = session.stream("movement").values[:, 0]
-    truth = session.truth.values  # type: ignore[union-attr]
-    peer = broad_errors(run_vqf(session, offline=solver == "batch").quat_wxyz, truth, movement) if _broad_objective(study) == "peer_ratio" else None
-    out = {}
-    for name, point in grid_settings(broad_grid(study, solver)).items():
-        model = _broad_model(study, point, solver)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SessionWarning)
-            if study == "broad_online":
-                estimate = attitude9.run_online(session, model, attitude9.online_config(point))
-            else:
-                estimate = (attitude9.run_online if solver == "online" else attitude9.run_batch)(session, model)
-        errors = broad_errors(estimate.quat_wxyz, truth, movement)
-        score = errors.total if peer is None else errors.total / peer.total + errors.inclination / peer.inclination
-        out[name] = {"score": score, "total": errors.total}
-    return out
+    model = model_from_settings(settings)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SessionWarning)
+        if solver == "online":
+            estimate = attitude9.run_online(session, model, attitude9.online_config(settings.get("broad_online", DEFAULT_ONLINE)))
+        else:
+            estimate = attitude9.run_batch(session, model)
+    return broad_errors(estimate.quat_wxyz, session.truth.values, session.stream("movement").values[:, 0])
+
+
+def peer_errors(session: Any, solver: str) -> Any:
+    """VQF's errors on a BROAD recording (the offline VQF for the batch): the peer-ratio objective's denominators."""
+    from ..baselines.peers import run_vqf
+    from ..metrics import broad_errors
+
+    return broad_errors(run_vqf(session, offline=solver == "batch").quat_wxyz, session.truth.values, session.stream("movement").values[:, 0])
 
 
 def broad_graph_logo(study: str, directory: str | None = None, solver: str = "online", workers: int = 1,
@@ -315,7 +333,7 @@ def broad_graph_logo(study: str, directory: str | None = None, solver: str = "on
     ``total_cross_validated``: the chosen settings' mean total RMSE (deg) on the trials, and each held-out trial's under
     the settings its fold chose."""
     paths = [str(p) for p in recordings(directory, sessions)]
-    per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers, scheduler, cost=file_bytes)
+    per_trial = in_order(_broad_trial_scores, [(p, study, solver) for p in paths], workers, scheduler, cost=lambda job: path_bytes(job[0]))
     names = list(grid_settings(broad_grid(study, solver)))
     scores: dict[str, dict[str, float]] = {name: {} for name in names}
     totals: dict[str, dict[str, float]] = {name: {} for name in names}
