@@ -50,6 +50,7 @@ def test_the_gate_overrides_the_walking_class_only_where_it_says_not_walking() -
                       FEATURES, ACTIVITIES[:2])
     gate = _export(GradientBoostingClassifier(n_estimators=30, random_state=0).fit(x, (x[:, 0] > 0).astype(int)), 0, {}, FEATURES, GATE_CLASSES)
     base = rng.normal(size=(50, len(BASE_FEATURES)))
+    base[:, 0] += 0.5 * np.sign(base[:, 0])  # off the gate's boundary, which 30 stages learn to about +-0.1 only
     t = np.arange(50) * 0.5
     calls = replace(walking, gate=gate).classify(base, t)
     inputs = with_reference(base)
@@ -70,18 +71,20 @@ def test_context_stays_inside_a_bout() -> None:
 def test_a_causal_classification_does_not_read_the_future() -> None:
     """``classify(causal=True)`` (what the online walking solver takes): the calls of the first k cycles are the same
     whether the recording stops there or goes on; the offline calls (the recording's median, context either side) do
-    read later cycles. Seeded features that shift halfway (so the recording's median moves)."""
+    read later cycles. The cycles of a simulated walk through the walking preset's front end (the pendulum gait, tuning
+    seed 100: flat with stairs up and down; nothing here is scored), cut where a stretch of stairs has just begun."""
+    from fusegraph.evaluation.activity import simulated_cycles
+
     model = load_model()
-    rng = np.random.default_rng(0)
-    n = len(FEATURES) // 2
-    base = rng.normal(size=(60, n)) * 0.3
-    base[30:] += 2.0 * (np.abs(rng.normal(size=n)) + 0.5)
-    t = np.arange(60) * 0.55
+    walk = simulated_cycles([100])[0]
+    base, t = walk.base, walk.cycle_t
     whole = model.classify(base, t, causal=True)
-    for k in (5, 20, 41):
+    cuts = (60, 152, 376, 663)
+    for k in cuts:
         assert model.classify(base[:k], t[:k], causal=True) == whole[:k]
-    offline = [model.classify(base[:k], t[:k]) == model.classify(base, t)[:k] for k in (5, 20, 41)]
+    offline = [model.classify(base[:k], t[:k]) == model.classify(base, t)[:k] for k in cuts]
     assert not all(offline)  # a guard that the check above can fail
+    assert len(set(whole)) >= 2  # and that the calls are not one class throughout
 
 
 def test_the_expanding_median_is_numpys_median_of_each_prefix() -> None:

@@ -189,3 +189,37 @@ def test_the_online_head_tracker_gates_an_outlier_and_a_sample_from_another_cloc
         live.add_gyro(float(t), omega)
     with pytest.raises(RejectedSampleError, match="clock"):
         live.add_tracker(float(gyro.t[0]) - 5.0, tracker.values[0])
+
+
+def test_the_gates_carry_back_is_the_product_of_the_samples_since() -> None:
+    """``RecentGyro.since`` (two compositions from running products) gives the rotation the samples after a time make one
+    by one (each by its rate over the time since the one before, the first since that time), to 1e-12 rad (rounding of
+    ~600 products); for times within the last second only, across the lists' trimming. Seeded rates of ~1 rad/s at 285 Hz."""
+    import gtsam
+
+    from fusegraph.factors.gyro import RecentGyro
+
+    rng = np.random.default_rng(3)
+    recent = RecentGyro()
+    t = np.cumsum(np.full(1200, 1 / 285.0) + rng.uniform(0, 2e-4, 1200))
+    omega = rng.normal(0.0, 1.0, (1200, 3))
+    checked = 0
+    for n, (tn, wn) in enumerate(zip(t, omega, strict=True)):
+        recent.append(float(tn), wn)
+        if n % 97 != 96:
+            continue
+        for back_s in (0.0, 0.0013, 0.1, 0.5, 0.99):
+            since_t = float(tn) - back_s
+            if since_t < t[0]:
+                assert recent.since(since_t) is None  # before the first sample
+                continue
+            direct, previous = gtsam.Rot3(), since_t
+            for tk, wk in zip(t[: n + 1], omega[: n + 1], strict=True):
+                if tk > since_t:
+                    direct, previous = direct.compose(gtsam.Rot3.Expmap(wk * (tk - previous))), float(tk)
+            got = recent.since(since_t)
+            assert got is not None
+            assert np.linalg.norm(gtsam.Rot3.Logmap(got.between(direct))) < 1e-12
+            checked += 1
+        assert recent.since(float(tn) - 1.2) is None  # older than the last second: the gate does not judge it
+    assert checked >= 50 and len(recent.t) < 2 * 285 * RecentGyro.KEEP_S + 2  # trimmed as it went

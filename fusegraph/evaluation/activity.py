@@ -187,18 +187,20 @@ NOT_WALKING_ID = 1 + ACTIVITIES.index("not_walking")
 """The class id of not walking (``class_ids``)."""
 
 
-def _design(recordings: Sequence[Recording], walking_only: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Features (with each recording's own reference), class ids (``class_ids``), recording index and cycle times of every
-    labelled walking cycle (``walking_only``) or every labelled cycle."""
-    rows, labels, which, times = [], [], [], []
+def _design(recordings: Sequence[Recording], walking_only: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Features (with each recording's own reference), class ids (``class_ids``; 0: unlabelled), recording index and time
+    of EVERY cycle, and which of them a model is fitted and scored on: the labelled walking cycles (``walking_only``) or
+    every labelled one. The others stay in as context: ``ActivityModel.classify`` averages over every cycle of a bout,
+    labelled or not, so a choice of context is scored the same way."""
+    rows, labels, which, times, kept = [], [], [], [], []
     for n, rec in enumerate(recordings):
         y = class_ids(rec.label)
-        kept = (y > 0) & ((y != NOT_WALKING_ID) if walking_only else True)
-        rows.append(with_reference(rec.base)[kept])
-        labels.append(y[kept])
-        which.append(np.full(int(kept.sum()), n))
-        times.append(rec.cycle_t[kept])
-    return np.vstack(rows), np.concatenate(labels), np.concatenate(which), np.concatenate(times)
+        rows.append(with_reference(rec.base))
+        labels.append(y)
+        which.append(np.full(len(y), n))
+        times.append(rec.cycle_t)
+        kept.append((y > 0) & ((y != NOT_WALKING_ID) if walking_only else True))
+    return np.vstack(rows), np.concatenate(labels), np.concatenate(which), np.concatenate(times), np.concatenate(kept)
 
 
 def class_ids(label: np.ndarray) -> np.ndarray:
@@ -220,26 +222,27 @@ def _calls(model: Any, log_p: np.ndarray, times: np.ndarray, groups: np.ndarray,
     return predicted
 
 
-def _simulated_design(simulated: Sequence[SimulatedCycles]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The walks' labelled cycles (features, class ids, cycle times, walk index: each walk its own group)."""
-    kept = [w.label > 0 for w in simulated]
-    return (np.vstack([with_reference(w.base)[k] for w, k in zip(simulated, kept, strict=True)]),
-            np.concatenate([w.label[k] for w, k in zip(simulated, kept, strict=True)]),
-            np.concatenate([w.cycle_t[k] for w, k in zip(simulated, kept, strict=True)]),
-            np.concatenate([np.full(int(k.sum()), n) for n, k in enumerate(kept)]))
+def _simulated_design(simulated: Sequence[SimulatedCycles]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The walks' cycles (features, class ids, cycle times, walk index: each walk its own group) and which are labelled
+    (scored; the rest are context, as in ``_design``)."""
+    return (np.vstack([with_reference(w.base) for w in simulated]), np.concatenate([w.label for w in simulated]),
+            np.concatenate([w.cycle_t for w in simulated]), np.concatenate([np.full(len(w.label), n) for n, w in enumerate(simulated)]),
+            np.concatenate([w.label > 0 for w in simulated]))
 
 
-def _grid_scores(x: np.ndarray, y: np.ndarray, which: np.ndarray, times: np.ndarray, subjects: np.ndarray, feature_sets: Sequence[str],
-                 contexts: Sequence[int], simulated: Sequence[SimulatedCycles], balanced: bool,
+def _grid_scores(x: np.ndarray, y: np.ndarray, which: np.ndarray, times: np.ndarray, kept: np.ndarray, subjects: np.ndarray,
+                 feature_sets: Sequence[str], contexts: Sequence[int], simulated: Sequence[SimulatedCycles], balanced: bool,
                  sim_target: Callable[[np.ndarray], np.ndarray]) -> dict[tuple[str, int, int], float]:
-    """Every (feature set, stages, context)'s grouped ``INNER_FOLDS``-fold score over the subjects: the mean of the classes'
-    fractions correct, each recording's log-probabilities smoothed within it; with ``simulated`` walks the lower of that and
-    the same mean on the walks' labelled cycles (their ids mapped by ``sim_target``), as each fold's model calls them."""
+    """Every (feature set, stages, context)'s grouped ``INNER_FOLDS``-fold score over the subjects: fitted on the training
+    subjects' ``kept`` cycles, the held-out subjects' every cycle called (each recording's log-probabilities smoothed
+    within its bouts, as ``ActivityModel.classify`` does) and the mean of the classes' fractions correct taken over their
+    ``kept`` cycles; with ``simulated`` walks the lower of that and the same mean on the walks' labelled cycles (their ids
+    mapped by ``sim_target``), as each fold's model calls them."""
     from sklearn.model_selection import GroupKFold
 
     folds = min(INNER_FOLDS, len(set(subjects)))
     if simulated:
-        sim_x, sim_label, sim_t, sim_walk = _simulated_design(simulated)
+        sim_x, sim_label, sim_t, sim_walk, sim_kept = _simulated_design(simulated)
         sim_label = sim_target(sim_label)
     points = [(f, s, c) for f in feature_sets for s in STAGES for c in contexts]
     scores: dict[tuple[str, int, int], list[float]] = {p: [] for p in points}
@@ -247,7 +250,9 @@ def _grid_scores(x: np.ndarray, y: np.ndarray, which: np.ndarray, times: np.ndar
     for name in feature_sets:
         cols = feature_columns(FEATURE_SETS[name])
         for train, test in GroupKFold(n_splits=folds).split(x, y, subjects):
+            train = train[kept[train]]
             model = _fit(x[train][:, cols], y[train], max(STAGES), balanced)
+            scored = kept[test]
             on_test = model.staged_predict_proba(x[test][:, cols])
             on_sim = model.staged_predict_proba(sim_x[:, cols]) if simulated else repeat(None)
             for stage_n, (proba, sim_proba) in enumerate(zip(on_test, on_sim, strict=False), start=1):
@@ -256,9 +261,11 @@ def _grid_scores(x: np.ndarray, y: np.ndarray, which: np.ndarray, times: np.ndar
                 log_p = np.log(np.maximum(proba, 1e-12))
                 sim_log_p = np.log(np.maximum(sim_proba, 1e-12)) if sim_proba is not None else None
                 for context in contexts:
-                    scores[(name, stage_n, context)].append(_balanced_correct(_calls(model, log_p, times[test], which[test], context), y[test]))
+                    calls = _calls(model, log_p, times[test], which[test], context)
+                    scores[(name, stage_n, context)].append(_balanced_correct(calls[scored], y[test][scored]))
                     if sim_log_p is not None:
-                        on_walks[(name, stage_n, context)].append(_balanced_correct(_calls(model, sim_log_p, sim_t, sim_walk, context), sim_label))
+                        sim_calls = _calls(model, sim_log_p, sim_t, sim_walk, context)
+                        on_walks[(name, stage_n, context)].append(_balanced_correct(sim_calls[sim_kept], sim_label[sim_kept]))
     return {p: min(float(np.mean(scores[p])), float(np.mean(on_walks[p]))) if simulated else float(np.mean(scores[p])) for p in points}
 
 
@@ -272,9 +279,9 @@ def choose_settings(recordings: Sequence[Recording], simulated: Sequence[Simulat
     """The walking classes' model: features, stages and context by grouped ``INNER_FOLDS``-fold cross-validation over the
     recordings' subjects on their walking cycles (``_grid_scores``). Returns (feature set, stages, context, every point's
     score)."""
-    x, y, which, times = _design(recordings)
+    x, y, which, times, kept = _design(recordings)
     subjects = np.array([recordings[i].subject for i in which])
-    values = _grid_scores(x, y, which, times, subjects, feature_sets, CONTEXTS, simulated, False, lambda label: label)
+    values = _grid_scores(x, y, which, times, kept, subjects, feature_sets, CONTEXTS, simulated, False, lambda label: label)
     best = _best(values, feature_sets)
     return best[0], best[1], best[2], {f"features={f} stages={s} context={c}": v for (f, s, c), v in values.items()}
 
@@ -283,10 +290,11 @@ def choose_gate(recordings: Sequence[Recording], features: str, simulated: Seque
     """The walking-or-not gate on every labelled cycle (walking 0, not walking 1; balanced weights): its stages and context
     by the same rule on the walking model's features (a simulated walk's every cycle is walking). Returns (stages,
     context, every point's score)."""
-    x, y, which, times = _design(recordings, walking_only=False)
+    x, y, which, times, kept = _design(recordings, walking_only=False)
     subjects = np.array([recordings[i].subject for i in which])
     gate = (y == NOT_WALKING_ID).astype(int)
-    values = _grid_scores(x, gate, which, times, subjects, [features], NOT_WALKING_CONTEXTS, simulated, True, lambda label: np.zeros_like(label))
+    values = _grid_scores(x, gate, which, times, kept, subjects, [features], NOT_WALKING_CONTEXTS, simulated, True,
+                          lambda label: np.zeros_like(label))
     best = _best(values, [features])
     return best[1], best[2], {f"gate stages={s} context={c}": v for (_, s, c), v in values.items()}
 
@@ -296,11 +304,13 @@ def fit_model(recordings: Sequence[Recording], dataset: str = "", simulated: Seq
     """The classifier on these recordings: the walking classes' model (``choose_settings``) and the walking-or-not gate
     on its features (``choose_gate``)."""
     features, stages, context, grid = choose_settings(recordings, simulated, feature_sets)
-    all_x, all_y, _, _ = _design(recordings, walking_only=False)
+    all_x, all_y, _, _, labelled = _design(recordings, walking_only=False)
+    all_x, all_y = all_x[labelled], all_y[labelled]
     gate_y = (all_y == NOT_WALKING_ID).astype(int)
     # recordings without a not-walking cycle (no such label) make no gate: every cycle is then a walking class
     gate_stages, gate_context, gate_grid = choose_gate(recordings, features, simulated) if gate_y.any() else (None, None, {})
-    x, y, _, _ = _design(recordings)
+    x, y, _, _, walking_rows = _design(recordings)
+    x, y = x[walking_rows], y[walking_rows]
     cols = feature_columns(FEATURE_SETS[features])
     rule = (f"features x stages x context chosen by grouped {INNER_FOLDS}-fold cross-validation over the subjects (mean of the "
             "classes' fractions correct" + (f"; the lower of it and the same mean on the simulated walks of seeds "

@@ -12,6 +12,7 @@ b_{k+1} - b_k ~ N(0, q dt) is then linear in (beta_k, beta_{k+1}, c): an exact
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -394,3 +395,40 @@ CATALOGUE = (
         unit_conversions={"rad/s": 1.0, "deg/s": math.pi / 180.0},
     ),
 )
+
+
+class RecentGyro:
+    """The last second or more of gyro samples with their running product, so that the rotation since any time in it is
+    two compositions (``since``), not one per sample in between (the online head tracker's gate asks at every tracker
+    sample: the loop over the samples since took a fifth of the online head's time on BROAD's motion)."""
+
+    KEEP_S = 1.0
+    """Samples at least this old are dropped (in batches: a list is trimmed when it has doubled)."""
+
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.omega: list[FloatArray] = []
+        self.running: list[gtsam.Rot3] = []
+        """The product of every kept sample's rotation (omega times the time since the previous sample) up to each one."""
+
+    def append(self, t: float, omega: FloatArray) -> None:
+        if self.t:
+            self.running.append(self.running[-1].compose(gtsam.Rot3.Expmap(omega * (t - self.t[-1]))))
+        else:
+            self.running.append(gtsam.Rot3())
+        self.t.append(t)
+        self.omega.append(omega)
+        if self.t[0] < t - 2.0 * self.KEEP_S:
+            first = bisect.bisect_left(self.t, t - self.KEEP_S)
+            del self.t[:first], self.omega[:first], self.running[:first]
+
+    def since(self, t: float) -> gtsam.Rot3 | None:
+        """The rotation from ``t`` to the newest sample (each sample after ``t`` turning by its rate over the time since
+        the one before, the first since ``t``); None when ``t`` is before the last ``KEEP_S`` of samples."""
+        if not self.t or self.t[bisect.bisect_left(self.t, self.t[-1] - self.KEEP_S)] > t:
+            return None
+        j = bisect.bisect_right(self.t, t)
+        if j == len(self.t):
+            return gtsam.Rot3()
+        first = gtsam.Rot3.Expmap(self.omega[j] * (self.t[j] - t))
+        return first.compose(self.running[j].between(self.running[-1]))

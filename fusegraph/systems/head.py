@@ -8,7 +8,6 @@ paper's EKFs), ``isam2`` (fusegraph online: causal estimate after every gyro sam
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import functools
 import math
@@ -22,7 +21,7 @@ import numpy as np
 
 from ..baselines.ekf import HeadEkfConfig, declared_ekf, ekf_config_from, run_head_ekf
 from ..estimate import Estimate
-from ..factors.gyro import integrate_gyro
+from ..factors.gyro import RecentGyro, integrate_gyro
 from ..frontends.head_timing import gyro_bias_from_tracker
 from ..geometry import (
     FloatArray,
@@ -206,7 +205,7 @@ class OnlineHeadTracker:
         self.gated = 0
         """Tracker samples refused by the gate so far (also counted in ``rejected``)."""
         self._gated_run = 0
-        self._recent_gyro: collections.deque[tuple[float, FloatArray]] = collections.deque()
+        self._recent = RecentGyro()
         self._first_gyro_t = math.nan
         """Run a due iSAM2 update in ``maintain()``, after the estimate is out (see above)."""
         self._update_due = False
@@ -227,8 +226,9 @@ class OnlineHeadTracker:
 
     def _vector(self, what: str, t: float, values: FloatArray, size: int) -> FloatArray:
         v = np.asarray(values, dtype=float).reshape(-1)
-        # math.isfinite on the sum: any NaN or inf makes it non-finite (np.all(np.isfinite) cost 5 % of the loop)
-        if v.shape != (size,) or not math.isfinite(float(v.sum())) or not math.isfinite(t):
+        # math.isfinite on the sum: any NaN or inf makes it non-finite (np.all(np.isfinite) cost 5 % of the loop, and
+        # numpy's own sum of three numbers is slower than Python's of the list)
+        if v.shape != (size,) or not math.isfinite(sum(v.tolist())) or not math.isfinite(t):
             raise self._reject(f"{what} at t = {t!r}: need {size} finite values, got {np.asarray(values).tolist()!r}")
         return v
 
@@ -254,15 +254,9 @@ class OnlineHeadTracker:
             raise self._reject(f"tracker sample at t = {t_sample:.6f} s: older than the online window (newest gyro "
                                f"{self._last_gyro_t:.6f} s, window {window:g} s): its clock is not the gyro's?")
         now = self.latest()
-        if now is None or not self._recent_gyro or self._recent_gyro[0][0] > t_sample:
+        back = self._recent.since(t_sample)  # the body's rotation from t_sample to now, by the gyro samples in between
+        if now is None or back is None:
             return
-        back = gtsam.Rot3()  # the body's rotation from t_sample to now, by the gyro samples in between
-        previous_t = t_sample
-        for t, omega in self._recent_gyro:
-            if t <= t_sample:
-                continue
-            back = back.compose(gtsam.Rot3.Expmap(omega * (t - previous_t)))
-            previous_t = t
         predicted = now.world_R_head.compose(back.inverse())
         error = gtsam.Rot3.Logmap(predicted.between(rot3_from_quat_wxyz(quat_wxyz)))
         covariance = np.asarray(now.cov) + np.eye(3) * self.model.tracker.total_sigma_rad**2
@@ -291,9 +285,7 @@ class OnlineHeadTracker:
         if self.gate:  # the last second of gyro, to carry the estimate back to a late tracker sample's time
             if not math.isfinite(self._first_gyro_t):
                 self._first_gyro_t = float(t)
-            self._recent_gyro.append((float(t), w))
-            while self._recent_gyro[0][0] < t - 1.0:
-                self._recent_gyro.popleft()
+            self._recent.append(float(t), w)
         if self.estimate_first:
             if self._update_due:  # maintain() was not called after the previous sample: run its update now, not never
                 self.solver.update()
