@@ -300,13 +300,13 @@ class ArrivalEvent:
         return self.stream.values[self.index]
 
 
-def replay_in_arrival_order(session: Session, last_streams: tuple[str, ...] = ()) -> Iterator[ArrivalEvent]:
-    """Every sample of every stream, sorted by arrival time.
+def replay_in_arrival_order(session: Session, last_streams: tuple[str, ...] = (), kinds: tuple[str, ...] | None = None) -> Iterator[ArrivalEvent]:
+    """Every sample of every stream (``kinds``: of the streams of those kinds only), sorted by arrival time.
 
     Ties (to a microsecond) go to the streams named in ``last_streams`` last, so that a sample
     arriving at the same instant as, say, a gyro sample is used in that gyro step's estimate.
     """
-    streams: list[Stream] = list(session.streams.values())
+    streams: list[Stream] = [s for s in session.streams.values() if kinds is None or s.kind in kinds]
     if not streams:
         return
     arrivals = [s.arrival_t for s in streams]

@@ -223,3 +223,18 @@ def test_the_gates_carry_back_is_the_product_of_the_samples_since() -> None:
             checked += 1
         assert recent.since(float(tn) - 1.2) is None  # older than the last second: the gate does not judge it
     assert checked >= 50 and len(recent.t) < 2 * 285 * RecentGyro.KEEP_S + 2  # trimmed as it went
+
+
+def test_the_gates_chi_square_is_numpys() -> None:
+    """``_chi_square3`` (the adjugate in floats) against numpy's solve on seeded symmetric positive-definite 3x3s, from
+    well to poorly conditioned (1e-10 relative: rounding)."""
+    from fusegraph.systems.head import _chi_square3
+
+    rng = np.random.default_rng(4)
+    for scale in (1e-8, 1e-4, 1.0):
+        for _ in range(20):
+            m = rng.normal(size=(3, 3))
+            cov = scale * (m @ m.T)
+            error = rng.normal(size=3) * np.sqrt(scale)
+            expected = float(error @ np.linalg.solve(cov + np.eye(3) * 0.3 * scale, error))
+            assert _chi_square3(cov, 0.3 * scale, error) == pytest.approx(expected, rel=1e-10)

@@ -146,7 +146,7 @@ class HeadGraphBuilder:
         """Time of every keyframe so far, seconds."""
         self._keyframe_omega: dict[int, FloatArray] = {}  # pruned with the marginalised keyframes
         # per keyframe, (time, rotation from the keyframe, rate) at each gyro sample inside its interval
-        self._partials: dict[int, list[tuple[float, gtsam.Rot3, FloatArray]]] = {}
+        self._partials: dict[int, list[tuple[float, gtsam.Rot3 | FloatArray, FloatArray]]] = {}
         # a zero for each bias and tracker-error key, shared by the linear factors on them (``linear_factor``'s at_zero);
         # (keyframe, key) in insertion order, so that online the marginalised ones can go
         self._zero_at = gtsam.Values()
@@ -397,11 +397,11 @@ class HeadGraphBuilder:
         integrals = integrate_intervals(self._params.getGyroscopeCovariance(), bias_hat, t_before, omega_before, t, omega, ends)
         after = integrals.rotation_after
         start = 0
+        t_list = t.tolist()
         for m, end in enumerate(ends):
             k = self.latest_keyframe
-            partials = self._partials.setdefault(k, [])
-            for j in range(start, end):
-                partials.append((float(t[j]), gtsam.Rot3(after[j]), omega[j]))
+            # the rotations as matrices: a Rot3 is made only for the few a tracker sample is carried by (``_carried``)
+            self._partials.setdefault(k, []).extend(zip(t_list[start:end], after[start:end], omega[start:end], strict=True))
             t_start = t_before if m == 0 else float(t[ends[m - 1]])
             t_last = float(t[end])
             elapsed = t_last - t_start
@@ -559,7 +559,9 @@ class HeadGraphBuilder:
         was off by ~0.5 deg over 10 ms at BROAD's fast turns (angular accelerations of ~100 rad/s^2).
         """
         if t < self.keyframe_t[k] and k - 1 in self._partials:
-            return self._partials[k - 1][-1][1].between(self._carried(k - 1, t))
+            whole = self._partials[k - 1][-1][1]  # the interval's own rotation, always a Rot3 (``_close_keyframe``)
+            assert isinstance(whole, gtsam.Rot3)
+            return whole.between(self._carried(k - 1, t))
         return self._carried(k, t)
 
     def _carried(self, k: int, t: float) -> gtsam.Rot3:
@@ -569,6 +571,8 @@ class HeadGraphBuilder:
             if t_partial > t + self.model.snap_tolerance_s:
                 break
             t_from, delta, rate = t_partial, partial, omega
+        if delta is not None and not isinstance(delta, gtsam.Rot3):
+            delta = gtsam.Rot3(delta)  # a batch's partial, kept as its matrix (``_close_intervals``)
         if abs(t - t_from) <= self.model.snap_tolerance_s and delta is not None:
             return delta
         rest = gtsam.Rot3.Expmap((rate - self._latest_bias) * (t - t_from))
