@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fusegraph.evaluation.runner import simulated_sessions
 from fusegraph.evaluation.speed import format_speed, live_sample_times, repeated, repeated_blocks
@@ -38,3 +39,23 @@ def test_a_repeated_recording_in_blocks_is_the_same_samples_as_whole() -> None:
     for name in ("gyro", "accel", "mag"):
         np.testing.assert_array_equal(np.concatenate([b.stream(name).t for b in blocks]), whole.stream(name).t)
         np.testing.assert_array_equal(np.concatenate([b.stream(name).values for b in blocks]), whole.stream(name).values)
+
+
+def test_a_solve_pauses_the_collector_and_restores_it() -> None:
+    """``Preset.solve`` runs with the cyclic collector off (``solvers.pause.collector_paused``) and leaves it as it found
+    it, on or off, also when the solver raises."""
+    import gc
+
+    from fusegraph.solvers.pause import collector_paused
+
+    seen = []
+    for before in (True, False):
+        (gc.enable if before else gc.disable)()
+        with collector_paused():
+            seen.append(gc.isenabled())
+        assert gc.isenabled() == before
+        with pytest.raises(RuntimeError), collector_paused():
+            raise RuntimeError("a solver failed")
+        assert gc.isenabled() == before
+    gc.enable()
+    assert seen == [False, False]

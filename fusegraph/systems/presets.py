@@ -24,6 +24,7 @@ import numpy as np
 from ..catalogue import CatalogueError, KeySpec, check_keys
 from ..estimate import Estimate, PointEstimate, Result
 from ..session import Session, SessionError
+from ..solvers.pause import collector_paused
 
 SolverFn = Callable[[Session], Result]
 """A method: a session in, an estimate out."""
@@ -81,7 +82,8 @@ class Preset:
         if solver not in self.solvers:
             raise SessionError(f"--solver {solver}: {self.name} sessions have {', '.join(self.solvers)}")
         session.validate()
-        return self.run(session.usable(), solver)
+        with collector_paused():
+            return self.run(session.usable(), solver)
 
 
 # ------------------------------------------------------------------------------------- head
