@@ -219,3 +219,19 @@ def test_truth_on_another_grid_is_scored(tmp_path: Path) -> None:
                 assert coarse[key][axis] == pytest.approx(full[key][axis], rel=0.15)
         else:
             assert coarse[key] == pytest.approx(full[key], rel=0.15)
+
+
+def test_nees_is_nan_where_the_covariance_is_no_covariance() -> None:
+    """A covariance that is not positive definite (a diverged filter's: indefinite, or singular) or not finite has no
+    NEES: NaN there,
+    the honest samples keep theirs (error^2 / sigma^2 summed: 3 for a 1-sigma error on every axis)."""
+    from fusegraph.geometry import quat_from_rotvec
+    from fusegraph.metrics import nees
+
+    sigma = 0.01
+    truth = np.tile([1.0, 0.0, 0.0, 0.0], (4, 1))
+    estimate = np.array([quat_from_rotvec(np.full(3, -sigma))] * 4)
+    cov = np.array([np.eye(3) * sigma**2, np.diag([1.0, 1.0, -1e-3]), np.zeros((3, 3)), np.eye(3) * sigma**2, np.full((3, 3), np.nan)])
+    got = nees(np.vstack([estimate, estimate[:1]]), cov, np.vstack([truth, truth[:1]]))
+    assert np.isnan(got[1]) and np.isnan(got[2]) and np.isnan(got[4])  # indefinite, singular, not finite
+    np.testing.assert_allclose(got[[0, 3]], 3.0, rtol=1e-6)  # Log of Exp(-v)^-1 is v: exactly the three sigmas, to rounding
