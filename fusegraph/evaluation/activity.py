@@ -312,10 +312,10 @@ def fit_model(recordings: Sequence[Recording], dataset: str = "", simulated: Seq
     x, y, _, _, walking_rows = _design(recordings)
     x, y = x[walking_rows], y[walking_rows]
     cols = feature_columns(FEATURE_SETS[features])
+    walks = f"; the lower of it and the same mean on the simulated walks of seeds {min(SIMULATED_SEEDS)}-{max(SIMULATED_SEEDS)})"
     rule = (f"features x stages x context chosen by grouped {INNER_FOLDS}-fold cross-validation over the subjects (mean of the "
-            "classes' fractions correct, every cycle of a held-out recording called in its bout's context as classify does" + (f"; the lower of it and the same mean on the simulated walks of seeds "
-                                             f"{min(SIMULATED_SEEDS)}-{max(SIMULATED_SEEDS)})" if simulated else ")")
-            + "; the gate's stages x context by the same rule on its two classes, on the walking model's features")
+            "classes' fractions correct, every cycle of a held-out recording called in its bout's context as classify does"
+            + (walks if simulated else ")") + "; the gate's stages x context by the same rule on its two classes, on the walking model's features")
     provenance = {"dataset": dataset, "subjects": sorted({r.subject for r in recordings}), "recordings": [r.name for r in recordings],
                   "cycles": int(len(y)), "feature_set": features, "stages": stages, "context_cycles": context, "gate_stages": gate_stages,
                   "not_walking_context": gate_context, "fixed": FIXED, "rule": rule, "grid_scores": {**grid, **gate_grid}}
