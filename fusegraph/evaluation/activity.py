@@ -187,20 +187,24 @@ NOT_WALKING_ID = 1 + ACTIVITIES.index("not_walking")
 """The class id of not walking (``class_ids``)."""
 
 
-def _design(recordings: Sequence[Recording], walking_only: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _design(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Features (with each recording's own reference), class ids (``class_ids``; 0: unlabelled), recording index and time
-    of EVERY cycle, and which of them a model is fitted and scored on: the labelled walking cycles (``walking_only``) or
-    every labelled one. The others stay in as context: ``ActivityModel.classify`` averages over every cycle of a bout,
+    of EVERY cycle. A model is fitted and scored on some of them (``_walking``: the labelled walking cycles; ``y > 0``:
+    every labelled one); the others stay in as context: ``ActivityModel.classify`` averages over every cycle of a bout,
     labelled or not, so a choice of context is scored the same way."""
-    rows, labels, which, times, kept = [], [], [], [], []
+    rows, labels, which, times = [], [], [], []
     for n, rec in enumerate(recordings):
         y = class_ids(rec.label)
         rows.append(with_reference(rec.base))
         labels.append(y)
         which.append(np.full(len(y), n))
         times.append(rec.cycle_t)
-        kept.append((y > 0) & ((y != NOT_WALKING_ID) if walking_only else True))
-    return np.vstack(rows), np.concatenate(labels), np.concatenate(which), np.concatenate(times), np.concatenate(kept)
+    return np.vstack(rows), np.concatenate(labels), np.concatenate(which), np.concatenate(times)
+
+
+def _walking(y: np.ndarray) -> np.ndarray:
+    """The labelled walking cycles among class ids ``y``: what the walking classes' model is fitted and scored on."""
+    return (y > 0) & (y != NOT_WALKING_ID)
 
 
 def class_ids(label: np.ndarray) -> np.ndarray:
@@ -279,9 +283,9 @@ def choose_settings(recordings: Sequence[Recording], simulated: Sequence[Simulat
     """The walking classes' model: features, stages and context by grouped ``INNER_FOLDS``-fold cross-validation over the
     recordings' subjects on their walking cycles (``_grid_scores``). Returns (feature set, stages, context, every point's
     score)."""
-    x, y, which, times, kept = _design(recordings)
+    x, y, which, times = _design(recordings)
     subjects = np.array([recordings[i].subject for i in which])
-    values = _grid_scores(x, y, which, times, kept, subjects, feature_sets, CONTEXTS, simulated, False, lambda label: label)
+    values = _grid_scores(x, y, which, times, _walking(y), subjects, feature_sets, CONTEXTS, simulated, False, lambda label: label)
     best = _best(values, feature_sets)
     return best[0], best[1], best[2], {f"features={f} stages={s} context={c}": v for (f, s, c), v in values.items()}
 
@@ -290,10 +294,10 @@ def choose_gate(recordings: Sequence[Recording], features: str, simulated: Seque
     """The walking-or-not gate on every labelled cycle (walking 0, not walking 1; balanced weights): its stages and context
     by the same rule on the walking model's features (a simulated walk's every cycle is walking). Returns (stages,
     context, every point's score)."""
-    x, y, which, times, kept = _design(recordings, walking_only=False)
+    x, y, which, times = _design(recordings)
     subjects = np.array([recordings[i].subject for i in which])
     gate = (y == NOT_WALKING_ID).astype(int)
-    values = _grid_scores(x, gate, which, times, kept, subjects, [features], NOT_WALKING_CONTEXTS, simulated, True,
+    values = _grid_scores(x, gate, which, times, y > 0, subjects, [features], NOT_WALKING_CONTEXTS, simulated, True,
                           lambda label: np.zeros_like(label))
     best = _best(values, [features])
     return best[1], best[2], {f"gate stages={s} context={c}": v for (_, s, c), v in values.items()}
@@ -304,26 +308,24 @@ def fit_model(recordings: Sequence[Recording], dataset: str = "", simulated: Seq
     """The classifier on these recordings: the walking classes' model (``choose_settings``) and the walking-or-not gate
     on its features (``choose_gate``)."""
     features, stages, context, grid = choose_settings(recordings, simulated, feature_sets)
-    all_x, all_y, _, _, labelled = _design(recordings, walking_only=False)
-    all_x, all_y = all_x[labelled], all_y[labelled]
-    gate_y = (all_y == NOT_WALKING_ID).astype(int)
+    x, y, _, _ = _design(recordings)
+    labelled, walking = y > 0, _walking(y)
+    gate_y = (y[labelled] == NOT_WALKING_ID).astype(int)
     # recordings without a not-walking cycle (no such label) make no gate: every cycle is then a walking class
     gate_stages, gate_context, gate_grid = choose_gate(recordings, features, simulated) if gate_y.any() else (None, None, {})
-    x, y, _, _, walking_rows = _design(recordings)
-    x, y = x[walking_rows], y[walking_rows]
     cols = feature_columns(FEATURE_SETS[features])
     walks = f"; the lower of it and the same mean on the simulated walks of seeds {min(SIMULATED_SEEDS)}-{max(SIMULATED_SEEDS)})"
     rule = (f"features x stages x context chosen by grouped {INNER_FOLDS}-fold cross-validation over the subjects (mean of the "
             "classes' fractions correct, every cycle of a held-out recording called in its bout's context as classify does"
             + (walks if simulated else ")") + "; the gate's stages x context by the same rule on its two classes, on the walking model's features")
     provenance = {"dataset": dataset, "subjects": sorted({r.subject for r in recordings}), "recordings": [r.name for r in recordings],
-                  "cycles": int(len(y)), "feature_set": features, "stages": stages, "context_cycles": context, "gate_stages": gate_stages,
+                  "cycles": int(walking.sum()), "feature_set": features, "stages": stages, "context_cycles": context, "gate_stages": gate_stages,
                   "not_walking_context": gate_context, "fixed": FIXED, "rule": rule, "grid_scores": {**grid, **gate_grid}}
-    walking = _export(_fit(x[:, cols], y, stages), context, provenance, FEATURE_SETS[features], ACTIVITIES[:3])
+    walking_model = _export(_fit(x[walking][:, cols], y[walking], stages), context, provenance, FEATURE_SETS[features], ACTIVITIES[:3])
     if gate_stages is None or gate_context is None:
-        return walking
-    gate = _export(_fit(all_x[:, cols], gate_y, gate_stages, balanced=True), gate_context, {}, FEATURE_SETS[features], GATE_CLASSES)
-    return replace(walking, gate=gate)
+        return walking_model
+    gate = _export(_fit(x[labelled][:, cols], gate_y, gate_stages, balanced=True), gate_context, {}, FEATURE_SETS[features], GATE_CLASSES)
+    return replace(walking_model, gate=gate)
 
 
 # ------------------------------------------------------------------------------------ scoring
