@@ -313,9 +313,10 @@ class _GazeSolver:
 
     def __init__(self, declared: Session) -> None:
         from .graphs.attitude9 import X
+        from .records import GazeScenarioConfig
         from .solvers.online import OnlineSmoother
         from .systems.attitude9 import attitude_tracker
-        from .systems.gaze import NEEDS_WALL, G, GazeGraph, GazeModel, block_size, declared_config
+        from .systems.gaze import NEEDS_WALL, G, GazeGraph, GazeModel, block_size
 
         self._keys = (G, X)  # imported once, not per sample
 
@@ -324,7 +325,7 @@ class _GazeSolver:
             raise SessionError(f"live gaze: --session-toml {NEEDS_WALL}")
         gaze = next(s for s in declared.streams.values() if s.kind == "pixel")
         tracker = attitude_tracker(declared)  # the declared noise and latency, read as replay reads them
-        self.data = _LiveGazeData(declared_config(header, gaze.meta, float("nan")), tracker.latency_s if tracker else 0.0,
+        self.data = _LiveGazeData(GazeScenarioConfig.declared(header, gaze.meta, float("nan")), tracker.latency_s if tracker else 0.0,
                                   tracker.sigma_rad if tracker else float(np.deg2rad(0.4)))
         self.model = GazeModel()
         self.graph = GazeGraph(self.data, self.model)

@@ -12,8 +12,9 @@ estimator. ``truth.csv`` (kind ``tag_position``): ``t, tag, x, y, z`` per transm
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -67,6 +68,13 @@ class GazeScenarioConfig:
     seed's head motion and sensor noise are the two-mark scenario's)."""
     viewing_half_m: float = 0.3
     """Half the side of the square the viewing marks are drawn in, metres (+-17 deg at 1 m)."""
+
+    @classmethod
+    def declared(cls, header: Mapping[str, Any], gaze_meta: Mapping[str, Any], duration_s: float) -> GazeScenarioConfig:
+        """What the gaze graph needs from a session's declarations: the wall (``wall_m``) or the fixation depth (``target_depth_m``)
+        from ``[session]``, the scene camera from the gaze stream's metadata (``focal_px``, ``width_px``, ``height_px``, ``pixel_sigma``)."""
+        return cls(duration_s=duration_s, switch_s=float(header.get("switch_s", np.nan)), wall_m=float(header.get("wall_m", np.nan)),
+                   target_depth_m=float(header["target_depth_m"]) if "wall_m" not in header else None, camera=SceneCamera.from_meta(gaze_meta))
 
 
 @dataclass(frozen=True)

@@ -108,6 +108,7 @@ def test_import_broad_as_gaze_scores_the_world_ray_of_each_method(tmp_path: Path
     assert main(["import", "broad", str(trial), "--system", "gaze", "--out", str(tmp_path / "g")]) == 0
     session = load_session(tmp_path / "g")
     assert session.system == "gaze" and session.meta["session"]["gaze_truth"] == "world_ray"
+    assert session.meta["session"]["head_motion"] == "free"  # a hand-held sensor: the head is the 9-axis system's model
     assert session.stream("fixation").meta["role"] == "scoring only"
     # the delay is found from the gaze and the gyro (the eye's was 9.5 ms; one 285 Hz sample is 3.5 ms)
     assert abs(session.stream("gaze").meta["time_offset_s"] - EyeConfig().delay_s) < 0.01

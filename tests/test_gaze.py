@@ -245,3 +245,25 @@ def test_the_unmodelled_acceleration_density_follows_the_readings_departure_from
     excess = float(np.hypot(3.0, head.imu.gravity_m_s2 + 4.0) - head.imu.gravity_m_s2)
     assert builder._unmodelled_density(pushed, 0.2) == pytest.approx(np.hypot(head.imu.accel_noise_m_s2_sqrt_hz, excess * np.sqrt(0.2)))
     assert Attitude9Builder(replace(head, unmodelled_acceleration=False))._unmodelled_density(pushed, 0.2) is None
+
+
+def test_a_session_declares_how_its_head_moves_and_a_free_head_takes_the_nine_axis_model() -> None:
+    from dataclasses import replace
+
+    from fusegraph.api import simulate
+    from fusegraph.session import SessionError
+    from fusegraph.systems import attitude9
+
+    session = simulate("gaze", seed=0, duration_s=5.0)
+    header = session.meta.get("session", {})
+    seated = gaze.model_for(session, "batch")
+    assert seated.head.motion == gaze.GazeModel().head.motion and seated.head.unmodelled_acceleration
+    assert seated.fixation == gaze.batch_model().fixation  # the solver's own fixation setting either way
+    free = replace(session, meta={**session.meta, "session": {**header, "head_motion": "free", "use_mag": False}})
+    model = gaze.model_for(free, "batch")
+    nine = attitude9.model_for(free)  # what the 9-axis system's online runs this IMU with
+    assert (model.head.motion, model.head.mag, model.head.imu) == (nine.motion, nine.mag, nine.imu)
+    assert model.head.motion != seated.head.motion and not model.head.use_mag and model.fixation == seated.fixation
+    wrong = replace(session, meta={**session.meta, "session": {**header, "head_motion": "walking"}})
+    with pytest.raises(SessionError, match="head_motion = 'walking': one of seated, free"):
+        gaze.model_for(wrong, "online")

@@ -6,7 +6,9 @@ saccades, imperfect counter-rotation, blinks, the tracker's offset, noise and de
 scene camera would (the Glasses 3's 1920 x 1080 at 880 px focal length, looking along the IMU's x axis). What the gaze
 system reads is what an eye tracker's recording gives: the IMU, the gaze pixels, the gaze stamps' delay behind the IMU
 as ``frontends.gaze_timing.find_time_offset`` finds it from those two (declared by the import, as ``import tobii`` does), and a depth to
-hold each fixation point at (``TARGET_DEPTH_M``: a room's; the targets' own distances are not given).
+hold each fixation point at (``TARGET_DEPTH_M``: a room's; the targets' own distances are not given). The session declares
+``head_motion = "free"``: BROAD's sensor is moved by hand and translated by up to a metre (its trials' protocol, not a seated
+viewer's head), so the gaze graph's head is the 9-axis system's model for that IMU (``systems.gaze.model_for``).
 
 What only scores: the truth (stream ``truth``, kind ``position``: the eye's true world ray as a unit vector at each gaze
 sample's time, in BROAD's ENU frame, which BROAD's optical attitude is given in) and the simulator's fixations (stream
@@ -52,7 +54,7 @@ def gaze_session_from_broad(path: str | Path, config: EyeConfig | None = None, s
                    "description": "simulated eye (scenarios.eye) driven by the trial's optical head motion"})
     streams = {name: trial.stream(name) for name in ("gyro", "accel", "mag")}
     header = {"system": "gaze", "dataset": "BROAD's recorded head with a SIMULATED eye (scenarios.eye)", "trial": Path(path).stem,
-              "target_depth_m": TARGET_DEPTH_M, "gaze_truth": "world_ray", "world_frame": "ENU (optical)",
+              "target_depth_m": TARGET_DEPTH_M, "gaze_truth": "world_ray", "head_motion": "free", "world_frame": "ENU (optical)",
               "description": f"gaze session from BROAD trial {Path(path).stem}: recorded head IMU, SIMULATED eye (scenarios.eye)"}
     fixation = Stream("fixation", "flag", eye.t, eye.fixation[:, None], KIND_COLUMNS["flag"], 0.0,
                       {"role": "scoring only", "description": "the simulated eye's own fixations"})

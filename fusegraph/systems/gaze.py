@@ -16,15 +16,15 @@ of the sample's keyframe.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
 
 from ..baselines.ekf_gaze import GazeEkfConfig, run_gaze_ekf_full
-from ..factors.gaze import FixationNoise, SceneCamera, depth_prior, fixation_tuned, fixation_walk, gaze_factor, sample_points, wall_plane_prior
+from ..consistency import stream_range
+from ..factors.gaze import FixationNoise, depth_prior, fixation_tuned, fixation_walk, gaze_factor, sample_points, wall_plane_prior
 from ..factors.imu import MotionPriors
 from ..factors.mag import MagNoise
 from ..geometry import FloatArray, quat_wxyz_from_rot3, rotate_by_quat
@@ -32,7 +32,7 @@ from ..graphs.attitude9 import Attitude9Builder, Attitude9Model, X
 from ..records import GazeData, GazeScenarioConfig, GazeSession
 from ..session import Session, SessionError
 from ..solvers.online import OnlineConfig, OnlineSmoother
-from .attitude9 import attitude_tracker
+from . import attitude9
 
 METHODS = ("ekf", "online", "batch")
 
@@ -214,19 +214,6 @@ class GazeGraph:
 NEEDS_WALL = "[session] needs wall_m (distance to the wall, metres) or, without a wall, target_depth_m (depth at which each fixation point is held, metres)"
 
 
-def declared_config(header: Mapping[str, Any], gaze_meta: Mapping[str, Any], duration_s: float) -> GazeScenarioConfig:
-    """What the graph needs from a session's declarations: the wall (``wall_m``) or the fixation depth (``target_depth_m``)
-    from ``[session]``, the scene camera from the gaze stream's metadata (``focal_px``, ``width_px``, ``height_px``, ``pixel_sigma``)."""
-    camera = SceneCamera.from_meta(gaze_meta)
-    return GazeScenarioConfig(
-        duration_s=duration_s,
-        switch_s=float(header.get("switch_s", np.nan)),
-        wall_m=float(header.get("wall_m", np.nan)),
-        target_depth_m=float(header["target_depth_m"]) if "wall_m" not in header else None,
-        camera=camera,
-    )
-
-
 def from_session(session: Session) -> GazeSession:
     """A gaze session directory's content as the system's input: head ``gyro``/``accel``/``mag`` sampled
     together, the tracker's ``gaze`` pixels (kind ``pixel``, camera in its metadata), ``wall_m`` (or, without a
@@ -242,7 +229,7 @@ def from_session(session: Session) -> GazeSession:
     header = session.meta.get("session", {})
     if "wall_m" not in header and "target_depth_m" not in header:
         raise SessionError(f"{where}: {NEEDS_WALL}")
-    config = declared_config(header, gaze_stream.meta, float(t[-1] - t[0]))
+    config = GazeScenarioConfig.declared(header, gaze_stream.meta, float(t[-1] - t[0]))
     truth = np.full((len(gaze_stream), 2), np.nan)
     world_ray = header.get("gaze_truth") == "world_ray"  # the truth is the eye's world ray (import broad --system gaze), not a wall point
     if session.truth is not None and session.truth.kind == "position" and len(session.truth) == len(gaze_stream) and not world_ray:
@@ -250,7 +237,7 @@ def from_session(session: Session) -> GazeSession:
     tracker_t = gaze_stream.t - float(gaze_stream.meta.get("time_offset_s", 0.0))  # a sample at stamp - the declared delay
     return GazeSession(t=t, gyro_rad_s=imu["gyro"].values, accel_m_s2=imu["accel"].values, mag=mag, tracker_t=tracker_t,
                        gaze_px=gaze_stream.values, truth_quat_wxyz=np.full((len(t), 4), np.nan), truth_gaze_xz_m=truth, config=config,
-                       head_tracker=attitude_tracker(session))
+                       head_tracker=attitude9.attitude_tracker(session))
 
 
 def wall_points(session: GazeSession, world_R_head: FloatArray) -> FloatArray:
@@ -355,6 +342,22 @@ def run_batch(session: GazeSession, model: GazeModel | None = None) -> GazeEstim
     return GazeEstimate(graph.own_points(out, at_samples)[:, 1:], at_samples, time.perf_counter() - start, tuple(graph.builder.notes()))
 
 
+#: What ``[session] head_motion`` may declare (``model_for``).
+HEAD_MOTIONS = ("seated", "free")
+
+
+def model_for(session: Session, solver: str) -> GazeModel:
+    """The solver's model for a session. ``[session] head_motion``: ``seated`` (default), a viewer's head held within centimetres of its place
+    (``GazeModel.head``, chosen on the simulated gaze scenarios); ``free``, a sensor carried and moved by hand (BROAD's), whose head is the 9-axis
+    online model ``attitude9.model_for`` gives this session's IMU, for both solvers as ``GazeModel`` has one head (``docs/systems/gaze.md``)."""
+    header = session.meta.get("session", {})
+    if (motion := header.get("head_motion", "seated")) not in HEAD_MOTIONS:
+        raise SessionError(f"{session.where}: [session] head_motion = {motion!r}: one of {', '.join(HEAD_MOTIONS)}")
+    model = GazeModel() if solver == "online" else batch_model()
+    head = attitude9.model_for(session, solver="online") if motion == "free" else model.head
+    return replace(model, head=replace(head, use_mag=bool(header.get("use_mag", True)), accel_range_m_s2=stream_range(session.stream("accel"))))
+
+
 def run_ekf(session: GazeSession, config: GazeEkfConfig | None = None) -> GazeEstimate:
     """The gaze paper's EKF; without a wall (``target_depth_m``) its wall faces its own first heading at that distance."""
     start = time.perf_counter()
@@ -368,4 +371,4 @@ def run_ekf(session: GazeSession, config: GazeEkfConfig | None = None) -> GazeEs
 
 RUNNERS = {"ekf": run_ekf, "online": run_online, "batch": run_batch}
 
-__all__ = ["RUNNERS", "GazeGraph", "GazeModel", "declared_config", "from_session", "run_batch", "run_ekf", "run_online"]
+__all__ = ["RUNNERS", "GazeGraph", "GazeModel", "from_session", "model_for", "run_batch", "run_ekf", "run_online"]

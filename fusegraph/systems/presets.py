@@ -168,7 +168,6 @@ def _attitude9_score(session: Session, estimate: Result) -> dict[str, Any] | Non
 
 def _gaze_run(session: Session, solver: str) -> Result:
     from ..baselines.ekf_gaze import GazeEkfConfig
-    from ..consistency import stream_range
     from ..frontends.gaze_timing import gyro_attitude
     from ..metrics import on_truth_times
     from . import attitude9, gaze
@@ -189,9 +188,7 @@ def _gaze_run(session: Session, solver: str) -> Result:
     if solver == "ekf":
         result = gaze.run_ekf(data, replace(GazeEkfConfig(), use_mag=use_mag, pixel_sigma=data.config.camera.pixel_sigma))  # the declared noise, as ours
     else:
-        model = gaze.GazeModel() if solver == "online" else gaze.batch_model()
-        model = replace(model, head=replace(model.head, use_mag=use_mag, accel_range_m_s2=stream_range(session.stream("accel"))))
-        result = gaze.RUNNERS[solver](data, model)  # type: ignore[operator]
+        result = gaze.RUNNERS[solver](data, gaze.model_for(session, solver))  # type: ignore[operator]
         attitude9.say_notes(session.where, result.notes)
     return PointEstimate(solver, data.tracker_t.copy(), np.asarray(result.points_xz_m)[:, None, :], ("X_m", "Z_m"), float(result.runtime_s),
                          {"world_R_head": result.world_R_head})
@@ -465,6 +462,8 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("gaze_untracked", None, "imports: gaze lines without a measurement (blinks), count (documentation)"),
                       KeySpec("use_mag", True, "false: no method reads the magnetometer (one that cannot be calibrated: the imports say why)"),
                       KeySpec("gaze_truth", None, "world_ray: the truth is the eye's world ray per gaze sample (import broad --system gaze): gaze_error_deg"),
+                      KeySpec("head_motion", "seated", "seated: a viewer's head held within centimetres (the gaze model's head); free: a sensor moved by hand "
+                              "(import broad --system gaze): the head is the 9-axis system's model for the IMU"),
                       KeySpec("mag_rate_hz", None, "imports: the magnetometer's own rate before it was interpolated onto the IMU times, Hz "
                               "(documentation)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother", "ekf": "the paper's EKF on (yaw, pitch, roll, GX, GZ)",
