@@ -316,7 +316,7 @@ class _GazeSolver:
         from .records import GazeScenarioConfig
         from .solvers.online import OnlineSmoother
         from .systems.attitude9 import attitude_tracker
-        from .systems.gaze import NEEDS_WALL, G, GazeGraph, GazeModel, block_size
+        from .systems.gaze import NEEDS_WALL, G, GazeGraph, block_size, model_for
 
         self._keys = (G, X)  # imported once, not per sample
 
@@ -327,7 +327,7 @@ class _GazeSolver:
         tracker = attitude_tracker(declared)  # the declared noise and latency, read as replay reads them
         self.data = _LiveGazeData(GazeScenarioConfig.declared(header, gaze.meta, float("nan")), tracker.latency_s if tracker else 0.0,
                                   tracker.sigma_rad if tracker else float(np.deg2rad(0.4)))
-        self.model = GazeModel()
+        self.model = model_for(declared, "online")  # as the replay: the declared head motion and use_mag
         self.graph = GazeGraph(self.data, self.model)
         self.solver = OnlineSmoother(self.graph.builder, self.model.online)
         rate = next((s.meta.get("rate_hz") for s in declared.streams.values() if s.kind == "gyro" and "rate_hz" in s.meta), None)

@@ -355,7 +355,9 @@ def model_for(session: Session, solver: str) -> GazeModel:
         raise SessionError(f"{session.where}: [session] head_motion = {motion!r}: one of {', '.join(HEAD_MOTIONS)}")
     model = GazeModel() if solver == "online" else batch_model()
     head = attitude9.model_for(session, solver="online") if motion == "free" else model.head
-    return replace(model, head=replace(head, use_mag=bool(header.get("use_mag", True)), accel_range_m_s2=stream_range(session.stream("accel"))))
+    if "accel" in session.streams:  # live declarations may name none
+        head = replace(head, accel_range_m_s2=stream_range(session.stream("accel")))
+    return replace(model, head=replace(head, use_mag=bool(header.get("use_mag", True))))
 
 
 def run_ekf(session: GazeSession, config: GazeEkfConfig | None = None) -> GazeEstimate:
