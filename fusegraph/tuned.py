@@ -52,7 +52,7 @@ SYSTEM_STUDIES: dict[str, tuple[str, ...]] = {
     "head": ("head_ekf", "head_ekf_method1", "head_ekf_kalman", "head_no_gyro"),
     "attitude9": ("broad_ekf", "broad_mag", "broad_mag_batch", "broad_motion", "broad_motion_batch", "broad_bias", "broad_bias_batch",
                   "broad_online", "broad_hard_iron", "broad_hard_iron_batch", "broad_field", "broad_field_batch", "broad_rest", "broad_rest_batch"),
-    "gaze": ("gaze_ekf", "gaze_fixation", "gaze_fixation_batch", "gaze_points", "gaze_points_batch"),
+    "gaze": ("gaze_ekf", "gaze_fixation", "gaze_fixation_batch", "gaze_points", "gaze_points_batch", "gaze_head_mag"),
     "bicycle": ("bicycle_ekf", "bicycle_no_removal"),
     "walking": ("walking_fixes",),
     "ultrasonic": ("stonesoup_gnn", "stonesoup_jpda", "uwb_calibrated"),

@@ -101,13 +101,16 @@ def test_builder_names_the_sample_whose_time_goes_back() -> None:
         builder.add_samples(np.array([0.005]), np.zeros((1, 3)), np.array([[0, 0, 9.81]]), FIELD[None])
 
 
-def test_the_graph_does_not_depend_on_how_samples_are_blocked() -> None:
+@pytest.mark.parametrize("interval_mean", [False, True])
+def test_the_graph_does_not_depend_on_how_samples_are_blocked(interval_mean: bool) -> None:
     """A recording pushed at once or in blocks of 7 (keyframes closing inside blocks, rests carried across them)
-    gives the same keyframes, factors and initial values: the block handling is vectorised, not the model."""
+    gives the same keyframes, factors, initial values and heading readings (each keyframe's own, or its interval's mean
+    gathered across blocks): the block handling is vectorised, not the model."""
     session = simulate_attitude9(4, duration_s=6.0)
     data = attitude9.imu9(session)
     assert data.mag is not None
-    builders = [Attitude9Builder(deferred_mag=True), Attitude9Builder(deferred_mag=True)]
+    model = Attitude9Model(mag=MagNoise(interval_mean=interval_mean))
+    builders = [Attitude9Builder(model, deferred_mag=True), Attitude9Builder(model, deferred_mag=True)]
     builders[0].add_samples(data.t, data.gyro, data.accel, data.mag)
     for i in range(0, len(data.t), 7):
         builders[1].add_samples(data.t[i : i + 7], data.gyro[i : i + 7], data.accel[i : i + 7], data.mag[i : i + 7])
@@ -117,6 +120,29 @@ def test_the_graph_does_not_depend_on_how_samples_are_blocked() -> None:
     assert [type(f) for _, f in whole.factors] == [type(f) for _, f in blocked.factors]
     assert whole.graph().error(whole.values) == pytest.approx(blocked.graph().error(whole.values), rel=1e-12)
     assert whole.values.equals(blocked.values, 1e-12)
+    readings = [np.array([m for _, m in b.mag_readings]) for b in builders]
+    assert readings[0].shape == (len(builders[0].keyframe_index), 3) and np.allclose(readings[0], readings[1], rtol=0.0, atol=1e-12)
+    own = data.mag[builders[0].keyframe_index]  # the keyframes' own readings
+    assert np.array_equal(readings[0], own) != interval_mean
+
+
+def test_the_interval_mean_carries_each_reading_to_the_keyframe_with_the_gyro() -> None:
+    """Noise-free readings of a body turning at varying rates (gtsam's Rot3 products, a gyro biased by a known bias) all
+    carry to the keyframe's own reading: their mean is it to rounding (1e-12 of a unit field)."""
+    from fusegraph.factors.mag import interval_mean_reading
+
+    rng = np.random.default_rng(5)
+    bias = np.array([0.02, -0.01, 0.03])
+    rates = rng.normal(0.0, 2.0, (40, 3))  # rad/s: up to ~0.1 rad per 5 ms sample, ~1 rad over the interval
+    dt = rng.uniform(0.004, 0.006, 40)
+    world_R_body = [random_rot3(rng)]
+    for rate, step in zip(rates[1:], dt[1:], strict=True):  # sample j's rate turns the body from sample j-1 to j
+        world_R_body.append(world_R_body[-1].compose(gtsam.Rot3.Expmap(rate * step)))
+    field_world = np.array([0.0, 0.45, -0.89])
+    readings = np.array([r.unrotate(field_world) for r in world_R_body])
+    mean = interval_mean_reading(readings, rates + bias, dt, bias)
+    assert np.allclose(mean, readings[-1], rtol=0.0, atol=1e-12)
+    assert not np.allclose(interval_mean_reading(readings, rates, dt, bias), readings[-1], atol=1e-3)  # the bias matters
 
 
 def test_a_long_push_finds_each_closing_sample_as_the_look_ahead_does() -> None:

@@ -521,6 +521,25 @@ whose long fixations the keyframe's point averages to 6.2). With each solver's f
 the online's gate moved from 3 to 4 sigmas (the batch's stayed 4)."""
 
 
+def _gaze_head_mag_score(setting: dict[str, Any], seed: int) -> float:
+    """``_gaze_scenarios_mm`` of the gaze graph online with its head's magnetometer heading as ``setting`` has it."""
+    from dataclasses import replace
+
+    from ..factors.gaze import fixation_tuned
+    from ..systems.gaze import GazeModel, run_online
+
+    base = GazeModel(fixation=fixation_tuned("gaze_fixation"))
+    mag = replace(base.head.mag, interval_mean=bool(setting["interval_mean"]), heading_sigma_deg=setting["heading_sigma_deg"])
+    model = replace(base, head=replace(base.head, mag=mag))
+    return _gaze_scenarios_mm(seed, lambda s: run_online(s, model).points_xz_m)
+
+
+GAZE_HEAD_MAG_GRID = {"interval_mean": (0.0, 1.0), "heading_sigma_deg": (0.5, 1.0, 2.0, 3.0, 5.0)}
+"""The seated head's magnetometer heading (``GazeModel.head``, both solvers): each keyframe's heading from its own reading
+(0) or from the mean of its interval's readings carried by the gyro (1, ``MagNoise.interval_mean``), and the heading
+sigma per keyframe (5 deg, ``MagNoise``'s default, before 2026-11-29). Scored online on both gaze scenarios."""
+
+
 def _bicycle_ekf_score(setting: dict[str, Any], seed: int, method: str = "paper_pipeline") -> float:
     """Hypot of the braking pitch and roll RMS of one EKF baseline (``paper_pipeline`` or ``no_removal``) with these sigmas."""
     from ..baselines.ekf9 import Ekf9Config
@@ -596,6 +615,8 @@ STUDIES: dict[str, Study] = {
                          "mm, hypot of X and Z RMS on the wall of fusegraph online, mean of the two-mark scenario and scene viewing (a saccade every 0.33 s)"),
     "gaze_points_batch": Study("gaze_points_batch", GAZE_POINTS_GRID, lambda s, seed: _gaze_points_score(s, seed, "batch"),
                                "mm, hypot of X and Z RMS on the wall of fusegraph batch, mean of the two-mark scenario and scene viewing"),
+    "gaze_head_mag": Study("gaze_head_mag", GAZE_HEAD_MAG_GRID, _gaze_head_mag_score,
+                           "mm, hypot of X and Z RMS on the wall of fusegraph online (its head's magnetometer heading), mean of both gaze scenarios"),
     "gaze_fixation_batch": Study("gaze_fixation_batch", GAZE_FIXATION_GRID, lambda s, seed: _gaze_fixation_score(s, seed, "batch"),
                                  "mm, hypot of X and Z RMS on the wall of fusegraph batch (its fixation model), mean of both gaze scenarios"),
     "bicycle_ekf": Study("bicycle_ekf", BICYCLE_EKF_GRID, _bicycle_ekf_score, "deg, hypot of pitch and roll RMS while braking (the paper's pipeline)"),

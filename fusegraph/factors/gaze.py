@@ -21,8 +21,9 @@ import numpy as np
 
 from ..catalogue import KeySpec, SensorKind
 from ..geometry import FloatArray
-from ..tuned import value
+from ..tuned import tuned, value
 from .linear import robust
+from .mag import MagNoise
 
 # gtsam's camera frame: z forward, x right, y down; ours (head): x forward, y left, z up
 HEAD_R_CAMERA = gtsam.Rot3(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]))
@@ -93,6 +94,14 @@ def fixation_tuned(study: str = "gaze_fixation") -> FixationNoise:
     ``gaze_points_batch``)."""
     gate = value(study.replace("fixation", "points"), "gate_sigmas")
     return FixationNoise(drift_m_per_sqrt_s=value(study, "drift_m_per_sqrt_s"), cauchy_k=value(study, "cauchy_k"), sample_gate_sigmas=gate)
+
+
+def head_mag_tuned() -> MagNoise:
+    """The seated head's magnetometer heading (``tune gaze_head_mag``, seeds 100-119): each keyframe reads the mean of its
+    interval's readings carried by the gyro (one reading's noise over ~20 at 100 Hz; it was the start's heading error that
+    took ~20 s to average away) with the chosen sigma."""
+    chosen = tuned("gaze_head_mag")
+    return MagNoise(heading_sigma_deg=float(chosen["heading_sigma_deg"]), interval_mean=bool(chosen["interval_mean"]))
 
 
 def fixation_walk(prev_key: int, next_key: int, dt_s: float, noise: FixationNoise) -> gtsam.BetweenFactorPoint3:

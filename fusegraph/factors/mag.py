@@ -26,7 +26,7 @@ import gtsam
 import numpy as np
 
 from ..catalogue import KeySpec, SensorKind
-from ..geometry import FloatArray
+from ..geometry import FloatArray, matrix_from_quat, quat_from_rotvec
 from .linear import robust
 
 #: Magnetic north in the ENU world frame.
@@ -99,6 +99,9 @@ class MagNoise:
     new_field_s: float = 0.0
     """A field off the reference that stays steady this long while the sensor turns becomes the reference
     (``FieldTracker``), s; 0: never (VQF's ``magNewTime``: 20 s)."""
+    interval_mean: bool = False
+    """The keyframe's heading reads the mean of every reading since the keyframe before, each carried by the gyro to the
+    keyframe (``interval_mean_reading``); False: the keyframe's own reading alone (the others dropped)."""
 
 
 @dataclass(frozen=True)
@@ -266,6 +269,21 @@ class HardIron:
             if self.trusted:
                 self.bias = theta[3:]
         return m - self.bias
+
+
+def interval_mean_reading(mag: FloatArray, gyro_rad_s: FloatArray, dt_s: FloatArray, gyro_bias_rad_s: FloatArray) -> FloatArray:
+    """The mean of an interval's readings (rows; the last is the keyframe's) in the body frame at the last: sample j's gyro
+    (less the bias) turns the body over ``dt_s[j]`` from sample j-1 to j, so reading i is carried by the rotations of samples
+    i+1 .. last. Its noise is the single reading's over the square root of their count (a heading sigma per keyframe fitted to
+    one reading is then conservative)."""
+    phi = (np.asarray(gyro_rad_s[1:]) - gyro_bias_rad_s) * np.asarray(dt_s[1:])[:, None]
+    turn = matrix_from_quat(quat_from_rotvec(phi))  # each sample's turn in numpy once, then a scalar carry: ~20-60 samples,
+    # where numpy's per-call cost would dominate
+    readings = np.asarray(mag, dtype=float).tolist()
+    x, y, z = readings[0]
+    for (r0, r1, r2), (mx, my, mz) in zip(turn.tolist(), readings[1:], strict=True):  # v_j = turn_j^T v_(j-1), plus reading j
+        x, y, z = r0[0] * x + r1[0] * y + r2[0] * z + mx, r0[1] * x + r1[1] * y + r2[1] * z + my, r0[2] * x + r1[2] * y + r2[2] * z + mz
+    return np.array([x, y, z]) / len(readings)
 
 
 def heading_sigma_rad(noise: MagNoise, reference: FieldReference, norm: float, dip_rad: float) -> float:

@@ -41,7 +41,17 @@ from ..factors.imu import (
     zero_rate_factor,
 )
 from ..factors.linear import linear_factor, robust
-from ..factors.mag import FieldReference, FieldTracker, HardIron, MagCalibration, MagNoise, field_norm_dip, heading_factor, heading_sigma_rad
+from ..factors.mag import (
+    FieldReference,
+    FieldTracker,
+    HardIron,
+    MagCalibration,
+    MagNoise,
+    field_norm_dip,
+    heading_factor,
+    heading_sigma_rad,
+    interval_mean_reading,
+)
 from ..geometry import FloatArray, quat_conjugate, quat_from_rotvec, quat_multiply, quat_wxyz_from_rot3, rot3_from_quat_wxyz, rotvec_from_quat
 from ..tuned import tuned, tuned_studies
 from .increment import GraphIncrement
@@ -349,6 +359,7 @@ class Attitude9Builder:
         self._nav = gtsam.NavState()
         self._bias = gtsam.imuBias.ConstantBias()
         self._interval: list[tuple[FloatArray, FloatArray, FloatArray]] = []  # blocks of (accel, gyro, dt) rows since the last keyframe
+        self._interval_mag: list[FloatArray] = []  # and their magnetometer rows (MagNoise.interval_mean)
         self._last_t = np.nan
         self._count = 0
         # without a rate-dependent gyro term one set of preintegration parameters serves every interval
@@ -595,6 +606,8 @@ class Attitude9Builder:
             if j < 0:
                 break
             self._interval.append((accel[start : j + 1], gyro[start : j + 1], dt[start : j + 1]))
+            if mag is not None and self.model.mag.interval_mean:
+                self._interval_mag.append(mag[start : j + 1])
             self._last_t, self._count, self._still_run = float(t[j]), count0 + j, int(still_run[j])
             self._close_keyframe(accel[j], None if mag is None else mag[j])
             if on_keyframe is not None:
@@ -602,6 +615,8 @@ class Attitude9Builder:
             start = j + 1
         if start < len(t):
             self._interval.append((accel[start:], gyro[start:], dt[start:]))
+            if mag is not None and self.model.mag.interval_mean:
+                self._interval_mag.append(mag[start:])
         self._last_t, self._count, self._still_run = float(t[-1]), count0 + len(t), int(still_run[-1])
         if still[-1] and mag is not None:  # the block's last still samples (views: a rest bridge reads them, rarely)
             tail = slice(len(t) - min(int(still_run[-1]), len(t)), None)
@@ -663,6 +678,11 @@ class Attitude9Builder:
         else:
             interval_accel, interval_gyro, interval_dt = (np.concatenate(blocks) for blocks in zip(*self._interval, strict=True))
         self._interval = []
+        if self._interval_mag:
+            readings = np.concatenate(self._interval_mag)
+            if mag is not None and len(readings) == len(interval_gyro):
+                mag = interval_mean_reading(readings, interval_gyro, interval_dt, np.asarray(self._bias.gyroscope()))
+            self._interval_mag = []
         self._keyframe_rate.append(float(np.sqrt(np.mean(np.einsum("ij,ij->i", interval_gyro, interval_gyro)))))
         pim = self._preintegrate(interval_accel, interval_gyro, interval_dt, self._keyframe_rate[-1])
         if self._calibrated:

@@ -136,7 +136,7 @@ def model_for(session: Session, model: Attitude9Model | None = None, solver: str
         return model
     meta = session.stream("mag").meta
     if field := {key: float(meta[key]) for key in ("reference_tau_s", "new_field_s") if key in meta}:  # e.g. carried between places
-        model = replace(model, mag=replace(model.mag, **field))
+        model = replace(model, mag=replace(model.mag, **field))  # type: ignore[arg-type]  # two float fields, not interval_mean
     if "calibration_gain" in meta and "calibration_offset" in meta:
         cal = MagCalibration(tuple(meta["calibration_gain"]), tuple(meta["calibration_offset"]))  # type: ignore[arg-type]
         return replace(model, mag_calibration=cal)
