@@ -104,14 +104,19 @@ BROAD_MAG_GRID: Mapping[str, Sequence[float]] = {"heading_sigma_deg": (3.0, 5.0,
 were widened past 40, where both solvers had chosen the grid's edge: the online choice stayed 3 deg / 40 / 2 (in-sample and
 cross-validated 2.225 deg). Widened to a 2 deg sigma as well it chose 2 / 80 / 2, in-sample 2.206 but cross-validated
 2.436: a worse procedure on trials it did not see, so that widening is not kept (a grid is widened where its choice sits
-at an edge, and kept when the leave-one-trial-out figure improves)."""
+at an edge, and kept when the leave-one-trial-out figure improves). With the interval mean of the readings as a further
+choice (``MagNoise.interval_mean``, 2026-11-29) it kept the keyframe's own reading, 3 / 40 / 2, in-sample 1.932 and
+cross-validated 1.968 as without it: not kept in the grid (the batch's takes it)."""
 BROAD_MAG_BATCH_GRID: Mapping[str, Sequence[float]] = {"heading_sigma_deg": (2.0, 3.0, 5.0, 10.0), "gains": (10.0, 20.0, 40.0, 80.0, 160.0),
-                                                       "cauchy_k": (1.0, 2.0)}
+                                                       "cauchy_k": (1.0, 2.0), "interval_mean": (0.0, 1.0)}
 """``broad_mag --solver batch``'s grid, widened by the same rule from the online's (chosen there 5 / 40 / 1): past gains 40
 (chosen 3 / 80 / 1: 1.957 deg in-sample, 2.020 cross-validated), then to a 2 deg sigma (2 / 160 / 2: 1.918 both, every
 fold the same): kept. Widened once more (sigma 1 and 1.5, gains 320 and 640) it chose 1 / 320 / 2, in-sample 1.881 but
 cross-validated 1.927: not kept. Run again on 2026-11-27 with the batch as the later studies left it: the same choice,
-in-sample 1.674, cross-validated 1.721 (four folds take Cauchy 1, a tie in-sample)."""
+in-sample 1.674, cross-validated 1.721 (four folds take Cauchy 1, a tie in-sample). With the interval mean of the
+readings as a choice (``MagNoise.interval_mean``, 2026-11-29): 2 / 160 / 1 with the mean, in-sample and cross-validated
+1.465 (every fold the same; 1.672 with the keyframe's reading). That sits at the grid's corner; widened to sigma 1 and 1.5
+and gains 320 it chose 1 / 320 / 1 / mean, in-sample 1.436 but cross-validated 1.469: not kept."""
 
 
 def grid_settings(grid: Mapping[str, Sequence[float]]) -> dict[str, dict[str, float]]:

@@ -26,7 +26,7 @@ import gtsam
 import numpy as np
 
 from ..catalogue import KeySpec, SensorKind
-from ..geometry import FloatArray, matrix_from_quat, quat_from_rotvec
+from ..geometry import FloatArray, matrix_from_quat, quat_conjugate, quat_from_rotvec, quat_running_product, rotate_by_quat
 from .linear import robust
 
 #: Magnetic north in the ENU world frame.
@@ -284,6 +284,23 @@ def interval_mean_reading(mag: FloatArray, gyro_rad_s: FloatArray, dt_s: FloatAr
     for (r0, r1, r2), (mx, my, mz) in zip(turn.tolist(), readings[1:], strict=True):  # v_j = turn_j^T v_(j-1), plus reading j
         x, y, z = r0[0] * x + r1[0] * y + r2[0] * z + mx, r0[1] * x + r1[1] * y + r2[1] * z + my, r0[2] * x + r1[2] * y + r2[2] * z + mz
     return np.array([x, y, z]) / len(readings)
+
+
+class CarriedReadings:
+    """``interval_mean_reading`` for every interval of one long push at once (a batch's whole recording): each reading
+    turned into the body frame at the push's first sample (numpy, once), their running sum, and per interval a difference
+    of two sums turned to its last sample. Equal to ``interval_mean_reading`` to rounding (the products are associated
+    in another order)."""
+
+    def __init__(self, mag: FloatArray, gyro_rad_s: FloatArray, dt_s: FloatArray, gyro_bias_rad_s: FloatArray) -> None:
+        increments = quat_from_rotvec((np.asarray(gyro_rad_s[1:]) - gyro_bias_rad_s) * np.asarray(dt_s[1:])[:, None])
+        self._first_R_sample = quat_running_product(np.array([1.0, 0.0, 0.0, 0.0]), increments)
+        self._sums = np.vstack([np.zeros(3), np.cumsum(rotate_by_quat(self._first_R_sample, np.asarray(mag, dtype=float)), axis=0)])
+
+    def mean(self, first: int, last: int) -> FloatArray:
+        """The mean of rows ``first`` .. ``last`` (inclusive) in the body frame at ``last``."""
+        in_first = (self._sums[last + 1] - self._sums[first]) / (last + 1 - first)
+        return rotate_by_quat(quat_conjugate(self._first_R_sample[last : last + 1]), in_first[None, :])[0]
 
 
 def heading_sigma_rad(noise: MagNoise, reference: FieldReference, norm: float, dip_rad: float) -> float:

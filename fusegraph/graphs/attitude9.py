@@ -42,6 +42,7 @@ from ..factors.imu import (
 )
 from ..factors.linear import linear_factor, robust
 from ..factors.mag import (
+    CarriedReadings,
     FieldReference,
     FieldTracker,
     HardIron,
@@ -145,10 +146,11 @@ class _Restart:
 
 
 def mag_noise_from(settings: Mapping[str, float], base: MagNoise | None = None) -> MagNoise:
-    """The magnetometer model of a ``broad_mag`` setting (a grid point, or the chosen one): heading sigma, gains, Cauchy width
+    """The magnetometer model of a ``broad_mag`` setting (a grid point, or the chosen one): heading sigma, gains, Cauchy width,
+    and whether a keyframe reads its interval's mean (``interval_mean``; a setting without it: the keyframe's own reading)
     (the rest, e.g. the hard-iron model, as in ``base``)."""
     return replace(base or MagNoise(), heading_sigma_deg=float(settings["heading_sigma_deg"]), norm_gain=float(settings["gains"]),
-                   dip_gain=float(settings["gains"]), cauchy_k=float(settings["cauchy_k"]))
+                   dip_gain=float(settings["gains"]), cauchy_k=float(settings["cauchy_k"]), interval_mean=bool(settings.get("interval_mean", 0.0)))
 
 
 def with_hard_iron(noise: MagNoise, settings: Mapping[str, float]) -> MagNoise:
@@ -600,22 +602,29 @@ class Attitude9Builder:
             due_s = t + 0.5 * dt
             if not (due_s[1:] > due_s[:-1]).all():  # very uneven steps: the look-ahead
                 due_s = None
+        interval_mean = self.model.mag.interval_mean
+        carried = None
+        if mag is not None and interval_mean and not self._solved and len(t) >= 256:  # a long push before any solve (the batch): every
+            carried = CarriedReadings(mag, gyro, dt, np.asarray(self._bias.gyroscope()))  # interval's mean from one numpy pass
         start = 0
         while start < len(t):
             j = _first_due(t, dt, start, self.keyframe_t[-1], period, due_s)
             if j < 0:
                 break
             self._interval.append((accel[start : j + 1], gyro[start : j + 1], dt[start : j + 1]))
-            if mag is not None and self.model.mag.interval_mean:
+            reading = None if mag is None else mag[j]
+            if carried is not None and not self._solved and not self._interval_mag:  # the interval lies within this push
+                reading = carried.mean(start, j)
+            elif mag is not None and interval_mean:
                 self._interval_mag.append(mag[start : j + 1])
             self._last_t, self._count, self._still_run = float(t[j]), count0 + j, int(still_run[j])
-            self._close_keyframe(accel[j], None if mag is None else mag[j])
+            self._close_keyframe(accel[j], reading)
             if on_keyframe is not None:
                 on_keyframe(self._last_t)
             start = j + 1
         if start < len(t):
             self._interval.append((accel[start:], gyro[start:], dt[start:]))
-            if mag is not None and self.model.mag.interval_mean:
+            if mag is not None and interval_mean:
                 self._interval_mag.append(mag[start:])
         self._last_t, self._count, self._still_run = float(t[-1]), count0 + len(t), int(still_run[-1])
         if still[-1] and mag is not None:  # the block's last still samples (views: a rest bridge reads them, rarely)
