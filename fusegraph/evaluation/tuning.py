@@ -487,15 +487,18 @@ scenarios the walk's choice moved to that grid's upper edge, 0.2 (15.40 mm, magn
 up by two steps (0.02 dropped): 0.5 chosen, 15.03 mm."""
 
 
-def _gaze_graph_score(seed: int, solver: str, **fixation: float) -> float:
+def _gaze_graph_score(seed: int, solver: str, mag: Mapping[str, Any] | None = None, **fixation: float) -> float:
     """``_gaze_scenarios_mm`` of the gaze graph's ``solver`` with its fixation model as its studies chose (``fixation_tuned``:
-    the walk and the sample gate) but for the ``fixation`` fields a study varies."""
+    the walk and the sample gate) but for the ``fixation`` fields a study varies, and its head's magnetometer as chosen
+    but for the ``mag`` fields (``MagNoise``'s) a study varies."""
     from dataclasses import replace
 
     from ..factors.gaze import fixation_tuned
     from ..systems.gaze import GazeModel, run_batch, run_online
 
     model = GazeModel(fixation=replace(fixation_tuned("gaze_fixation" if solver == "online" else "gaze_fixation_batch"), **fixation))
+    if mag:
+        model = replace(model, head=replace(model.head, mag=replace(model.head.mag, **mag)))
     run = run_online if solver == "online" else run_batch
     return _gaze_scenarios_mm(seed, lambda s: run(s, model).points_xz_m)
 
@@ -528,15 +531,7 @@ the online's gate moved from 3 to 4 sigmas (the batch's stayed 4)."""
 
 def _gaze_head_mag_score(setting: dict[str, Any], seed: int) -> float:
     """``_gaze_scenarios_mm`` of the gaze graph online with its head's magnetometer heading as ``setting`` has it."""
-    from dataclasses import replace
-
-    from ..factors.gaze import fixation_tuned
-    from ..systems.gaze import GazeModel, run_online
-
-    base = GazeModel(fixation=fixation_tuned("gaze_fixation"))
-    mag = replace(base.head.mag, interval_mean=bool(setting["interval_mean"]), heading_sigma_deg=setting["heading_sigma_deg"])
-    model = replace(base, head=replace(base.head, mag=mag))
-    return _gaze_scenarios_mm(seed, lambda s: run_online(s, model).points_xz_m)
+    return _gaze_graph_score(seed, "online", {"interval_mean": bool(setting["interval_mean"]), "heading_sigma_deg": setting["heading_sigma_deg"]})
 
 
 GAZE_HEAD_MAG_GRID = {"interval_mean": (0.0, 1.0), "heading_sigma_deg": (0.5, 1.0, 2.0, 3.0, 5.0)}

@@ -271,13 +271,17 @@ class HardIron:
         return m - self.bias
 
 
+def _sample_turns(gyro_rad_s: FloatArray, dt_s: FloatArray, gyro_bias_rad_s: FloatArray) -> FloatArray:
+    """The body's turn (quaternion) from each sample to the next: sample j's gyro, less the bias, over ``dt_s[j]``."""
+    return quat_from_rotvec((np.asarray(gyro_rad_s[1:]) - gyro_bias_rad_s) * np.asarray(dt_s[1:])[:, None])
+
+
 def interval_mean_reading(mag: FloatArray, gyro_rad_s: FloatArray, dt_s: FloatArray, gyro_bias_rad_s: FloatArray) -> FloatArray:
     """The mean of an interval's readings (rows; the last is the keyframe's) in the body frame at the last: sample j's gyro
     (less the bias) turns the body over ``dt_s[j]`` from sample j-1 to j, so reading i is carried by the rotations of samples
     i+1 .. last. Its noise is the single reading's over the square root of their count (a heading sigma per keyframe fitted to
     one reading is then conservative)."""
-    phi = (np.asarray(gyro_rad_s[1:]) - gyro_bias_rad_s) * np.asarray(dt_s[1:])[:, None]
-    turn = matrix_from_quat(quat_from_rotvec(phi))  # each sample's turn in numpy once, then a scalar carry: ~20-60 samples,
+    turn = matrix_from_quat(_sample_turns(gyro_rad_s, dt_s, gyro_bias_rad_s))  # each sample's turn in numpy once, then a scalar carry: ~20-60 samples,
     # where numpy's per-call cost would dominate
     readings = np.asarray(mag, dtype=float).tolist()
     x, y, z = readings[0]
@@ -293,8 +297,7 @@ class CarriedReadings:
     in another order)."""
 
     def __init__(self, mag: FloatArray, gyro_rad_s: FloatArray, dt_s: FloatArray, gyro_bias_rad_s: FloatArray) -> None:
-        increments = quat_from_rotvec((np.asarray(gyro_rad_s[1:]) - gyro_bias_rad_s) * np.asarray(dt_s[1:])[:, None])
-        self._first_R_sample = quat_running_product(np.array([1.0, 0.0, 0.0, 0.0]), increments)
+        self._first_R_sample = quat_running_product(np.array([1.0, 0.0, 0.0, 0.0]), _sample_turns(gyro_rad_s, dt_s, gyro_bias_rad_s))
         self._sums = np.vstack([np.zeros(3), np.cumsum(rotate_by_quat(self._first_R_sample, np.asarray(mag, dtype=float)), axis=0)])
 
     def mean(self, first: int, last: int) -> FloatArray:

@@ -354,8 +354,10 @@ def model_for(session: Session, solver: str) -> GazeModel:
     if (motion := header.get("head_motion", "seated")) not in HEAD_MOTIONS:
         raise SessionError(f"{session.where}: [session] head_motion = {motion!r}: one of {', '.join(HEAD_MOTIONS)}")
     model = GazeModel() if solver == "online" else batch_model()
-    head = attitude9.model_for(session, solver="online") if motion == "free" else model.head
-    if "accel" in session.streams:  # live declarations may name none
+    head = model.head
+    if motion == "free":  # the 9-axis model as that system reads the streams (the accelerometer's range with it)
+        head = attitude9.model_for(session, solver="online")
+    elif "accel" in session.streams:  # live declarations may name none
         head = replace(head, accel_range_m_s2=stream_range(session.stream("accel")))
     return replace(model, head=replace(head, use_mag=bool(header.get("use_mag", True))))
 
