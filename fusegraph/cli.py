@@ -296,6 +296,10 @@ def build_parser() -> argparse.ArgumentParser:
     tun.add_argument("--scheduler", default=None, help="a Dask scheduler for the same jobs: local, or tcp://host:port of a running cluster")
     tun.add_argument("--passes", type=int, default=2, help="broad_nested: passes over the studies in their order at most (default 2; it "
                      "stops when no choice moves)")
+    tun.add_argument("--rule", default="one_se", choices=["one_se", "best"],
+                     help="broad_nested: how each study's setting is chosen on a fold's trials: one_se (default) keeps the setting as it "
+                     "stands (the code's default, or the last pass's) unless the best grid point beats it by more than one standard "
+                     "error of their per-trial differences; best takes the lowest mean")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
                          description="Read each declared input from an LSL stream (sample times from LSL's clock, moved onto this machine's "
@@ -954,7 +958,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     if args.study == "broad_nested":
         from .evaluation.nested import main_nested
 
-        return main_nested(args.solver, args.sessions, args.passes, args.workers, args.scheduler, args.write)
+        return main_nested(args.solver, args.sessions, args.passes, args.workers, args.scheduler, args.write, args.rule)
 
     argv = [args.study, "--solver", args.solver, "--workers", str(args.workers)] + (["--write"] if args.write else [])
     argv += ["--scheduler", args.scheduler] if args.scheduler else []

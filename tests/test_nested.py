@@ -53,3 +53,34 @@ def test_the_bench_table_says_what_the_nested_figure_is_and_when_it_is_stale() -
     assert len(lines) == 2
     assert "1.930 deg in-sample" in lines[0] and "2.100 deg" in lines[0] and "cross-validated" in lines[0] and "STALE" not in lines[0]
     assert lines[1].startswith("batch:") and "STALE" in lines[1]
+
+
+def _noisy_score(study: str, key: str, trial: str) -> float:
+    """x = 1 beats the start's x = 0 by 0.1 on average, but by +0.5 on two trials and -0.3 on the others: within its spread.
+    x = 2 beats x = 0 by exactly 1 on every trial: beyond it."""
+    x = json.loads(key)["first"]["x"]
+    if x == 1.0:
+        return 0.5 if trial in "ab" else 1.3
+    return {0.0: 1.0, 2.0: 0.0, 3.0: 2.0}[x]
+
+
+def test_one_standard_error_keeps_a_setting_the_trials_cannot_tell_apart() -> None:
+    grids = {"first": {f"x={x}": {"x": float(x)} for x in (0, 1)}}
+    start = {"first": {"x": 0.0}}
+    trials = ["a", "b", "c", "d"]
+    kept, _, _ = choose_nested(trials, grids, _noisy_score, lambda _: None, passes=1, say=lambda _: None, rule="one_se", start=start)
+    best, _, _ = choose_nested(trials, grids, _noisy_score, lambda _: None, passes=1, say=lambda _: None, rule="best", start=start)
+    assert best[ALL] == {"first": {"x": 1.0}}  # mean 0.9 against 1.0 ...
+    assert kept[ALL] == {"first": {"x": 0.0}}  # ... a gain of 0.1 against a standard error of 0.23: kept
+    wider = {"first": {f"x={x}": {"x": float(x)} for x in (0, 1, 2)}}
+    moved, _, _ = choose_nested(trials, wider, _noisy_score, lambda _: None, passes=1, say=lambda _: None, rule="one_se", start=start)
+    assert all(settings == {"first": {"x": 2.0}} for settings in moved.values())  # a gain of 1 on every trial: moved on every path
+
+
+def test_the_code_defaults_as_settings_give_the_default_model() -> None:
+    from fusegraph.graphs.attitude9 import MODEL_STUDIES, default_settings, model_from_settings
+
+    defaults = default_settings()
+    assert sorted(defaults) == sorted(MODEL_STUDIES)
+    for study in MODEL_STUDIES:  # each study's default point read back through its setter is the untouched model
+        assert model_from_settings({study: defaults[study]}) == model_from_settings({}), study

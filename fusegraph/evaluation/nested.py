@@ -4,7 +4,8 @@
 as ``tuned.toml`` holds them, i.e. chosen on all trials, the held-out one among them. Here the whole procedure is repeated
 per held-out trial: starting from the code's defaults (``graphs.attitude9.model_from_settings({})``, which reads no
 ``tuned.toml``), the studies are chosen in their order (``MODEL_STUDIES``, then ``broad_online`` for the online solver),
-each on the other trials only and by its own objective (``tuning.BROAD_OBJECTIVES``), and the order is passed over again
+each on the other trials only and by its own objective (``tuning.BROAD_OBJECTIVES``) and rule (``RULES``: by default a
+study's setting moves only where the trials show the move beyond their spread), and the order is passed over again
 until no choice moves (at most ``passes`` times). The trial is then scored with what its fold chose. The same procedure on
 all trials gives the in-sample figure beside it. Runs are shared: a fold whose choices so far are those of another path
 reuses that path's scores (each distinct model is run once per trial).
@@ -13,15 +14,20 @@ reuses that path's scores (each distinct model is run once per trial).
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..geometry import FloatArray
 from ..tuned import write_tuned
 from .cluster import in_order, path_bytes
-from .tuning import _broad_objective, _recording, broad_grid, grid_settings, peer_errors, recordings, settings_errors, tuned_compare
+from .tuning import DEFAULT_ONLINE, _broad_objective, _recording, broad_grid, grid_settings, peer_errors, recordings, settings_errors, tuned_compare
+
+RULES = ("one_se", "best")
+"""How a study's grid point is chosen on the trials of a path (``choose_nested``): the first is the default."""
 
 ALL = "(all trials)"
 """The path that chooses on every trial: the procedure's in-sample choice."""
@@ -61,13 +67,16 @@ def _peer_run(job: tuple[str, str]) -> tuple[float, float]:
 
 def nested_broad(solver: str = "online", directory: str | None = None, sessions: Sequence[str | Path] = (), passes: int = 2,
                  workers: int = 1, scheduler: str | None = None, say: Callable[[str], None] = print,
-                 compare: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Any]:
+                 compare: Mapping[str, Mapping[str, float]] | None = None, rule: str = RULES[0]) -> dict[str, Any]:
     """The end-to-end nested leave-one-trial-out figure of one solver on the BROAD trials (or imported ``sessions``).
 
     Returns ``trials`` (held-out trial -> its fold's ``settings``, ``total`` and ``inclination`` there, and the peer's),
     ``in_sample`` (the same procedure on every trial: its ``settings`` and per-trial figures), ``cross_validated`` and
     ``in_sample_mean`` (mean total and inclination, degrees, and their ratios to the peer's means), ``passes`` run, and
-    ``compare`` (``compare``'s settings, e.g. ``tuned.toml``'s, scored on every trial) when given."""
+    ``compare`` (``compare``'s settings, e.g. ``tuned.toml``'s, scored on every trial) when given. Every path starts from the
+    code's defaults (``graphs.attitude9.default_settings``) and chooses by ``rule`` (``choose_nested``)."""
+    from ..graphs.attitude9 import default_settings
+
     paths = [str(p) for p in recordings(directory, sessions)]
     trials = [Path(p).stem for p in paths]
     peers = dict(zip(trials, in_order(_peer_run, [(p, solver) for p in paths], workers, scheduler), strict=True))
@@ -82,12 +91,14 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
             runs[key] = {trial: figures[key] for trial, figures in zip(trials, per_trial, strict=True)}
 
     grids = {study: grid_settings(broad_grid(study, solver)) for study in study_order(solver)}
+    defaults = {**default_settings(), "broad_online": DEFAULT_ONLINE}
+    start = {study: {key: float(defaults[study][key]) for key in broad_grid(study, solver)} for study in grids}
 
     def score(study: str, key: str, trial: str) -> float:
         total, inclination = runs[key][trial]
         return total if _broad_objective(study) == "total" else total / peers[trial][0] + inclination / peers[trial][1]
 
-    paths_settings, done, converged = choose_nested(trials, grids, score, run, passes, say)
+    paths_settings, done, converged = choose_nested(trials, grids, score, run, passes, say, rule, start)
     if compare is not None:
         run({settings_key(compare)})
 
@@ -97,7 +108,8 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
 
     held_out = {trial: {"settings": paths_settings[trial], **figures(paths_settings[trial], trial)} for trial in trials}
     in_sample = {trial: figures(paths_settings[ALL], trial) for trial in trials}
-    out = {"solver": solver, "passes": done, "converged": converged, "trials": held_out, "in_sample": {"settings": paths_settings[ALL], "trials": in_sample},
+    out = {"solver": solver, "rule": rule, "passes": done, "converged": converged,
+           "trials": held_out, "in_sample": {"settings": paths_settings[ALL], "trials": in_sample},
            "cross_validated": _means(held_out), "in_sample_mean": _means(in_sample), "objectives": {s: _broad_objective(s) for s in study_order(solver)}}
     if compare is not None:
         out["compare"] = {"settings": compare, "mean": _means({trial: figures(dict(compare), trial) for trial in trials})}  # type: ignore[arg-type]
@@ -105,25 +117,42 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
 
 
 def choose_nested(trials: Sequence[str], grids: Mapping[str, Mapping[str, dict[str, float]]], score: Callable[[str, str, str], float],
-                  run: Callable[[set[str]], None], passes: int = 2, say: Callable[[str], None] = print) -> tuple[dict[str, Settings], int, bool]:
+                  run: Callable[[set[str]], None], passes: int = 2, say: Callable[[str], None] = print, rule: str = "best",
+                  start: Settings | None = None) -> tuple[dict[str, Settings], int, bool]:
     """Coordinate descent over the studies (``grids``: study -> its grid points by name, in the order they are chosen), from
-    no setting chosen, once on every trial (``ALL``) and once per held-out trial on the others; passed over again until
-    no choice moves (at most ``passes`` times). ``run(keys)`` makes every settings key's runs available to ``score(study,
-    key, trial)`` (lower is better; the study names its objective). Returns each path's settings, the passes run and whether
-    the last pass moved no choice (converged)."""
-    paths_settings: dict[str, Settings] = {ALL: {}, **{trial: {} for trial in trials}}
+    ``start`` (each study's setting before it is chosen; none given: none set), once on every trial (``ALL``) and once per
+    held-out trial on the others; passed over again until no choice moves (at most ``passes`` times). ``run(keys)`` makes
+    every settings key's runs available to ``score(study, key, trial)`` (lower is better; the study names its objective).
+
+    ``rule``: ``best`` takes the grid point with the lowest mean score; ``one_se`` keeps the study's setting as it stands
+    (``start``'s, or an earlier pass's choice) unless the best point beats it by more than one standard error of their
+    paired differences over the trials chosen on (the one-standard-error rule: Hastie, Tibshirani & Friedman, The Elements
+    of Statistical Learning, 2nd ed., 2009, Sec. 7.10.1), so that a difference the trials cannot tell from their spread
+    moves no choice. Returns each path's settings, the passes run and whether the last pass moved no choice (converged)."""
+    if rule not in RULES:
+        raise ValueError(f"unknown rule {rule!r}; choose from {', '.join(RULES)}")
+    paths_settings: dict[str, Settings] = {path: dict(start or {}) for path in (ALL, *trials)}
     done, moved = 0, True
     for done in range(1, passes + 1):
         moved = False
         for study, grid in grids.items():
             candidates = {name: {path: {**chosen, study: point} for path, chosen in paths_settings.items()} for name, point in grid.items()}
-            run({settings_key(s) for per_path in candidates.values() for s in per_path.values()})
+            keys = {settings_key(s) for per_path in candidates.values() for s in per_path.values()}
+            run(keys | ({settings_key(s) for s in paths_settings.values()} if rule == "one_se" else set()))
             for path in paths_settings:
                 train = [t for t in trials if t != path]
-                best = min(grid, key=lambda name, path=path, train=train, study=study: float(  # type: ignore[misc]
-                    np.mean([score(study, settings_key(candidates[name][path]), t) for t in train])))
-                moved |= paths_settings[path].get(study) != grid[best]
-                paths_settings[path] = candidates[best][path]
+
+                def scores(settings: Settings, train: list[str] = train, study: str = study) -> FloatArray:
+                    return np.array([score(study, settings_key(settings), t) for t in train])
+
+                best = min(grid, key=lambda name, path=path: float(np.mean(scores(candidates[name][path]))))  # type: ignore[misc]
+                chosen = candidates[best][path]
+                if rule == "one_se" and study in paths_settings[path]:
+                    gain = scores(paths_settings[path]) - scores(chosen)  # per trial: how much the best point improves on the incumbent
+                    if len(gain) < 2 or float(np.mean(gain)) <= float(np.std(gain, ddof=1)) / math.sqrt(len(gain)):
+                        chosen = paths_settings[path]
+                moved |= paths_settings[path].get(study) != chosen.get(study)
+                paths_settings[path] = chosen
             differ = sum(paths_settings[t][study] != paths_settings[ALL][study] for t in trials)
             say(f"pass {done} {study:<16} {len(grid):>3} points; on all trials: {_point(paths_settings[ALL][study])}"
                 f"; {differ} of {len(trials)} folds chose otherwise")
@@ -145,7 +174,8 @@ def _point(point: Mapping[str, float]) -> str:
 def format_nested(result: Mapping[str, Any]) -> str:
     """The nested figure as the table ``tune broad_nested`` and ``bench broad --nested`` print."""
     peer = "VQF" if result["solver"] == "online" else "offline VQF"
-    lines = [f"{result['solver']}: every study re-chosen without the held-out trial ({result['passes']} pass(es) over "
+    rule = {"one_se": "each kept unless the best point beats it by one standard error", "best": "each the best point"}[result.get("rule", "best")]
+    lines = [f"{result['solver']}: every study re-chosen without the held-out trial ({rule}; {result['passes']} pass(es) over "
              f"{', '.join(result['objectives'])}; " + ("no choice moved in the last" if result.get("converged") else "choices still moved in the last")
              + "), degrees",
              f"{'held-out trial':<46}{'total':>8}{'incl':>8}{'peer':>8}{'ratio':>8}  settings its fold chose unlike all trials"]
@@ -165,13 +195,13 @@ def format_nested(result: Mapping[str, Any]) -> str:
 
 
 def main_nested(solver: str, sessions: Sequence[str | Path] = (), passes: int = 2, workers: int = 1, scheduler: str | None = None,
-                write: bool = False) -> int:
+                write: bool = False, rule: str = RULES[0]) -> int:
     """Print the end-to-end nested leave-one-trial-out figure (``evaluation.nested``) beside the in-sample ones; with
     ``--write`` file it in ``tuned.toml`` as ``broad_nested`` / ``broad_nested_batch`` with the settings it was measured
     against, which ``bench broad`` prints beside its in-sample table while they are still the settings on main (``fusegraph
     tune broad_nested``)."""
     compare = tuned_compare(solver)
-    result = nested_broad(solver, sessions=sessions, passes=passes, workers=workers, scheduler=scheduler, compare=compare)
+    result = nested_broad(solver, sessions=sessions, passes=passes, workers=workers, scheduler=scheduler, compare=compare, rule=rule)
     print(format_nested(result))
     if write:
         print(f"wrote {write_nested(result)}")
@@ -183,7 +213,8 @@ def write_nested(result: Mapping[str, Any]) -> Path:
     ``broad_nested_batch``: the mean figures, the trials, and the settings they were measured against."""
     solver, compare = result["solver"], result["compare"]["settings"]
     cv, inside, held = result["cross_validated"], result["in_sample_mean"], result["compare"]["mean"]
-    entries = {"trials": sorted(result["trials"]), "passes": result["passes"], "converged": bool(result.get("converged", False)),
+    entries = {"trials": sorted(result["trials"]), "rule": result.get("rule", "best"), "passes": result["passes"],
+               "converged": bool(result.get("converged", False)),
                "settings_on_main": settings_key(compare),
                "procedure_chose_main": settings_key(result["in_sample"]["settings"]) == settings_key(compare),
                "cross_validated": round(cv["total"], 4), "cross_validated_inclination": round(cv["inclination"], 4),
@@ -195,4 +226,4 @@ def write_nested(result: Mapping[str, Any]) -> Path:
     return write_tuned("broad_nested" + ("_batch" if solver == "batch" else ""), entries)
 
 
-__all__ = ["ALL", "format_nested", "main_nested", "write_nested", "nested_broad", "settings_key", "study_order"]
+__all__ = ["ALL", "RULES", "choose_nested", "format_nested", "main_nested", "write_nested", "nested_broad", "settings_key", "study_order"]

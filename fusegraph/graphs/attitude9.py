@@ -207,6 +207,23 @@ def model_from_settings(settings: Mapping[str, Mapping[str, float]]) -> Attitude
     return with_rest(model, settings["broad_rest"]) if "broad_rest" in settings else model
 
 
+def default_settings() -> dict[str, dict[str, float]]:
+    """Each of ``MODEL_STUDIES``' settings as the code's defaults have it (what ``model_from_settings`` assumes of a study not
+    given): where a choice of them starts from."""
+    model = model_from_settings({})
+    mag, imu, gravity = model.mag, model.imu, model.gravity or GravityNoise()
+    return {"broad_mag": {"heading_sigma_deg": mag.heading_sigma_deg, "gains": mag.norm_gain, "cauchy_k": mag.cauchy_k,
+                          "interval_mean": float(mag.interval_mean)},
+            "broad_motion": {"velocity_sigma_m_s": model.motion.velocity_sigma_m_s, "gyro_noise_rad_s_sqrt_hz": imu.gyro_noise_rad_s_sqrt_hz,
+                             "accel_noise_m_s2_sqrt_hz": imu.accel_noise_m_s2_sqrt_hz, "gravity_sigma_deg": gravity.sigma_deg,
+                             "gravity_inflation_deg_per_m_s2": gravity.inflation_deg_per_m_s2},
+            "broad_bias": {"accel_bias_prior_m_s2": imu.accel_bias_prior_m_s2, "accel_bias_walk_m_s2_sqrt_s": imu.accel_bias_walk_m_s2_sqrt_s,
+                           "gyro_bias_walk_rad_s_sqrt_s": imu.gyro_bias_walk_rad_s_sqrt_s},
+            "broad_hard_iron": {"hard_iron_s": mag.hard_iron_s, "hard_iron_fit": mag.hard_iron_fit, "hard_iron_min": mag.hard_iron_min},
+            "broad_field": {"reference_tau_s": mag.reference_tau_s, "new_field_s": mag.new_field_s},
+            "broad_rest": {"rest_rate_sigma_rad_s": model.motion.rest_rate_sigma_rad_s}}
+
+
 def mag_noise_tuned(study: str) -> MagNoise:
     """The magnetometer settings a BROAD study chose (``broad_mag`` for the online estimate, ``broad_mag_batch``), with the
     hard-iron model its ``broad_hard_iron`` study chose (``broad_hard_iron_batch``) and the field tracking its
