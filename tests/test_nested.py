@@ -48,11 +48,12 @@ def test_the_bench_table_says_what_the_nested_figure_is_and_when_it_is_stale() -
     nested = {"in_sample_on_main": 1.93, "cross_validated": 2.10, "cross_validated_peer_ratio": 0.69, "cross_validated_inclination_peer_ratio": 0.9,
               "in_sample": 1.90}
     result = {"trials": {"01_a": {"online": row}}, "mean": {"online": row},
-              "nested": {"online": {**nested, "current": True}, "batch": {**nested, "current": False}}}
+              "nested": {"online": {**nested, "current": True, "rule": "one_se"}, "batch": {**nested, "current": False}}}
     lines = [line for line in format_broad_table(result).splitlines() if "every study re-chosen" in line]
     assert len(lines) == 2
     assert "1.930 deg in-sample" in lines[0] and "2.100 deg" in lines[0] and "cross-validated" in lines[0] and "STALE" not in lines[0]
     assert lines[1].startswith("batch:") and "STALE" in lines[1]
+    assert "--rule one_se" in lines[0] and "--rule best" in lines[1]  # a figure filed before the rule was: the old rule
 
 
 def _noisy_score(study: str, key: str, trial: str) -> float:

@@ -31,7 +31,7 @@ def format_broad_table(result: dict[str, Any]) -> str:
     label += [f"{solver}: mean total {row['in_sample_on_main']:.3f} deg in-sample (settings on main); leave-one-trial-out with every study re-chosen "
               f"{row['cross_validated']:.3f} deg ({row['cross_validated_peer_ratio']:.2f}x its peer, inclination "
               f"{row['cross_validated_inclination_peer_ratio']:.2f}x), the same procedure in-sample {row['in_sample']:.3f} "
-              f"(cross-validated, tune broad_nested{'' if solver == 'online' else ' --solver batch'}"
+              f"(cross-validated, tune broad_nested{'' if solver == 'online' else ' --solver batch'} --rule {row.get('rule', 'best')}"
               + ("" if row["current"] else "; STALE: measured against other settings than main's") + ")"
               for solver, row in result.get("nested", {}).items()]
     return "\n".join(lines + ["RMSE in degrees (BROAD metric, movement phases, no alignment); x rt = times faster than real time"] + label + ratios + published
