@@ -296,10 +296,11 @@ def build_parser() -> argparse.ArgumentParser:
     tun.add_argument("--scheduler", default=None, help="a Dask scheduler for the same jobs: local, or tcp://host:port of a running cluster")
     tun.add_argument("--passes", type=int, default=2, help="broad_nested: passes over the studies in their order at most (default 2; it "
                      "stops when no choice moves)")
-    tun.add_argument("--rule", default="one_se", choices=["one_se", "best"],
-                     help="broad_nested: how each study's setting is chosen on a fold's trials: one_se (default) keeps the setting as it "
-                     "stands (the code's default, or the last pass's) unless the best grid point beats it by more than one standard "
-                     "error of their per-trial differences; best takes the lowest mean")
+    tun.add_argument("--rule", default="best", choices=["best", "one_se"],
+                     help="broad_nested: how each study's setting is chosen on a fold's trials: best (default) takes the lowest mean; "
+                     "one_se keeps the setting as it stands (the code's default, or the last pass's) unless the best grid point beats "
+                     "it by more than one standard error of their per-trial differences (on the online: 2.192 deg cross-validated, "
+                     "+12.2 %% over its in-sample, against best's 2.120, +9.7 %%)")
 
     liv = sub.add_parser("live", help="live over the Lab Streaming Layer: streams in, the causal estimate out, the session recorded",
                          description="Read each declared input from an LSL stream (sample times from LSL's clock, moved onto this machine's "
