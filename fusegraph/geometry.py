@@ -34,15 +34,6 @@ def quat_wxyz_from_rot3(rotation: gtsam.Rot3) -> FloatArray:
     return out if out[0] >= 0 else -out
 
 
-def quat_wxyz_from_matrices(world_R_body: FloatArray) -> FloatArray:
-    """Rotation matrices (N, 3, 3) as unit quaternions (N, 4) (w, x, y, z) with w >= 0: ``quat_wxyz_from_rot3`` of each,
-    in one call (to rounding)."""
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(np.asarray(world_R_body, dtype=float)).as_quat()[:, [3, 0, 1, 2]]
-    return np.where(q[:, :1] < 0, -q, q)
-
-
 def quat_normalize(quat_wxyz: FloatArray) -> FloatArray:
     """Unit quaternions with a non-negative scalar part (rows of an (N, 4) array or one (4,))."""
     q = np.asarray(quat_wxyz, dtype=float)

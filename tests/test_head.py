@@ -248,8 +248,8 @@ def test_dropout_heavy_session_still_runs() -> None:
             assert np.all(rms < 0.03), (method, rms)  # bounded: the bias-corrected gyro bridges 2 s
 
 
-def _fed_live(live: OnlineHeadTracker, session: Session, maintain: bool, every: list[AttitudeNow | None] | None = None) -> AttitudeNow:
-    """The session pushed through the live API in arrival order; the last estimate (``every``: each sample's, appended)."""
+def _fed_live(live: OnlineHeadTracker, session: Session, maintain: bool) -> AttitudeNow:
+    """The session pushed through the live API in arrival order; the last estimate."""
     gyro, tracker = session.stream("gyro"), session.stream("tracker")
     j, last = 0, None
     for t, omega in zip(gyro.t, gyro.values, strict=True):
@@ -257,8 +257,6 @@ def _fed_live(live: OnlineHeadTracker, session: Session, maintain: bool, every: 
             live.add_tracker(tracker.t[j], tracker.values[j])
             j += 1
         last = live.add_gyro(t, omega)
-        if every is not None:
-            every.append(last)
         if maintain:
             live.maintain()  # after reading the estimate, as the replay and the live loop do
     assert last is not None
@@ -272,23 +270,6 @@ def test_live_api_matches_the_replay(estimate_first: bool) -> None:
     last = _fed_live(OnlineHeadTracker(head_model_for(session), estimate_first=estimate_first), session, maintain=True)
     np.testing.assert_allclose(last.quat_wxyz, replay.quat_wxyz[-1], atol=1e-9)
     assert np.all(np.linalg.eigvalsh(last.cov) > 0)
-
-
-def test_the_replay_gives_every_sample_what_the_live_api_gives() -> None:
-    # the replay forms its quaternions and covariances at the end, all at once; the live API per sample, one by one
-    session = simulate_head(1, profile="realistic", duration_s=4.0)
-    replay = run_isam2(session)
-    every: list[AttitudeNow | None] = []
-    _fed_live(OnlineHeadTracker(head_model_for(session)), session, maintain=True, every=every)
-    started = np.array([now is not None for now in every])
-    assert started.sum() > 0.9 * len(every)  # the estimate starts at the first tracker sample
-    assert np.all(np.isnan(replay.quat_wxyz[~started]))
-    quats = np.array([now.quat_wxyz for now in every if now is not None])
-    covs = np.array([now.cov for now in every if now is not None])
-    assert replay.cov is not None
-    # rounding only: the same rotations turned into quaternions by scipy at once instead of gtsam one by one
-    np.testing.assert_allclose(replay.quat_wxyz[started], quats, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(replay.cov[started], covs)  # the same arithmetic, element by element
 
 
 def test_stamps_jittered_by_microseconds_make_the_same_keyframes() -> None:

@@ -144,8 +144,6 @@ class GyroInterval:
         self.t_last = t_start
         self.omega_last = np.asarray(omega_start, dtype=float)
         self._angle_sum = np.zeros(3)
-        self._delta = _IDENTITY_ROT
-        self._delta_t = t_start  # ``delta``'s rotation is the one at this time (none integrated yet: the identity)
 
     def add(self, t: float, omega: FloatArray) -> None:
         """Integrate up to sample time ``t`` whose measured rate is ``omega`` (rad/s)."""
@@ -169,13 +167,9 @@ class GyroInterval:
 
     def delta(self, bias: FloatArray | None = None) -> gtsam.Rot3:
         """Rotation from the interval start to the last sample, corrected to ``bias`` to first order."""
-        if self._delta_t != self.t_last:
-            # a copy: deltaRij() is a view of the preintegration, which the next sample moves on (a stored partial
-            # rotation that aliased it became the whole interval's by the time a tracker sample used it). Kept until the
-            # next sample: the online head asks for it twice per sample (its partial, its prediction)
-            self._delta = _bias_corrected(self.pim.deltaRij(), None, self.bias_hat, self.elapsed_s, copy=True)
-            self._delta_t = self.t_last
-        return _bias_corrected(self._delta, bias, self.bias_hat, self.elapsed_s, copy=False)
+        # a copy: deltaRij() is a view of the preintegration, which the next sample moves on (a stored partial
+        # rotation that aliased it became the whole interval's by the time a tracker sample used it)
+        return _bias_corrected(self.pim.deltaRij(), bias, self.bias_hat, self.elapsed_s, copy=True)
 
     def factor(self, key_i: int, key_j: int, bias_key: int) -> gtsam.AHRSFactor:
         """world_R_body(i) -> world_R_body(j) constraint with gyro bias ``bias_key``."""

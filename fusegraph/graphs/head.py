@@ -269,23 +269,17 @@ class HeadGraphBuilder:
         assert self._interval is not None and self._latest_rot is not None
         return self._interval.t_last, self._latest_rot.compose(self._interval.delta(self._latest_bias))
 
-    def since_solved_s(self) -> float:
-        """Time from the newest solved keyframe to the newest gyro sample, s (``predict_cov``)."""
-        assert self._interval is not None
-        return self._interval.t_last - self.keyframe_t[self._solved_keyframe]
-
     def predict_cov(self, cov_kf: FloatArray, cov_bias: FloatArray) -> FloatArray:
         """Covariance of ``predict_now`` (right perturbation): the solved keyframe's, grown since then.
 
         The time since the solved keyframe is a few keyframe periods, over which the body turns a few
         degrees: too little to rotate the covariance noticeably; gyro noise and bias uncertainty add up.
         """
-        return grown_cov(cov_kf, cov_bias, self.since_solved_s(), self._density_sq)
-
-    @property
-    def density_sq(self) -> float:
-        """The gyro's noise density squared, rad^2/s (the covariance's growth per second, ``grown_cov``)."""
-        return self._density_sq
+        assert self._interval is not None
+        dt = self._interval.t_last - self.keyframe_t[self._solved_keyframe]
+        cov = cov_kf + (dt * dt) * cov_bias
+        cov.flat[::4] += dt * self._density_sq  # the diagonal: cheaper than adding a scaled identity
+        return cov
 
     @property
     def now_s(self) -> float:
@@ -590,22 +584,6 @@ _RANK = {"t": 0, "e": 1, "b": 2, "x": 3}
 _RANK_OF_CHR = np.full(256, -1)
 for _tag, _rank in _RANK.items():
     _RANK_OF_CHR[ord(_tag)] = _rank
-
-
-def grown_cov(cov_kf: FloatArray, cov_bias: FloatArray, since_s: float | FloatArray, density_sq: float) -> FloatArray:
-    """The solved keyframe's attitude covariance ``cov_kf`` grown over ``since_s`` by the gyro: plus since^2 times the bias
-    covariance and since times the noise density squared on the diagonal (``HeadGraphBuilder.predict_cov``). One (3, 3)
-    for a scalar ``since_s``; (N, 3, 3) for N times and N covariances of each, by the same arithmetic element by element."""
-    if np.ndim(since_s) == 0:
-        dt = float(since_s)  # type: ignore[arg-type]
-        cov = cov_kf + (dt * dt) * cov_bias
-        cov.flat[::4] += dt * density_sq  # the diagonal: cheaper than adding a scaled identity
-        return cov
-    dt_s = np.asarray(since_s, dtype=float)
-    covs = cov_kf + (dt_s * dt_s)[:, None, None] * cov_bias
-    diagonal = np.arange(3)
-    covs[:, diagonal, diagonal] += (dt_s * density_sq)[:, None]
-    return covs
 
 
 def rates_at(gyro_t: FloatArray, rate_rad_s: FloatArray, t: FloatArray) -> FloatArray:

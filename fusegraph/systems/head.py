@@ -29,11 +29,10 @@ from ..geometry import (
     quat_from_rotvec,
     quat_multiply,
     quat_normalize,
-    quat_wxyz_from_matrices,
     quat_wxyz_from_rot3,
     rot3_from_quat_wxyz,
 )
-from ..graphs.head import HeadGraphBuilder, HeadModel, X, grown_cov, head_model_for, rates_at, time_ordering, with_gap_keyframes
+from ..graphs.head import HeadGraphBuilder, HeadModel, X, head_model_for, rates_at, time_ordering, with_gap_keyframes
 from ..progress import progress as progress_bar
 from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
@@ -103,20 +102,8 @@ class AttitudeNow:
     """Time of the newest gyro sample, seconds."""
     world_R_head: gtsam.Rot3
     """Attitude at that instant (tracker latency cancelled by the gyro)."""
-    solved_cov: FloatArray
-    """Covariance of the newest solved keyframe's attitude (right perturbation, rad^2)."""
-    bias_cov: FloatArray
-    """Covariance of the gyro bias estimate, (rad/s)^2."""
-    since_solved_s: float
-    """Time from the solved keyframe to ``t``, s."""
-    density_sq: float
-    """The gyro's noise density squared, rad^2/s."""
-
-    @functools.cached_property
-    def cov(self) -> FloatArray:
-        """Covariance of the attitude (right perturbation, rad^2): the solved keyframe's grown since by the gyro
-        (``graphs.head.grown_cov``); computed when asked (a replay grows every sample's at once)."""
-        return grown_cov(self.solved_cov, self.bias_cov, self.since_solved_s, self.density_sq)
+    cov: FloatArray
+    """Covariance of the attitude (right perturbation, rad^2)."""
 
     @property
     def quat_wxyz(self) -> FloatArray:
@@ -346,7 +333,7 @@ class OnlineHeadTracker:
         if self.solver.latest_rot is None or not self.builder.started:
             return None
         t, rot = self.builder.predict_now()
-        return AttitudeNow(t, rot, self.solver.latest_cov, self.solver.latest_bias_cov, self.builder.since_solved_s(), self.builder.density_sq)
+        return AttitudeNow(t, rot, self.builder.predict_cov(self.solver.latest_cov, self.solver.latest_bias_cov))
 
 
 @honours_gyro_delay
@@ -361,10 +348,8 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     cfg = config or HEAD_ONLINE
     if cfg.window_s <= max_latency + model.keyframe_period_s:
         raise ValueError(f"online window_s = {cfg.window_s} s must exceed the largest tracker latency ({max_latency:.3f} s) plus one keyframe")
-    # per sample, what its estimate is made of; the quaternions and covariances are formed at the end, all at once
-    # (the same arithmetic: ``test_the_replay_gives_every_sample_what_the_live_api_gives``)
-    estimated = np.zeros(len(gyro), dtype=bool)
-    matrices, solved, bias, since = [], [], [], []
+    quats = np.full((len(gyro), 4), np.nan)
+    covs = np.full((len(gyro), 3, 3), np.nan)
     wall = np.zeros(len(gyro))
     live = OnlineHeadTracker(model, cfg, estimate_first)
     i = 0
@@ -378,19 +363,11 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
         elif event.stream.kind == "gyro":
             now = live.add_gyro(event.t, event.values)
             if now is not None:
-                estimated[i] = True
-                matrices.append(now.world_R_head.matrix())
-                solved.append(now.solved_cov)
-                bias.append(now.bias_cov)
-                since.append(now.since_solved_s)
+                quats[i] = now.quat_wxyz
+                covs[i] = now.cov
             wall[i] = time.perf_counter()
             live.maintain()  # as the live loop does after publishing (its time is in the next sample's wall)
             i += 1
-    quats = np.full((len(gyro), 4), np.nan)
-    covs = np.full((len(gyro), 3, 3), np.nan)
-    if matrices:
-        quats[estimated] = quat_wxyz_from_matrices(np.array(matrices))
-        covs[estimated] = grown_cov(np.array(solved), np.array(bias), np.array(since), live.builder.density_sq)
     runtime = time.perf_counter() - start
     latency_estimate = live.latency()
     extras = {
