@@ -348,27 +348,30 @@ def _load(directory: str | Path | None, sessions: Sequence[str | Path]) -> list[
     return load_sessions([folder])
 
 
-def _held_out_fold(job: tuple[Sequence[Recording], str, Sequence[SimulatedCycles]]) -> tuple[dict[str, Any], dict[int, list[str]]]:
-    """One leave-one-user-out fold (the recordings, the subject held out, the simulated walks): the model fitted (settings
-    chosen) without the subject, its choices and its calls on each of the subject's recordings (by index)."""
-    recordings, subject, simulated = job
-    fitted = fit_model([r for r in recordings if r.subject != subject], simulated=simulated)
+def _held_out_fold(job: tuple[Sequence[Recording], str, Sequence[SimulatedCycles], Sequence[str]]) -> tuple[dict[str, Any], dict[int, list[str]]]:
+    """One leave-one-user-out fold (the recordings, the subject held out, the simulated walks, the feature sets chosen from):
+    the model fitted (settings chosen) without the subject, its choices and its calls on each of the subject's recordings
+    (by index)."""
+    recordings, subject, simulated, feature_sets = job
+    fitted = fit_model([r for r in recordings if r.subject != subject], simulated=simulated, feature_sets=feature_sets)
     calls = {i: fitted.classify(rec.base, rec.cycle_t) for i, rec in enumerate(recordings) if rec.subject == subject}
     return {"feature_set": fitted.provenance["feature_set"], "stages": fitted.provenance["stages"], "context_cycles": fitted.context_cycles,
             "not_walking_context": fitted.gate.context_cycles if fitted.gate else None}, calls
 
 
 def leave_one_user_out(recordings: Sequence[Recording], simulated: Sequence[SimulatedCycles] = (), workers: int = 1,
-                       progress: Callable[[str], None] | None = None, scheduler: str | None = None) -> tuple[list[list[str]], dict[str, dict[str, Any]]]:
-    """Each subject's recordings called by a model fitted (its settings chosen) without the subject (``_held_out_fold``),
-    the folds side by side in ``workers`` processes: the calls per recording, and each subject's fold's choices."""
+                       progress: Callable[[str], None] | None = None, scheduler: str | None = None,
+                       feature_sets: Sequence[str] = tuple(FEATURE_SETS)) -> tuple[list[list[str]], dict[str, dict[str, Any]]]:
+    """Each subject's recordings called by a model fitted (its settings chosen, the features among ``feature_sets``) without
+    the subject (``_held_out_fold``), the folds side by side in ``workers`` processes: the calls per recording, and each
+    subject's fold's choices."""
     from .cluster import completed
 
     subjects = sorted({r.subject for r in recordings})
     held_out: list[list[str]] = [[] for _ in recordings]
     choices = {}
-    jobs = [(recordings, subject, simulated) for subject in subjects]
-    for n, ((_, subject, _), future) in enumerate(completed(_held_out_fold, jobs, workers, scheduler)):
+    jobs = [(recordings, subject, simulated, tuple(feature_sets)) for subject in subjects]
+    for n, ((_, subject, _, _), future) in enumerate(completed(_held_out_fold, jobs, workers, scheduler)):
         choices[subject], calls = future.result()
         for i, called in calls.items():
             held_out[i] = called
