@@ -26,7 +26,7 @@ import gtsam
 import numpy as np
 
 from ..catalogue import KeySpec, SensorKind
-from ..geometry import FloatArray, matrix_from_quat, quat_conjugate, quat_from_rotvec, quat_running_product, rotate_by_quat
+from ..geometry import FloatArray, matrix_from_quat, quat_from_rotvec, quat_running_product, rotate_by_quat
 from .linear import robust
 
 #: Magnetic north in the ENU world frame.
@@ -302,8 +302,15 @@ class CarriedReadings:
 
     def mean(self, first: int, last: int) -> FloatArray:
         """The mean of rows ``first`` .. ``last`` (inclusive) in the body frame at ``last``."""
-        in_first = (self._sums[last + 1] - self._sums[first]) / (last + 1 - first)
-        return rotate_by_quat(quat_conjugate(self._first_R_sample[last : last + 1]), in_first[None, :])[0]
+        vx, vy, vz = ((self._sums[last + 1] - self._sums[first]) / (last + 1 - first)).tolist()
+        # one vector turned by the transpose of one rotation, in Python floats: ``rotate_by_quat``'s array set-up for a single
+        # row cost ~60 us a keyframe, an eighth of the batch's time
+        w, x, y, z = self._first_R_sample[last].tolist()
+        scale = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+        w, x, y, z = w * scale, x * scale, y * scale, z * scale
+        return np.array([(1 - 2 * (y * y + z * z)) * vx + 2 * (x * y + w * z) * vy + 2 * (x * z - w * y) * vz,
+                         2 * (x * y - w * z) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z + w * x) * vz,
+                         2 * (x * z + w * y) * vx + 2 * (y * z - w * x) * vy + (1 - 2 * (x * x + y * y)) * vz])
 
 
 def heading_sigma_rad(noise: MagNoise, reference: FieldReference, norm: float, dip_rad: float) -> float:
