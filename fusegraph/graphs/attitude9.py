@@ -570,7 +570,7 @@ class Attitude9Builder:
             # else the attitude before it
             attitude = initial_attitude(accel, mag) if mag is not None else self._nav.attitude()
             self._bridges.add(k)
-        noise = robust(gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rot] * 3, [1e3] * 3]), _REST_CAUCHY_K if at_rest else 0.0)
+        noise = robust(gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma_rot] * 3 + [1e3] * 3)), _REST_CAUCHY_K if at_rest else 0.0)
         self._rest_reading = None  # a rest's readings are compared across one interval, not across a gap
         add = self._pending.add
         add(k - 1, gtsam.BetweenFactorPose3(self.X(k - 1), self.X(k), gtsam.Pose3(), noise))
@@ -654,7 +654,7 @@ class Attitude9Builder:
         model = self.model
         rot, sigma = self._start_attitude or (initial_attitude(accel, mag), float(np.deg2rad(model.initial_attitude_sigma_deg)))
         self._nav = gtsam.NavState(rot, np.zeros(3), np.zeros(3))
-        pose_noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma] * 3, [0.01] * 3])
+        pose_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma] * 3 + [0.01] * 3))
         self._pending.add(0, gtsam.PriorFactorPose3(self.X(0), self._nav.pose(), pose_noise))
         self._pending.add(0, velocity_prior_factor(self.V(0), model.motion.velocity_sigma_m_s if np.isfinite(model.motion.velocity_sigma_m_s) else 50.0))
         self._pending.add(0, bias_prior_factor(self.B(0), model.imu, gyro=not self._calibrated))
@@ -724,7 +724,7 @@ class Attitude9Builder:
             if self._restart.seconds >= RESTART_S - 1e-9:
                 predicted = gtsam.NavState(self._restart.world_R_body(), predicted.position(), predicted.velocity())
                 sigma = np.deg2rad(model.initial_attitude_sigma_deg)
-                noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma] * 3, [_FREE_TRANSLATION_SIGMA_M] * 3])
+                noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma] * 3 + [_FREE_TRANSLATION_SIGMA_M] * 3))
                 add(k, gtsam.PriorFactorPose3(self.X(k), predicted.pose(), noise))
                 self._restart = None
         add(k - 1, gtsam.ImuFactor(self.X(k - 1), self.V(k - 1), self.X(k), self.V(k), self.B(k - 1), pim))
@@ -848,7 +848,7 @@ class Attitude9Builder:
             # the rotation is free (10 rad); the translation, which no factor sees, is pinned at zero
             loose = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[10.0] * 3, [1.0] * 3])
             self._pending.add(k, gtsam.PriorFactorPose3(TRACKER_WORLD, gtsam.Pose3(world_R_tracker, np.zeros(3)), loose))
-        noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sigma_rad] * 3, [_FREE_TRANSLATION_SIGMA_M] * 3])
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma_rad] * 3 + [_FREE_TRANSLATION_SIGMA_M] * 3))
         self._pending.add(k, gtsam.BetweenFactorPose3(TRACKER_WORLD, self.X(k), gtsam.Pose3(measured, np.zeros(3)), noise))
         self.tracker_readings[k] = measured
         self.tracker_factors += 1
