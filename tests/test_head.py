@@ -149,7 +149,11 @@ def test_final_isam2_equals_batch_on_the_same_graph() -> None:
     model = replace(head_model_for(session), keyframe_period_s=0.02)
     online_builder = HeadGraphBuilder(model)
     solver = OnlineSmoother(online_builder, OnlineConfig(reanchor_every=10**9, relinearize_threshold=1e-4))
-    feed(online_builder, session, lambda t: solver.update())
+
+    def update(_t: float) -> None:
+        solver.update()
+
+    feed(online_builder, session, update)
     solver.update(force=True)
     batch_builder = HeadGraphBuilder(model)
     feed(batch_builder, session)
