@@ -630,7 +630,7 @@ class Attitude9Builder:
                 break
             self._interval.append((accel[start : j + 1], gyro[start : j + 1], dt[start : j + 1]))
             reading = None if mag is None else mag[j]
-            if carried is not None and not self._solved and not self._interval_mag:  # the interval lies within this push
+            if carried is not None and not self._interval_mag:  # the interval lies within this push
                 reading = carried.mean(start, j)
             elif mag is not None and interval_mean:
                 self._interval_mag.append(mag[start : j + 1])
