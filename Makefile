@@ -24,7 +24,9 @@ $(STAMP): pyproject.toml
 	$(MAKE) --no-print-directory sysdeps
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev,docs]"
+	# --no-compile: byte-compiling every installed module (plotly's and open3d's thousands) took ~20 s of a fresh
+	# environment's ~45; Python compiles the modules a run imports when it first imports them
+	$(BIN)/python -m pip install --quiet --no-compile -e ".[dev,docs]"
 	touch $(STAMP)
 
 install: $(STAMP)
