@@ -575,6 +575,31 @@ def test_a_carried_magnet_is_separated_from_the_earth_field_by_the_rotation() ->
     assert not tracker.trusted and not tracker.bias.any()
 
 
+def test_the_hard_iron_estimate_solves_its_normal_equations() -> None:
+    """``HardIron._solve`` (B eliminated first, in floats) gives what numpy's 6 x 6 solve of the same normal equations
+    gives: [[W I, C], [C^T, W (1 + 1e-6) I]] [B; b] = [sum w R m; sum w m], built here from the readings and attitudes
+    with the same forgetting. 1e-9 relative: rounding (Schur complement and cofactors against LU)."""
+    from fusegraph.factors.mag import HardIron
+
+    earth = np.array([0.0, 20.0, -40.0])
+    noise = MagNoise(hard_iron_s=5.0, hard_iron_fit=0.1, hard_iron_min=0.2)
+    tracker = HardIron(noise, FieldReference(float(np.linalg.norm(earth)), float(np.arctan2(40.0, 20.0))))
+    rng = np.random.default_rng(4)
+    W, C, v, t_prev = 0.0, np.zeros((3, 3)), np.zeros(6), None
+    for k, R in enumerate(_turning(8.0, seed=5)):
+        t = 0.2 * k + 0.05 * rng.random()  # uneven intervals: the forgetting differs per reading
+        reading = R.unrotate(earth) + np.array([4.0, -2.0, 3.0]) + rng.normal(0, 0.3, 3)
+        tracker.correct(t, R, reading)
+        forget = np.exp(-(t - t_prev) / noise.hard_iron_s) if t_prev is not None else 1.0
+        t_prev = t
+        W, C = forget * W + 1.0, forget * C + R.matrix()
+        v = forget * v + np.concatenate((R.matrix() @ reading, reading))
+    normal = np.block([[W * np.eye(3), C], [C.T, W * (1.0 + 1e-6) * np.eye(3)]])
+    expected = np.linalg.solve(normal, v)
+    field, bias = tracker._solve()
+    np.testing.assert_allclose(np.r_[field, bias], expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+
+
 def test_the_hard_iron_estimates_3x3_solve_is_numpys() -> None:
     from fusegraph.factors.mag import _solve3
 

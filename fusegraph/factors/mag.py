@@ -20,6 +20,7 @@ follow a field that agrees with it and take a new one that stays steady while th
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -190,17 +191,22 @@ class FieldTracker:
 
 
 def _solve3(a: FloatArray, y: FloatArray) -> FloatArray:
-    """``np.linalg.solve`` for one 3 x 3 system by its cofactors, in floats (~5x faster per call than numpy's, whose
+    """``np.linalg.solve`` for one 3 x 3 system by its cofactors (``_solve3_floats``)."""
+    return np.array(_solve3_floats(a.tolist(), y.tolist()))
+
+
+def _solve3_floats(a: Sequence[Sequence[float]], y: Sequence[float]) -> tuple[float, float, float]:
+    """One 3 x 3 system (rows of ``a``) solved by its cofactors, in floats (~5x faster per call than numpy's, whose
     overhead dominates at this size: the hard-iron estimate solves one per keyframe)."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a.tolist()
-    y0, y1, y2 = y.tolist()
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    y0, y1, y2 = y
     c00, c01, c02 = a11 * a22 - a12 * a21, a12 * a20 - a10 * a22, a10 * a21 - a11 * a20
     c10, c11, c12 = a02 * a21 - a01 * a22, a00 * a22 - a02 * a20, a01 * a20 - a00 * a21
     c20, c21, c22 = a01 * a12 - a02 * a11, a02 * a10 - a00 * a12, a00 * a11 - a01 * a10
     det = a00 * c00 + a01 * c01 + a02 * c02
     if det == 0.0:
         raise np.linalg.LinAlgError("singular 3 x 3 system")
-    return np.array([c00 * y0 + c10 * y1 + c20 * y2, c01 * y0 + c11 * y1 + c21 * y2, c02 * y0 + c12 * y1 + c22 * y2]) / det
+    return ((c00 * y0 + c10 * y1 + c20 * y2) / det, (c01 * y0 + c11 * y1 + c21 * y2) / det, (c02 * y0 + c12 * y1 + c22 * y2) / det)
 
 
 class HardIron:
@@ -222,10 +228,11 @@ class HardIron:
     def __init__(self, noise: MagNoise, reference: FieldReference):
         self.noise = noise
         self.reference = reference
-        # the normal equations of m = R^T B + b have a fixed shape: [[W I, C], [C^T, W I]] (R R^T = I), C = sum of w R
+        # the normal equations of m = R^T B + b have a fixed shape: [[W I, C], [C^T, W I]] (R R^T = I), C = sum of w R.
+        # Kept in Python floats: one reading per keyframe, where numpy's per-call cost on 3-vectors dominated
         self._weight = 0.0
-        self._rotations = np.zeros((3, 3))
-        self._vector = np.zeros(6)  # sum of w (R m, m)
+        self._rotations = [0.0] * 9  # C, row by row
+        self._vector = [0.0] * 6  # sum of w (R m, m)
         self._square = 0.0
         self._t: float | None = None
         self.bias = np.zeros(3)
@@ -233,41 +240,53 @@ class HardIron:
         self.trusted = False
         """Whether the readings are being corrected by it."""
 
-    def _solve(self) -> FloatArray:
+    def _solve(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """(B, b) from the normal equations, B eliminated first (a 3 x 3 solve): b's information is W I - C^T C / W."""
-        W, C, v = self._weight, self._rotations, self._vector
-        schur = C.T @ C / -W
-        schur.flat[::4] += W * (1.0 + 1e-6)  # without a turn: the least-norm split
-        b = _solve3(schur, v[3:] - C.T @ v[:3] / W)
-        return np.concatenate(((v[:3] - C @ b) / W, b))
+        W, (c00, c01, c02, c10, c11, c12, c20, c21, c22), (v0, v1, v2, v3, v4, v5) = self._weight, self._rotations, self._vector
+        columns = ((c00, c10, c20), (c01, c11, c21), (c02, c12, c22))
+        diagonal = W * (1.0 + 1e-6)  # without a turn: the least-norm split
+        schur = [[(diagonal if i == j else 0.0) - (ci[0] * cj[0] + ci[1] * cj[1] + ci[2] * cj[2]) / W for j, cj in enumerate(columns)]
+                 for i, ci in enumerate(columns)]
+        y = [v3 - (c00 * v0 + c10 * v1 + c20 * v2) / W, v4 - (c01 * v0 + c11 * v1 + c21 * v2) / W, v5 - (c02 * v0 + c12 * v1 + c22 * v2) / W]
+        b0, b1, b2 = _solve3_floats(schur, y)
+        field = ((v0 - (c00 * b0 + c01 * b1 + c02 * b2)) / W, (v1 - (c10 * b0 + c11 * b1 + c12 * b2)) / W, (v2 - (c20 * b0 + c21 * b1 + c22 * b2)) / W)
+        return field, (b0, b1, b2)
 
     def correct(self, t_s: float, world_R_body: gtsam.Rot3, mag_body: FloatArray) -> FloatArray:
         """Take a reading at ``t_s`` with the attitude it was taken at; the reading corrected by the estimate so far."""
         m = np.asarray(mag_body, dtype=float)
-        R = world_R_body.matrix()
+        m0, m1, m2 = m.tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows = world_R_body.matrix().tolist()
         forget = math.exp(-(t_s - self._t) / self.noise.hard_iron_s) if self._t is not None else 1.0
         self._t = t_s
         theta = self._solve() if self._weight > 6 else None
-        residual = float(np.sum((m - R.T @ theta[:3] - theta[3:]) ** 2)) if theta is not None else 0.0
+        residual = 0.0
+        if theta is not None:
+            (f0, f1, f2), (b0, b1, b2) = theta  # the reading's misfit: m - R^T B - b
+            residual = ((m0 - (r00 * f0 + r10 * f1 + r20 * f2) - b0) ** 2 + (m1 - (r01 * f0 + r11 * f1 + r21 * f2) - b1) ** 2
+                        + (m2 - (r02 * f0 + r12 * f1 + r22 * f2) - b2) ** 2)
         self._weight = forget * self._weight + 1.0
-        self._rotations = forget * self._rotations + R
-        self._vector = forget * self._vector + np.concatenate((R @ m, m))
+        self._rotations = [forget * c + r for c, r in zip(self._rotations, rows[0] + rows[1] + rows[2], strict=True)]
+        rm = (r00 * m0 + r01 * m1 + r02 * m2, r10 * m0 + r11 * m1 + r12 * m2, r20 * m0 + r21 * m1 + r22 * m2)
+        self._vector = [forget * v + x for v, x in zip(self._vector, (*rm, m0, m1, m2), strict=True)]
         self._square = forget * self._square + residual
         self.trusted = False
         self.bias = np.zeros(3)
         if theta is not None:
             tolerance = self.noise.hard_iron_fit
-            field = theta[:3]  # the Earth's part in the world: must be the reference field (norm and dip), else no carried magnet
+            (f0, f1, f2), b = theta  # the Earth's part in the world: must be the reference field (norm and dip), else no carried magnet
             norm = self.reference.norm
             fits = (math.sqrt(self._square / self._weight / 3.0) < tolerance * norm
-                    and abs(math.sqrt(float(field @ field)) - norm) < tolerance * norm
-                    and abs(math.atan2(-field[2], math.hypot(field[0], field[1])) - self.reference.dip_rad) < tolerance
-                    and math.sqrt(float(theta[3:] @ theta[3:])) > self.noise.hard_iron_min * norm)
+                    and abs(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2) - norm) < tolerance * norm
+                    and abs(math.atan2(-f2, math.hypot(f0, f1)) - self.reference.dip_rad) < tolerance
+                    and math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]) > self.noise.hard_iron_min * norm)
             # observability of b: its information once the field's is eliminated, per reading: 1 - (largest singular value
             # of the memory's mean rotation)^2 (0 without a turn)
-            self.trusted = fits and 1.0 - float(np.linalg.norm(self._rotations / self._weight, 2)) ** 2 > self._MIN_SPREAD
+            if fits:
+                mean_rotation = np.array(self._rotations).reshape(3, 3) / self._weight
+                self.trusted = 1.0 - float(np.linalg.norm(mean_rotation, 2)) ** 2 > self._MIN_SPREAD
             if self.trusted:
-                self.bias = theta[3:]
+                self.bias = np.array(b)
         return m - self.bias
 
 
