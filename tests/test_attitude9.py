@@ -601,16 +601,16 @@ def test_the_hard_iron_estimate_solves_its_normal_equations() -> None:
 
 
 def test_the_hard_iron_estimates_3x3_solve_is_numpys() -> None:
-    from fusegraph.factors.mag import _solve3
+    from fusegraph.factors.mag import _solve3_floats
 
     rng = np.random.default_rng(3)
     for _ in range(50):
         a = rng.normal(size=(3, 3))
         a = a @ a.T + 0.01 * np.eye(3)  # symmetric positive definite, as the Schur complement is
         y = rng.normal(size=3)
-        np.testing.assert_allclose(_solve3(a, y), np.linalg.solve(a, y), rtol=1e-8, atol=1e-10)  # cofactors vs LU: rounding only
+        np.testing.assert_allclose(_solve3_floats(a.tolist(), y.tolist()), np.linalg.solve(a, y), rtol=1e-8, atol=1e-10)  # cofactors vs LU: rounding
     with pytest.raises(np.linalg.LinAlgError):
-        _solve3(np.ones((3, 3)), np.ones(3))
+        _solve3_floats(np.ones((3, 3)).tolist(), [1.0, 1.0, 1.0])
 
 
 def test_the_undisturbed_field_is_followed_and_a_steady_new_one_taken_while_turning() -> None:

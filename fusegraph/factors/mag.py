@@ -190,11 +190,6 @@ class FieldTracker:
         return self.reference
 
 
-def _solve3(a: FloatArray, y: FloatArray) -> FloatArray:
-    """``np.linalg.solve`` for one 3 x 3 system by its cofactors (``_solve3_floats``)."""
-    return np.array(_solve3_floats(a.tolist(), y.tolist()))
-
-
 def _solve3_floats(a: Sequence[Sequence[float]], y: Sequence[float]) -> tuple[float, float, float]:
     """One 3 x 3 system (rows of ``a``) solved by its cofactors, in floats (~5x faster per call than numpy's, whose
     overhead dominates at this size: the hard-iron estimate solves one per keyframe)."""
@@ -261,8 +256,8 @@ class HardIron:
         self._t = t_s
         theta = self._solve() if self._weight > 6 else None
         residual = 0.0
-        if theta is not None:
-            (f0, f1, f2), (b0, b1, b2) = theta  # the reading's misfit: m - R^T B - b
+        if theta is not None:  # the reading's misfit to the memory's (B, b): m - R^T B - b
+            (f0, f1, f2), (b0, b1, b2) = theta
             residual = ((m0 - (r00 * f0 + r10 * f1 + r20 * f2) - b0) ** 2 + (m1 - (r01 * f0 + r11 * f1 + r21 * f2) - b1) ** 2
                         + (m2 - (r02 * f0 + r12 * f1 + r22 * f2) - b2) ** 2)
         self._weight = forget * self._weight + 1.0
@@ -274,19 +269,19 @@ class HardIron:
         self.bias = np.zeros(3)
         if theta is not None:
             tolerance = self.noise.hard_iron_fit
-            (f0, f1, f2), b = theta  # the Earth's part in the world: must be the reference field (norm and dip), else no carried magnet
+            # (f0, f1, f2): the Earth's part in the world: must be the reference field (norm and dip), else no carried magnet
             norm = self.reference.norm
             fits = (math.sqrt(self._square / self._weight / 3.0) < tolerance * norm
                     and abs(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2) - norm) < tolerance * norm
                     and abs(math.atan2(-f2, math.hypot(f0, f1)) - self.reference.dip_rad) < tolerance
-                    and math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]) > self.noise.hard_iron_min * norm)
+                    and math.sqrt(b0 * b0 + b1 * b1 + b2 * b2) > self.noise.hard_iron_min * norm)
             # observability of b: its information once the field's is eliminated, per reading: 1 - (largest singular value
             # of the memory's mean rotation)^2 (0 without a turn)
             if fits:
                 mean_rotation = np.array(self._rotations).reshape(3, 3) / self._weight
                 self.trusted = 1.0 - float(np.linalg.norm(mean_rotation, 2)) ** 2 > self._MIN_SPREAD
             if self.trusted:
-                self.bias = np.array(b)
+                self.bias = np.array([b0, b1, b2])
         return m - self.bias
 
 
