@@ -424,7 +424,8 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
     span (widened by ``GAIT_MATCH_S``) matched one-to-one to its contacts within ``GAIT_MATCH_S`` (least total time
     difference); stride length and speed: the mean of the strides inside the bout against the bout's mean
     (``stride_length_bouts`` / ``walking_speed_bouts``: the index of the bout each error belongs to; ``stride_length_m`` /
-    ``walking_speed_m_s``: the method's mean in those bouts; strides without a finite value are left out of it)."""
+    ``walking_speed_m_s``: the method's mean in those bouts; strides without a finite value are left out of it;
+    ``bout_steps``: (matched, extra, missed) steps per bout, in the reference's order)."""
     from scipy.optimize import linear_sum_assignment
 
     bouts_s, contacts_s = reference.bouts_s, reference.contacts_s
@@ -436,6 +437,7 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
     speed_bouts: list[int] = []
     length_values: list[float] = []
     speed_values: list[float] = []
+    bout_steps: list[tuple[int, int, int]] = []
     for n, (start, end) in enumerate(bouts_s):
         truth = contacts_s[(contacts_s >= start - 1e-6) & (contacts_s <= end + 1e-6)]
         found = steps_s[(steps_s >= start - GAIT_MATCH_S) & (steps_s <= end + GAIT_MATCH_S)]
@@ -444,6 +446,7 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
             cost = np.abs(found[:, None] - truth[None, :])
             rows, cols = linear_sum_assignment(np.where(cost <= GAIT_MATCH_S, cost, 1e6))
             matched = int(np.sum(cost[rows, cols] <= GAIT_MATCH_S))
+        bout_steps.append((matched, len(found) - matched, len(truth) - matched))
         tp, fp, fn = tp + matched, fp + len(found) - matched, fn + len(truth) - matched
         # a stride without a value (a peer's NaN) is not one of the bout's values: it neither counts nor poisons the mean
         inside = (stride_t_s >= start) & (stride_t_s <= end)
@@ -456,7 +459,7 @@ def gait_counts(steps_s: np.ndarray, stride_t_s: np.ndarray, stride_length_m: np
                 bouts.append(n)
     return {"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": length_errors, "walking_speed_errors_m_s": speed_errors,
             "stride_length_bouts": length_bouts, "walking_speed_bouts": speed_bouts, "stride_length_m": length_values,
-            "walking_speed_m_s": speed_values, "bouts": len(bouts_s)}
+            "walking_speed_m_s": speed_values, "bouts": len(bouts_s), "bout_steps": bout_steps}
 
 
 def gait_scores(counts: Sequence[dict[str, Any]]) -> dict[str, Any]:

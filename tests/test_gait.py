@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import requires_shared_data
 
-from fusegraph.evaluation.gait import GaitEstimate, score_recording
+from fusegraph.evaluation.gait import SLOW_GAIT_M_S, GaitEstimate, _steps_by_speed, score_recording
 from fusegraph.frontends.gait import MAX_GAP_S, StepLengthConfig, step_lengths, with_missed_steps
 from fusegraph.metrics import GaitReference as Reference
 
@@ -56,6 +56,22 @@ def test_steps_match_one_to_one_within_the_tolerance() -> None:
     assert (row["tp"], row["fp"], row["fn"]) == (4, 2, 2)  # 10.1, 11.05, 13.0, 14.2 match; 11.5 and 12.3 do not
     assert row["stride_length_errors_m"] == [pytest.approx(0.1)] and row["walking_speed_errors_m_s"] == [pytest.approx(0.1)]
     assert row["stride_length_bouts"] == [0]
+
+
+def test_steps_are_scored_apart_on_slow_and_faster_bouts() -> None:
+    """Each bout's steps fall in the band of the reference's own speed for it: a slow bout (0.5 m/s) with 4 of 6 contacts
+    found and 2 extra steps, a faster one (1.2 m/s) found whole, and a bout without a reference speed in neither band."""
+    contacts = np.r_[10.0:16.0, 20.0:26.0, 30.0, 31.0]
+    reference = Reference(np.array([[10.0, 15.0], [20.0, 25.0], [30.0, 31.0]]), np.array([0.6, 1.4, 1.0]),
+                          np.array([0.5, 1.2, np.nan]), contacts)
+    steps = np.r_[[10.1, 11.05, 11.5, 12.3, 13.0, 14.2], 20.0:26.0, 30.0]
+    row = score_recording(GaitEstimate(steps, np.zeros(0), np.zeros(0), np.zeros(0)), reference)
+    assert row["bout_steps"] == [(4, 2, 2), (6, 0, 0), (1, 0, 1)]
+    bands = _steps_by_speed([(reference, row)])
+    assert 0.5 < SLOW_GAIT_M_S < 1.2
+    assert bands["slow"] == {"step_f1": pytest.approx(8 / 12), "step_precision": pytest.approx(4 / 6), "step_recall": pytest.approx(4 / 6),
+                             "bouts": 1, "contacts": 6}
+    assert bands["not_slow"] == {"step_f1": 1.0, "step_precision": 1.0, "step_recall": 1.0, "bouts": 1, "contacts": 6}
 
 
 def test_a_stride_without_a_value_is_left_out_of_the_bout_mean() -> None:
@@ -109,6 +125,9 @@ def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: py
     # floors a regression would break (the bench: F1 0.825, stride length 0.092 m leave-one-participant-out; with the
     # pendulum alone 0.147 m; before the missed contacts were inferred: 0.80 and 0.181 m)
     assert ours["step_f1"] > 0.81 and ours["stride_length_mae_m"] < 0.11
+    # the bouts split by the reference's speed: every scored bout in one band (the bench: slow 7 bouts at F1 0.779)
+    bands = found["by_speed"]["fusegraph"]
+    assert bands["slow"]["bouts"] + bands["not_slow"]["bouts"] == ours["bouts"] and bands["slow"]["step_f1"] > 0.75
     # over the bouts every row scored (paper_speed scores all 11, fusegraph 10): a subset of fusegraph's own
     assert ours["bouts_common"] == min(m["bouts_scored"] for m in found["methods"].values()) and ours["stride_length_mae_common_m"] is not None
     # a held-out participant's row is run --solver gait on its session declaring the setting chosen without it

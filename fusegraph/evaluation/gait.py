@@ -45,6 +45,11 @@ from .runner import solve_session
 METHODS = ("fusegraph", "paper_speed", "mobgap")
 """Rows, in order."""
 
+SLOW_GAIT_M_S = 0.8
+"""A reference bout slower than this, m/s, is slow walking in ``by_speed``: the cut-off for low gait speed of the European
+consensus on sarcopenia (EWGSOP2: Cruz-Jentoft et al., Age and Ageing 48(1):16-31, 2019), the pace of the cohorts other
+than healthy adults in Mobilise-D."""
+
 
 @dataclass(frozen=True)
 class GaitEstimate:
@@ -189,7 +194,8 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
         methods[m]["bouts_common"] = len(common)
     if cross_validated:
         methods["fusegraph"]["stride_length_mae_m_in_sample"] = mae(in_sample, list(scored))
-    return {"methods": methods, "recordings": recordings, "match_s": GAIT_MATCH_S, "cross_validated": cross_validated,
+    by_speed = {m: _steps_by_speed([(scored[name][2], row) for name, row in rows.items()]) for m, rows in per.items() if rows}
+    return {"methods": methods, "by_speed": by_speed, "recordings": recordings, "match_s": GAIT_MATCH_S, "cross_validated": cross_validated,
             "step_length": {"chosen_per_participant": {s: _config_text(c) for s, c in chosen.items()}, "in_sample": _config_text(in_sample),
                          "on_main": _config_text(StepLengthConfig())},
             "notes": {"paper_speed": "uncalibrated: the default regression (no calibration walk outside the reference)",
@@ -218,6 +224,26 @@ def _per_bout(reference: GaitReference, rows: dict[str, dict[str, Any]]) -> list
             speeds = dict(zip(row["walking_speed_bouts"], row["walking_speed_m_s"], strict=True))
             bout[m] = {"stride_length_m": lengths.get(n), "walking_speed_m_s": speeds.get(n)}
         out.append(bout)
+    return out
+
+
+def _steps_by_speed(recordings: Sequence[tuple[GaitReference, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
+    """One method's steps pooled over the reference bouts slower than ``SLOW_GAIT_M_S`` (``slow``) and the others
+    (``not_slow``), each band by the reference's own mean speed of the bout (a bout without one is in neither): step F1,
+    precision, recall, the bouts and the reference contacts in the band."""
+    pooled = {band: [0, 0, 0, 0] for band in ("slow", "not_slow")}  # matched, extra, missed, bouts
+    for reference, row in recordings:
+        for n, steps in enumerate(row["bout_steps"]):
+            speed = float(reference.walking_speed_m_s[n]) if n < len(reference.walking_speed_m_s) else float("nan")
+            if not np.isfinite(speed):
+                continue
+            sums = pooled["slow" if speed < SLOW_GAIT_M_S else "not_slow"]
+            for i, value in enumerate((*steps, 1)):
+                sums[i] += value
+    out = {}
+    for band, (tp, fp, fn, bouts) in pooled.items():
+        scores = gait_scores([{"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": [], "walking_speed_errors_m_s": [], "bouts": bouts}])
+        out[band] = {k: scores[k] for k in ("step_f1", "step_precision", "step_recall")} | {"bouts": bouts, "contacts": tp + fn}
     return out
 
 
@@ -256,6 +282,13 @@ def format_gait(result: dict[str, Any]) -> str:
     if all(v is not None for v in common.values()):
         lines.append(f"stride MAE over the {next(iter(result['methods'].values()))['bouts_common']} bouts every method scored: "
                      + ", ".join(f"{name} {v:.3f} m" for name, v in common.items()))
+    slow = {m: v["slow"] for m, v in result.get("by_speed", {}).items()}
+    if slow:
+        first, other = next(iter(slow.values())), next(iter(result["by_speed"].values()))["not_slow"]
+        lines.append(f"step F1 by the reference bout's speed: under {SLOW_GAIT_M_S:g} m/s ({first['bouts']} bouts, {first['contacts']} contacts) "
+                     + ", ".join(f"{m} {cell(v['step_f1'], '.3f')}" for m, v in slow.items())
+                     + f"; {SLOW_GAIT_M_S:g} m/s and faster ({other['bouts']} bouts, {other['contacts']} contacts) "
+                     + ", ".join(f"{m} {cell(v['not_slow']['step_f1'], '.3f')}" for m, v in result["by_speed"].items()))
     for name, rec in result["recordings"].items():
         if not rec["scored"]:
             lines.append(f"{name}: not scored ({rec['reason']})")
