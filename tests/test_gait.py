@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import requires_shared_data
 
-from fusegraph.evaluation.gait import SLOW_GAIT_M_S, GaitEstimate, _steps_by_speed, score_recording
+from fusegraph.evaluation.gait import SLOW_GAIT_M_S, GaitEstimate, score_recording, steps_by_speed
 from fusegraph.frontends.gait import MAX_GAP_S, StepLengthConfig, step_lengths, with_missed_steps
 from fusegraph.metrics import GaitReference as Reference
 
@@ -67,11 +67,29 @@ def test_steps_are_scored_apart_on_slow_and_faster_bouts() -> None:
     steps = np.r_[[10.1, 11.05, 11.5, 12.3, 13.0, 14.2], 20.0:26.0, 30.0]
     row = score_recording(GaitEstimate(steps, np.zeros(0), np.zeros(0), np.zeros(0)), reference)
     assert row["bout_steps"] == [(4, 2, 2), (6, 0, 0), (1, 0, 1)]
-    bands = _steps_by_speed([(reference, row)])
+    bands = steps_by_speed([(reference, row)])
     assert 0.5 < SLOW_GAIT_M_S < 1.2
     assert bands["slow"] == {"step_f1": pytest.approx(8 / 12), "step_precision": pytest.approx(4 / 6), "step_recall": pytest.approx(4 / 6),
                              "bouts": 1, "contacts": 6}
     assert bands["not_slow"] == {"step_f1": 1.0, "step_precision": 1.0, "step_recall": 1.0, "bouts": 1, "contacts": 6}
+
+
+def test_the_slow_walking_line_says_where_a_row_scored_fewer_bouts() -> None:
+    """A peer that failed on a trial is scored on fewer bouts: the table's slow-walking line says over how many."""
+    from fusegraph.evaluation.gait import format_gait
+
+    def band(f1: float, bouts: int) -> dict[str, object]:
+        return {"step_f1": f1, "step_precision": f1, "step_recall": f1, "bouts": bouts, "contacts": 10 * bouts}
+
+    row = {"step_f1": 0.8, "step_precision": 0.8, "step_recall": 0.8, "stride_length_mae_m": 0.1, "walking_speed_mae_m_s": 0.1,
+           "bouts_scored": 3, "bouts": 4}
+    result = {"match_s": 0.25, "methods": {"fusegraph": row, "mobgap": row}, "recordings": {}, "cross_validated": False, "notes": {},
+              "by_speed": {"fusegraph": {"slow": band(0.78, 7), "not_slow": band(0.95, 4)},
+                           "mobgap": {"slow": band(0.64, 5), "not_slow": band(0.86, 4)}},
+              "step_length": {"chosen_per_participant": {}, "in_sample": "", "on_main": ""}}
+    line = next(x for x in format_gait(result).splitlines() if x.startswith("step F1 by"))
+    assert "(7 bouts, 70 contacts) fusegraph 0.780, mobgap 0.640 (over 5 bouts);" in line
+    assert line.endswith("(4 bouts, 40 contacts) fusegraph 0.950, mobgap 0.860")
 
 
 def test_a_stride_without_a_value_is_left_out_of_the_bout_mean() -> None:

@@ -194,7 +194,7 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
         methods[m]["bouts_common"] = len(common)
     if cross_validated:
         methods["fusegraph"]["stride_length_mae_m_in_sample"] = mae(in_sample, list(scored))
-    by_speed = {m: _steps_by_speed([(scored[name][2], row) for name, row in rows.items()]) for m, rows in per.items() if rows}
+    by_speed = {m: steps_by_speed([(scored[name][2], row) for name, row in rows.items()]) for m, rows in per.items() if rows}
     return {"methods": methods, "by_speed": by_speed, "recordings": recordings, "match_s": GAIT_MATCH_S, "cross_validated": cross_validated,
             "step_length": {"chosen_per_participant": {s: _config_text(c) for s, c in chosen.items()}, "in_sample": _config_text(in_sample),
                          "on_main": _config_text(StepLengthConfig())},
@@ -227,7 +227,7 @@ def _per_bout(reference: GaitReference, rows: dict[str, dict[str, Any]]) -> list
     return out
 
 
-def _steps_by_speed(recordings: Sequence[tuple[GaitReference, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
+def steps_by_speed(recordings: Sequence[tuple[GaitReference, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
     """One method's steps pooled over the reference bouts slower than ``SLOW_GAIT_M_S`` (``slow``) and the others
     (``not_slow``), each band by the reference's own mean speed of the bout (a bout without one is in neither): step F1,
     precision, recall, the bouts and the reference contacts in the band."""
@@ -268,6 +268,11 @@ def config_of_text(text: str) -> StepLengthConfig:
                             fields["model"])
 
 
+def _over(band: dict[str, Any], first: dict[str, Any]) -> str:
+    """A method's bouts where they are not the first row's (a peer that failed on a trial scores fewer)."""
+    return f" (over {band['bouts']} bouts)" if band["bouts"] != first["bouts"] else ""
+
+
 def format_gait(result: dict[str, Any]) -> str:
     """The bench as a table."""
     def cell(v: float | None, fmt: str) -> str:
@@ -286,9 +291,9 @@ def format_gait(result: dict[str, Any]) -> str:
     if slow:
         first, other = next(iter(slow.values())), next(iter(result["by_speed"].values()))["not_slow"]
         lines.append(f"step F1 by the reference bout's speed: under {SLOW_GAIT_M_S:g} m/s ({first['bouts']} bouts, {first['contacts']} contacts) "
-                     + ", ".join(f"{m} {cell(v['step_f1'], '.3f')}" for m, v in slow.items())
+                     + ", ".join(f"{m} {cell(v['step_f1'], '.3f')}{_over(v, first)}" for m, v in slow.items())
                      + f"; {SLOW_GAIT_M_S:g} m/s and faster ({other['bouts']} bouts, {other['contacts']} contacts) "
-                     + ", ".join(f"{m} {cell(v['not_slow']['step_f1'], '.3f')}" for m, v in result["by_speed"].items()))
+                     + ", ".join(f"{m} {cell(v['not_slow']['step_f1'], '.3f')}{_over(v['not_slow'], other)}" for m, v in result["by_speed"].items()))
     for name, rec in result["recordings"].items():
         if not rec["scored"]:
             lines.append(f"{name}: not scored ({rec['reason']})")
