@@ -249,11 +249,13 @@ def steps_by_speed(recordings: Sequence[tuple[GaitReference, dict[str, Any]]]) -
 
 def plot_gait(result: dict[str, Any], path: str | Path) -> Path:
     """``bench gait --plot``: per reference bout, each method's mean stride length and walking speed against the
-    reference's (the diagonal: agreement), the methods' MAE in the legend. PNG."""
+    reference's (the diagonal: agreement), the methods' MAE in the legend; each method's step F1 on slow and faster bouts
+    (``by_speed``). PNG."""
     from ..report.gait import plot_per_bout
 
     bouts = [b for rec in result["recordings"].values() if rec["scored"] for b in rec["per_bout"]]
-    return plot_per_bout(bouts, {m: (v["stride_length_mae_m"], v["walking_speed_mae_m_s"]) for m, v in result["methods"].items()}, path)
+    return plot_per_bout(bouts, {m: (v["stride_length_mae_m"], v["walking_speed_mae_m_s"]) for m, v in result["methods"].items()}, path,
+                         result.get("by_speed"), SLOW_GAIT_M_S)
 
 
 def _config_text(config: StepLengthConfig) -> str:

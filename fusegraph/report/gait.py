@@ -7,13 +7,17 @@ from pathlib import Path
 from typing import Any
 
 
-def plot_per_bout(bouts: list[dict[str, Any]], mae: dict[str, tuple[float | None, float | None]], path: str | Path) -> Path:
+def plot_per_bout(bouts: list[dict[str, Any]], mae: dict[str, tuple[float | None, float | None]], path: str | Path,
+                  by_speed: dict[str, dict[str, dict[str, Any]]] | None = None, slow_m_s: float = 0.8) -> Path:
     """Two panels (stride length, walking speed): per bout, each method's mean against the reference's, the diagonal
-    for agreement; ``mae``: each method's (stride length, speed) MAE for its legend entry. PNG."""
+    for agreement; ``mae``: each method's (stride length, speed) MAE for its legend entry. With ``by_speed`` (``bench
+    gait``'s) a third: each method's step F1 on the bouts slower than ``slow_m_s`` and on the others. PNG."""
     from .plots import plt, save_figure  # headless pyplot
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
-    for ax, (key, unit, which) in zip(axes, (("stride_length_m", "m", 0), ("walking_speed_m_s", "m/s", 1)), strict=True):
+    fig, axes = plt.subplots(1, 3 if by_speed else 2, figsize=(16.5 if by_speed else 11, 5))
+    if by_speed:
+        _plot_step_f1_by_speed(axes[2], by_speed, slow_m_s)
+    for ax, (key, unit, which) in zip(axes, (("stride_length_m", "m", 0), ("walking_speed_m_s", "m/s", 1)), strict=False):
         top = 0.0
         for method, errors in mae.items():
             pairs = [(b["reference"][key], b[method][key]) for b in bouts
@@ -30,6 +34,20 @@ def plot_per_bout(bouts: list[dict[str, Any]], mae: dict[str, tuple[float | None
                xlim=(0, 1.1 * top), ylim=(0, 1.1 * top), aspect="equal")
         ax.legend(fontsize=8, loc="lower right")
     return save_figure(fig, path)
+
+
+def _plot_step_f1_by_speed(ax: Any, by_speed: dict[str, dict[str, dict[str, Any]]], slow_m_s: float) -> None:
+    """Grouped bars: each method's step F1 on the slow bouts and on the others, the bouts and contacts under each band."""
+    bands = (("slow", f"under {slow_m_s:g} m/s"), ("not_slow", f"{slow_m_s:g} m/s and faster"))
+    width = 0.8 / max(len(by_speed), 1)
+    for i, (method, scores) in enumerate(by_speed.items()):
+        values = [scores[band]["step_f1"] or 0.0 for band, _ in bands]
+        bars = ax.bar([b + (i - (len(by_speed) - 1) / 2) * width for b in range(len(bands))], values, width, label=method)
+        ax.bar_label(bars, fmt="%.2f", fontsize=8)
+    first = next(iter(by_speed.values()))
+    ax.set_xticks(range(len(bands)), [f"{name}\n({first[band]['bouts']} bouts, {first[band]['contacts']} contacts)" for band, name in bands])
+    ax.set(ylabel="step F1", ylim=(0, 1.25), title="steps by the reference bout's speed")
+    ax.legend(fontsize=8, loc="upper left", ncol=len(by_speed))
 
 
 def plot_confusions(methods: dict[str, dict[str, Any]], path: str | Path, title: str = "") -> Path:
