@@ -231,19 +231,23 @@ def steps_by_speed(recordings: Sequence[tuple[GaitReference, dict[str, Any]]]) -
     """One method's steps pooled over the reference bouts slower than ``SLOW_GAIT_M_S`` (``slow``) and the others
     (``not_slow``), each band by the reference's own mean speed of the bout (a bout without one is in neither): step F1,
     precision, recall, the bouts and the reference contacts in the band."""
-    pooled = {band: [0, 0, 0, 0] for band in ("slow", "not_slow")}  # matched, extra, missed, bouts
+    # each band as one recording's counts (no stride errors), which gait_scores turns into F1, precision and recall
+    pooled: dict[str, dict[str, Any]] = {band: {"tp": 0, "fp": 0, "fn": 0, "bouts": 0, "stride_length_errors_m": [], "walking_speed_errors_m_s": []}
+                                         for band in ("slow", "not_slow")}
     for reference, row in recordings:
-        for n, steps in enumerate(row["bout_steps"]):
+        for n, (matched, extra, missed) in enumerate(row["bout_steps"]):
             speed = float(reference.walking_speed_m_s[n]) if n < len(reference.walking_speed_m_s) else float("nan")
             if not np.isfinite(speed):
                 continue
-            sums = pooled["slow" if speed < SLOW_GAIT_M_S else "not_slow"]
-            for i, value in enumerate((*steps, 1)):
-                sums[i] += value
+            counts = pooled["slow" if speed < SLOW_GAIT_M_S else "not_slow"]
+            counts["tp"] += matched
+            counts["fp"] += extra
+            counts["fn"] += missed
+            counts["bouts"] += 1
     out = {}
-    for band, (tp, fp, fn, bouts) in pooled.items():
-        scores = gait_scores([{"tp": tp, "fp": fp, "fn": fn, "stride_length_errors_m": [], "walking_speed_errors_m_s": [], "bouts": bouts}])
-        out[band] = {k: scores[k] for k in ("step_f1", "step_precision", "step_recall")} | {"bouts": bouts, "contacts": tp + fn}
+    for band, counts in pooled.items():
+        scores = gait_scores([counts])
+        out[band] = {k: scores[k] for k in ("step_f1", "step_precision", "step_recall")} | {"bouts": counts["bouts"], "contacts": counts["tp"] + counts["fn"]}
     return out
 
 
@@ -270,11 +274,6 @@ def config_of_text(text: str) -> StepLengthConfig:
                             fields["model"])
 
 
-def _over(band: dict[str, Any], first: dict[str, Any]) -> str:
-    """A method's bouts where they are not the first row's (a peer that failed on a trial scores fewer)."""
-    return f" (over {band['bouts']} bouts)" if band["bouts"] != first["bouts"] else ""
-
-
 def format_gait(result: dict[str, Any]) -> str:
     """The bench as a table."""
     def cell(v: float | None, fmt: str) -> str:
@@ -289,13 +288,15 @@ def format_gait(result: dict[str, Any]) -> str:
     if all(v is not None for v in common.values()):
         lines.append(f"stride MAE over the {next(iter(result['methods'].values()))['bouts_common']} bouts every method scored: "
                      + ", ".join(f"{name} {v:.3f} m" for name, v in common.items()))
-    slow = {m: v["slow"] for m, v in result.get("by_speed", {}).items()}
-    if slow:
-        first, other = next(iter(slow.values())), next(iter(result["by_speed"].values()))["not_slow"]
-        lines.append(f"step F1 by the reference bout's speed: under {SLOW_GAIT_M_S:g} m/s ({first['bouts']} bouts, {first['contacts']} contacts) "
-                     + ", ".join(f"{m} {cell(v['step_f1'], '.3f')}{_over(v, first)}" for m, v in slow.items())
-                     + f"; {SLOW_GAIT_M_S:g} m/s and faster ({other['bouts']} bouts, {other['contacts']} contacts) "
-                     + ", ".join(f"{m} {cell(v['not_slow']['step_f1'], '.3f')}{_over(v['not_slow'], other)}" for m, v in result["by_speed"].items()))
+    by_speed = result.get("by_speed", {})
+    if by_speed:
+        parts = []
+        for band, name in (("slow", f"under {SLOW_GAIT_M_S:g} m/s"), ("not_slow", f"{SLOW_GAIT_M_S:g} m/s and faster")):
+            first = next(iter(by_speed.values()))[band]  # a row that scored fewer bouts (a peer failed on a trial) says so
+            parts.append(f"{name} ({first['bouts']} bouts, {first['contacts']} contacts) " + ", ".join(
+                f"{m} {cell(v[band]['step_f1'], '.3f')}" + (f" (over {v[band]['bouts']} bouts)" if v[band]["bouts"] != first["bouts"] else "")
+                for m, v in by_speed.items()))
+        lines.append("step F1 by the reference bout's speed: " + "; ".join(parts))
     for name, rec in result["recordings"].items():
         if not rec["scored"]:
             lines.append(f"{name}: not scored ({rec['reason']})")

@@ -17,7 +17,7 @@ def plot_per_bout(bouts: list[dict[str, Any]], mae: dict[str, tuple[float | None
     fig, axes = plt.subplots(1, 3 if by_speed else 2, figsize=(16.5 if by_speed else 11, 5))
     if by_speed:
         _plot_step_f1_by_speed(axes[2], by_speed, slow_m_s)
-    for ax, (key, unit, which) in zip(axes, (("stride_length_m", "m", 0), ("walking_speed_m_s", "m/s", 1)), strict=False):
+    for ax, (key, unit, which) in zip(axes[:2], (("stride_length_m", "m", 0), ("walking_speed_m_s", "m/s", 1)), strict=True):
         top = 0.0
         for method, errors in mae.items():
             pairs = [(b["reference"][key], b[method][key]) for b in bouts
