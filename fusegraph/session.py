@@ -140,6 +140,11 @@ class Session:
 
         A session is immutable: a second call (every solver of a report validates the same session) repeats the first's
         warnings without checking again."""
+        for message, category in self._checked():
+            warnings.warn(message, category, stacklevel=2)
+
+    def _checked(self) -> list[tuple[Warning | str, type[Warning]]]:
+        """``_validate``'s warnings, made once (a SessionError raised each time)."""
         said = self.__dict__.get("_validation_warnings")
         if said is None:
             with warnings.catch_warnings(record=True) as caught:
@@ -147,8 +152,15 @@ class Session:
                 self._validate()
             said = [(w.message, w.category) for w in caught]
             object.__setattr__(self, "_validation_warnings", said)  # a frozen dataclass: a cache, not a field
-        for message, category in said:
-            warnings.warn(message, category, stacklevel=2)
+        return list(said)
+
+    def with_meta(self, **tables: Any) -> Session:
+        """The same session with these metadata tables replaced (``gait={...}``: a setting a solver reads). Its streams,
+        truth and path are the same, so ``validate``'s checks (which read no metadata) are made once for both."""
+        said = self._checked()
+        out = replace(self, meta={**self.meta, **tables})
+        object.__setattr__(out, "_validation_warnings", said)
+        return out
 
     def _validate(self) -> None:
         where = self.where

@@ -14,10 +14,12 @@ Rows:
 * ``fusegraph``: ``run --solver gait`` (the walking preset: a step per walking cycle of ``pdr.detect_cycles``, the
   contacts it missed inside a bout inferred, ``frontends.gait.with_missed_steps``; step length from the inverted
   pendulum or in proportion to the pelvis's vertical excursion, ``frontends.gait``; a stride as two consecutive steps,
-  speed = stride length / stride time) on each session. The step-length model, its drift removal and its scale are
-  chosen from ``frontends.gait.STEP_LENGTH_GRID`` by leave-one-participant-out (the held-out participant's rows are its
-  sessions DECLARING the settings chosen on the others, ``[gait]``; the in-sample choice printed beside); a folder of
-  one participant is scored with the settings on main (``StepLengthConfig()``).
+  speed = stride length / stride time) on each session. Every setting of it is chosen by leave-one-participant-out,
+  in order: the step thresholds from ``frontends.gait.STEP_DETECTION_GRID`` by step F1, then the step-length model, its
+  drift removal and its scale from ``STEP_LENGTH_GRID`` by stride-length MAE on the thresholds just chosen. The held-out
+  participant's rows are its sessions DECLARING the settings chosen on the others (``[gait]``); the in-sample choice is
+  printed beside, and so are the walking front end's hand-set thresholds with the step length chosen the same way. A
+  folder of one participant is scored with the settings on main (``Setting()``).
 * ``paper_speed``: the walking paper's speed regression on the vertical peak-to-peak acceleration (``pdr.SpeedModel``)
   UNCALIBRATED: its per-person fit needs a calibration walk at known speeds, and these recordings have none outside the
   reference (which never calibrates); the model's default figures serve, stride length = speed x stride time.
@@ -31,13 +33,13 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..frontends.gait import STEP_LENGTH_GRID, StepLengthConfig
+from ..frontends.gait import HAND_SET_DETECTION, STEP_DETECTION_GRID, STEP_LENGTH_GRID, StepDetection, StepLengthConfig
 from ..metrics import GAIT_MATCH_S, GaitReference, gait_counts, gait_scores
 from ..session import Session, SessionError
 from .runner import solve_session
@@ -86,10 +88,28 @@ def paper_speed(session: Session) -> GaitEstimate:
     return GaitEstimate(steps, steps, speed * 2.0 * np.array([c.period_s for c in cycles]), speed)
 
 
-def declare(session: Session, config: StepLengthConfig) -> Session:
-    """The session declaring the step-length settings (``[gait] model, highpass_hz, correction``) that ``--solver gait``
-    reads."""
-    return replace(session, meta={**session.meta, "gait": {"model": config.model, "highpass_hz": config.highpass_hz, "correction": config.correction}})
+@dataclass(frozen=True)
+class Setting:
+    """What ``bench gait`` chooses for ``--solver gait`` by leave-one-participant-out."""
+
+    detection: StepDetection = StepDetection()
+    """The step thresholds (chosen first, by step F1)."""
+    length: StepLengthConfig = StepLengthConfig()
+    """The step-length model and its scale (chosen on the thresholds, by stride-length MAE)."""
+
+    def text(self) -> str:
+        """As the JSON and the table print it (``setting_of_text`` reads it back)."""
+        d, c = self.detection, self.length
+        return (f"peak_threshold_m_s2={d.peak_threshold_m_s2:g} forward_slope_m_s3={d.forward_slope_m_s3:g} model={c.model} "
+                f"accel_highpass_hz={c.accel_highpass_hz:g} highpass_hz={c.highpass_hz:g} order={c.order} correction={c.correction:g}")
+
+
+def declare(session: Session, config: StepLengthConfig, detection: StepDetection | None = None) -> Session:
+    """The session declaring the settings ``--solver gait`` reads: the step length's (``[gait] model, highpass_hz,
+    correction``) and the step thresholds (``[gait] peak_threshold_m_s2, forward_slope_m_s3``; default ``StepDetection()``)."""
+    detection = detection or StepDetection()
+    return session.with_meta(gait={"model": config.model, "highpass_hz": config.highpass_hz, "correction": config.correction,
+                                   "peak_threshold_m_s2": detection.peak_threshold_m_s2, "forward_slope_m_s3": detection.forward_slope_m_s3})
 
 
 def fusegraph_counts(session: Session) -> dict[str, Any]:
@@ -155,27 +175,44 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
             recordings[name] = {"scored": False, "reason": "no reference walking bout"}
             continue
         scored[name] = (str(session.meta.get("session", {}).get("subject", name)), session, reference)
-    # the step-length settings: leave-one-participant-out over STEP_LENGTH_GRID, each point the sessions declaring it
-    grid: dict[StepLengthConfig, dict[str, dict[str, Any]]] = {}
-    for n, config in enumerate(STEP_LENGTH_GRID):
-        grid[config] = {name: fusegraph_counts(declare(session, config)) for name, (_, session, _) in scored.items()}
-        if progress is not None:
-            progress(f"step-length grid point {n + 1}/{len(STEP_LENGTH_GRID)}")
     subjects = sorted({subject for subject, _, _ in scored.values()})
+    cross_validated = len(subjects) > 1
+    folds = {subject: [name for name, (s, _, _) in scored.items() if s != subject] for subject in subjects}
+    everyone = list(scored)
+    # the settings, leave-one-participant-out, each grid point the sessions declaring it: the step thresholds by step F1,
+    # then the step length by stride-length MAE on the thresholds its fold chose
+    counted: dict[Setting, dict[str, dict[str, Any]]] = {}
 
-    def mae(config: StepLengthConfig, names: Sequence[str]) -> float:
-        value = gait_scores([grid[config][name] for name in names])["stride_length_mae_m"]
+    def counts(setting: Setting) -> dict[str, dict[str, Any]]:
+        if setting not in counted:
+            counted[setting] = {name: fusegraph_counts(declare(session, setting.length, setting.detection)) for name, (_, session, _) in scored.items()}
+        return counted[setting]
+
+    def f1(detection: StepDetection, names: Sequence[str]) -> float:
+        value = gait_scores([counts(Setting(detection, StepLengthConfig()))[name] for name in names])["step_f1"]
+        return -1.0 if value is None else float(value)
+
+    def mae(setting: Setting, names: Sequence[str]) -> float:
+        value = gait_scores([counts(setting)[name] for name in names])["stride_length_mae_m"]
         return float("inf") if value is None else float(value)
 
-    cross_validated = len(subjects) > 1
-    chosen: dict[str, StepLengthConfig] = {}
-    for subject in subjects:
-        others = [name for name, (s, _, _) in scored.items() if s != subject]
-        chosen[subject] = min(STEP_LENGTH_GRID, key=lambda c: mae(c, others)) if cross_validated else StepLengthConfig()
-    in_sample = min(STEP_LENGTH_GRID, key=lambda c: mae(c, list(scored)))
+    def choose(names: Sequence[str], what: str, detection: StepDetection | None = None) -> Setting:
+        """The setting chosen on ``names``: the thresholds by step F1 (or ``detection`` as given), the step length on them."""
+        thresholds = detection or max(STEP_DETECTION_GRID, key=lambda d: f1(d, names))
+        if progress is not None:
+            progress(f"{what}: step thresholds {'chosen' if detection is None else 'given'}; the step length on them ({len(STEP_LENGTH_GRID)} points)")
+        return min((Setting(thresholds, c) for c in STEP_LENGTH_GRID), key=lambda setting: mae(setting, names))
+
+    if progress is not None:
+        progress(f"step-threshold grid ({len(STEP_DETECTION_GRID)} points) on {len(scored)} recordings")
+    chosen = {subject: choose(others, f"without {subject}") if cross_validated else Setting() for subject, others in folds.items()}
+    in_sample = choose(everyone, "in-sample") if cross_validated else Setting()
+    # beside it, the thresholds as the walking front end sets them by hand (no rule chose them), the step length chosen as above
+    hand_set = {subject: choose(others, f"hand-set thresholds, without {subject}", HAND_SET_DETECTION) if cross_validated
+                else Setting(HAND_SET_DETECTION) for subject, others in folds.items()}
     for name, (subject, session, reference) in scored.items():
         # fusegraph: run --solver gait on the session declaring the setting chosen without its participant
-        rows = {"fusegraph": grid[chosen[subject]][name] if chosen[subject] in grid else fusegraph_counts(declare(session, chosen[subject])),
+        rows = {"fusegraph": counts(chosen[subject])[name],
                 "paper_speed": score_recording(paper_speed(session), reference),
                 **({"mobgap": score_recording(peer[name], reference)} if name in peer else {})}
         recordings[name] = {"scored": True, "bouts": len(reference.bouts_s), "reference_contacts": len(reference.contacts_s),
@@ -192,12 +229,15 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
     for m, e in errors.items():
         methods[m]["stride_length_mae_common_m"] = float(np.mean([e[k] for k in common])) if common else None
         methods[m]["bouts_common"] = len(common)
+    hand_rows = [counts(hand_set[subject])[name] for name, (subject, _, _) in scored.items()]
+    methods["fusegraph"]["hand_set_thresholds"] = {k: gait_scores(hand_rows)[k] for k in ("step_f1", "stride_length_mae_m", "walking_speed_mae_m_s")}
     if cross_validated:
-        methods["fusegraph"]["stride_length_mae_m_in_sample"] = mae(in_sample, list(scored))
+        methods["fusegraph"]["stride_length_mae_m_in_sample"] = mae(in_sample, everyone)
+        methods["fusegraph"]["step_f1_in_sample"] = f1(in_sample.detection, everyone)
     by_speed = {m: steps_by_speed([(scored[name][2], row) for name, row in rows.items()]) for m, rows in per.items() if rows}
     return {"methods": methods, "by_speed": by_speed, "recordings": recordings, "match_s": GAIT_MATCH_S, "cross_validated": cross_validated,
-            "step_length": {"chosen_per_participant": {s: _config_text(c) for s, c in chosen.items()}, "in_sample": _config_text(in_sample),
-                         "on_main": _config_text(StepLengthConfig())},
+            "step_length": {"chosen_per_participant": {s: c.text() for s, c in chosen.items()}, "in_sample": in_sample.text(),
+                            "on_main": Setting().text(), "hand_set_thresholds": {s: c.text() for s, c in hand_set.items()}},
             "notes": {"paper_speed": "uncalibrated: the default regression (no calibration walk outside the reference)",
                       "mobgap": (f"MobilisedPipelineUniversal on mobgap's own reading of the files ({_pipelines_text(pipelines)})"
                                  if peer else "not run (needs the raw folder)")},
@@ -262,16 +302,12 @@ def plot_gait(result: dict[str, Any], path: str | Path) -> Path:
                          result.get("by_speed"), SLOW_GAIT_M_S)
 
 
-def _config_text(config: StepLengthConfig) -> str:
-    return (f"model={config.model} accel_highpass_hz={config.accel_highpass_hz:g} highpass_hz={config.highpass_hz:g} order={config.order} "
-            f"correction={config.correction:g}")
-
-
-def config_of_text(text: str) -> StepLengthConfig:
-    """The setting a bench's JSON prints (``step_length``: ``model=... correction=...``), as a ``StepLengthConfig``."""
-    fields = dict(part.split("=", 1) for part in text.split())
-    return StepLengthConfig(float(fields["accel_highpass_hz"]), float(fields["highpass_hz"]), int(fields["order"]), float(fields["correction"]),
-                            fields["model"])
+def setting_of_text(text: str) -> Setting:
+    """The setting a bench's JSON prints (``step_length``: ``peak_threshold_m_s2=... model=... correction=...``)."""
+    values = dict(part.split("=", 1) for part in text.split())
+    return Setting(StepDetection(float(values["peak_threshold_m_s2"]), float(values["forward_slope_m_s3"])),
+                   StepLengthConfig(float(values["accel_highpass_hz"]), float(values["highpass_hz"]), int(values["order"]), float(values["correction"]),
+                                    values["model"]))
 
 
 def format_gait(result: dict[str, Any]) -> str:
@@ -303,11 +339,17 @@ def format_gait(result: dict[str, Any]) -> str:
             continue
         lines.append(f"{name}: {rec['bouts']} bouts, {rec['reference_contacts']} contacts; " + "; ".join(
             f"{m} F1 {cell(r['step_f1'], '.2f')} SL {cell(r['stride_length_mae_m'], '.3f')}" for m, r in rec["methods"].items()))
-    step_length = result["step_length"]
-    rule = "leave-one-participant-out" if result["cross_validated"] else "the settings on main"
-    lines.append(f"fusegraph's step-length settings, {rule}: " + "; ".join(f"{s}: {c}" for s, c in step_length["chosen_per_participant"].items()))
+    step_length, ours = result["step_length"], result["methods"]["fusegraph"]
+    rule = "leave-one-participant-out (the step thresholds by step F1, the step length on them)" if result["cross_validated"] else "the settings on main"
+    lines.append(f"fusegraph's settings, {rule}: " + "; ".join(f"{s}: {c}" for s, c in step_length["chosen_per_participant"].items()))
     if result["cross_validated"]:
-        lines.append(f"    in-sample best {step_length['in_sample']} (stride MAE {result['methods']['fusegraph']['stride_length_mae_m_in_sample']:.3f} m); "
-                     f"on main {step_length['on_main']}")
+        lines.append(f"    in-sample best {step_length['in_sample']} (step F1 {ours['step_f1_in_sample']:.3f}, "
+                     f"stride MAE {ours['stride_length_mae_m_in_sample']:.3f} m); on main {step_length['on_main']}")
+    hand = ours.get("hand_set_thresholds")
+    if hand:
+        lines.append(f"    with the walking front end's thresholds as set by hand ({HAND_SET_DETECTION.peak_threshold_m_s2:g} m/s^2, "
+                     f"{HAND_SET_DETECTION.forward_slope_m_s3:g} m/s^3; no rule chose them) and the step length {rule.split(' (')[0]}: "
+                     f"step F1 {cell(hand['step_f1'], '.3f')}, stride MAE {cell(hand['stride_length_mae_m'], '.3f')} m, "
+                     f"speed MAE {cell(hand['walking_speed_mae_m_s'], '.3f')} m/s")
     lines += [f"{k}: {v}" for k, v in result["notes"].items()]
     return "\n".join(lines)

@@ -30,7 +30,7 @@ it (gyro, accelerometer, gaze); ``--use-mag`` runs them with it as recorded.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -108,7 +108,7 @@ def analyse_gaze_recording(directory: str | Path | None = None, use_mag: bool = 
         raise SessionError(f"--device {device}: {directory} is a {export} export, not a Pupil Labs one")
     session = tobii_session(directory) if export == "tobii" else pupil_session(directory, device)
     if use_mag:
-        session = replace(session, meta={**session.meta, "session": {**session.meta["session"], "use_mag": True}})
+        session = session.with_meta(session={**session.meta["session"], "use_mag": True})
     estimates, metrics = {}, {}
     for row in ROWS:
         outcome = solve_session(session, row)

@@ -90,7 +90,7 @@ def result_from(outcome_metrics: dict[str, Any], runtime_s: float, label: str) -
 
 def declare_ekf(session: Session, setting: tuple[float, float]) -> Session:
     """The session declaring Method II's figures at a grid point (``[ekf]``)."""
-    return replace(session, meta={**session.meta, "ekf": {"process_scale": setting[0], "gyro_sigma_rad_s": setting[1]}})
+    return session.with_meta(ekf={"process_scale": setting[0], "gyro_sigma_rad_s": setting[1]})
 
 
 def declare_gyro(session: Session, setting: tuple[float, float]) -> Session:

@@ -28,7 +28,9 @@ step's, so a stride made of it reads one step short, and the bout's mean comes f
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from typing import Any
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
@@ -56,9 +58,11 @@ MODELS = ("pendulum", "excursion")
 @dataclass(frozen=True)
 class StepLengthConfig:
     """How the vertical excursion is integrated and turned into a step length. ``bench gait`` chooses among
-    ``STEP_LENGTH_GRID`` by leave-one-participant-out; the defaults are its in-sample choice on the two Mobilise-D
-    participants in ../shared/data/mobgap (stride-length MAE 0.059 m in-sample, 0.092 m leave-one-participant-out; the
-    pendulum alone 0.089 / 0.147 m)."""
+    ``STEP_LENGTH_GRID`` by leave-one-participant-out on the step thresholds its fold chose (``StepDetection``); the
+    defaults are the in-sample choice on the two Mobilise-D participants in ../shared/data/mobgap, on the thresholds
+    chosen in-sample too (stride-length MAE 0.112 m in-sample; 0.230 m with both re-chosen without each participant;
+    with the thresholds as set by hand 0.059 m in-sample, 0.092 m leave-one-participant-out; the pendulum alone on those:
+    0.089 / 0.147 m)."""
 
     accel_highpass_hz: float | None = 0.1
     """High-pass of the vertical acceleration before the first integral, Hz (None: none)."""
@@ -66,7 +70,7 @@ class StepLengthConfig:
     """High-pass after each integral (drift removal), Hz."""
     order: int = 4
     """Butterworth order of those high-passes (applied forward and backward: zero phase)."""
-    correction: float = 18.0
+    correction: float = 16.0
     """Scale of the step length: the pendulum's correction (1: the pendulum as it is; Mobilise-D's
     ``MS_PROJECT_CORRECTION`` and Zijlstra & Hof's ``CORRECTION`` are the grid's others), or the excursion model's metres
     of step per metre of excursion."""
@@ -82,7 +86,7 @@ CORNERS_HZ = (0.5, 0.7, 1.0, 1.2)
 """The drift-removal corners of the grid (mobgap's reimplementation of Zijlstra's method: 0.1 Hz on the acceleration,
 1 Hz after the integral, 4th order, and its neighbours)."""
 EXCURSION_SCALES = (12.0, 14.0, 16.0, 18.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0, 33.0, 36.0, 40.0)
-"""The excursion model's scales tried: wide enough that no fold's choice (18-22 at this grid's corners) lies at an edge."""
+"""The excursion model's scales tried: wide enough that no fold's choice (14-22 at this grid's corners) lies at an edge."""
 STEP_LENGTH_GRID = (tuple(StepLengthConfig(0.1, hp, 4, k, "pendulum") for hp in CORNERS_HZ for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
                     + tuple(StepLengthConfig(0.1, hp, 4, k, "excursion") for hp in CORNERS_HZ for k in EXCURSION_SCALES))
 """Both models at every corner: the pendulum with the literature's corrections (none, Mobilise-D's, Zijlstra & Hof's; no
@@ -91,7 +95,53 @@ corner, 1.2 Hz, was the grid's upper edge; widened by 1.5 and 2 Hz every choice 
 m); a corner proportional to each bout's step frequency gave 0.262 m leave-one-participant-out (0.125 in-sample); the
 excursion integrated per step instead (each step's acceleration and velocity made zero-mean: no corner) left each
 fold's choice where it was. With both models (2026-11-27) every fold chooses the excursion model (HA/001's fold: 1.2 Hz,
-22; HA/002's: 1.0 Hz, 18), and with the corners widened by 1.5 and 2 Hz no choice changed."""
+22; HA/002's: 1.0 Hz, 18), and with the corners widened by 1.5 and 2 Hz no choice changed. With the step thresholds
+chosen in each fold too (2026-11-29): HA/001's fold 1.2 Hz, 14; HA/002's 1.0 Hz, 18; in-sample 1.0 Hz, 16."""
+
+
+@dataclass(frozen=True)
+class StepDetection:
+    """The walking front end's two step thresholds as ``--solver gait`` uses them: ``pdr.PdrConfig``'s fields of the same
+    names, the rest of ``systems.walking.WAIST`` kept. ``bench gait`` chooses them from ``STEP_DETECTION_GRID`` by
+    leave-one-participant-out on the step F1, before the step length (chosen on the thresholds its fold chose). The
+    defaults are the in-sample choice on the two Mobilise-D participants in ../shared/data/mobgap: step F1 0.835
+    in-sample, 0.792 with both re-chosen without each participant (each participant alone chose elsewhere: HA/001 0.1
+    m/s^2 and 1.5 m/s^3, HA/002 0.2 and 3); the hand-set ``HAND_SET_DETECTION`` scores 0.825 there, and its strides
+    are better (see ``StepLengthConfig``)."""
+
+    peak_threshold_m_s2: float = 0.1
+    """A vertical peak (positive or negative) must exceed this, m/s^2."""
+    forward_slope_m_s3: float = 0.5
+    """The forward rise from its valley to its peak must be this steep at least, m/s^3."""
+
+    def front_end(self, base: PdrConfig) -> PdrConfig:
+        """``base`` with these thresholds."""
+        return replace(base, peak_threshold_m_s2=self.peak_threshold_m_s2, forward_slope_m_s3=self.forward_slope_m_s3)
+
+
+PEAK_THRESHOLDS_M_S2 = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)
+"""The vertical peak thresholds tried, around the front end's hand-set 0.3 m/s^2. First 0.15-0.5: HA/002's fold chose the
+lower edge, so 0.1 and 0.05 were added (by that fold's own F1 on HA/001, 0.926 -> 0.933 at 0.1; 0.05 is chosen by none)."""
+FORWARD_SLOPES_M_S3 = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)
+"""The forward rise thresholds tried, around the front end's hand-set 1.5 m/s^3; 0 is the forward test off. First 0.5-3:
+with the peaks widened the in-sample choice lay at 0.5, so 0 was added; 4-6 m/s^3 were tried above and chosen by no
+fold (HA/002 alone: 0.556 at 4, against 0.691 at 3)."""
+HAND_SET_DETECTION = StepDetection(PdrConfig.peak_threshold_m_s2, PdrConfig.forward_slope_m_s3)
+"""The walking front end's thresholds as they were set by hand when the walking system was written (2026-11-22, on its
+simulated walks, before any Mobilise-D recording was read), which ``systems.walking.WAIST`` keeps for the activity
+classifier's cycles: ``bench gait`` scores them beside the chosen ones."""
+STEP_DETECTION_GRID = tuple(StepDetection(p, s) for p in PEAK_THRESHOLDS_M_S2 for s in FORWARD_SLOPES_M_S3)
+"""Every pair; a tie in F1 goes to the first in this order."""
+
+
+def declared_settings(meta: Mapping[str, Any], front_end: PdrConfig) -> tuple[PdrConfig, StepLengthConfig]:
+    """The ``[gait]`` table of a session's metadata as ``--solver gait``'s settings (``waist_gait``'s last two arguments):
+    ``front_end`` with the step thresholds (``StepDetection``) and the step length, the defaults where a key is absent
+    (the catalogue refuses a key that is none of these fields)."""
+    declared: Mapping[str, Any] = meta.get("gait", {})
+    length_keys, detection_keys = {f.name for f in fields(StepLengthConfig)}, {f.name for f in fields(StepDetection)}
+    length = replace(StepLengthConfig(), **{k: type(getattr(StepLengthConfig(), k))(v) for k, v in declared.items() if k in length_keys})  # field types
+    return replace(StepDetection(), **{k: float(v) for k, v in declared.items() if k in detection_keys}).front_end(front_end), length
 
 
 def with_missed_steps(steps_s: FloatArray) -> tuple[FloatArray, np.ndarray]:

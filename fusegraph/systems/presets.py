@@ -294,7 +294,7 @@ def _waist_analysis(session: Session, solver: str) -> PointEstimate:
     flat, stairs_up, stairs_down, not_walking); ``gait``: strides from the pelvis's vertical excursion (``frontends.gait``; points: length m,
     speed m/s; the steps in ``extras``). Both on the waist gyro and accelerometer with the walking front end's cycles."""
     from ..frontends.activity import ACTIVITIES, classify_waist
-    from ..frontends.gait import StepLengthConfig, waist_gait
+    from ..frontends.gait import declared_settings, waist_gait
     from .walking import WAIST
 
     accel, gyro = session.synchronous("accel", "gyro")
@@ -307,9 +307,8 @@ def _waist_analysis(session: Session, solver: str) -> PointEstimate:
     leg = session.meta.get("person", {}).get("sensor_height_m")
     if leg is None:
         raise SessionError(f"{session.where}: --solver gait needs [person] sensor_height_m (the waist sensor's height: the pendulum's leg)")
-    declared: dict[str, Any] = {k: type(getattr(StepLengthConfig(), k))(v) for k, v in session.meta.get("gait", {}).items()}  # each field's type
-    steps, inferred, stride_t, length, speed = waist_gait(accel.t, accel.values, gyro.values, float(leg), WAIST, replace(StepLengthConfig(), **declared))
-    return PointEstimate("gait", stride_t, np.stack([length, speed], axis=1)[:, None, :], ("stride_length_m", "walking_speed_m_s"),
+    steps, inferred, stride_t, stride_m, speed = waist_gait(accel.t, accel.values, gyro.values, float(leg), *declared_settings(session.meta, WAIST))
+    return PointEstimate("gait", stride_t, np.stack([stride_m, speed], axis=1)[:, None, :], ("stride_length_m", "walking_speed_m_s"),
                          time.perf_counter() - start, {"steps_s": steps, "steps_inferred": inferred})
 
 
@@ -520,7 +519,9 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("truth_extra.initial_contacts_s", None, "the reference's initial contacts (steps), s"),
                       KeySpec("gait.model", None, "--solver gait: 'excursion' (step = correction x the pelvis's rise) or 'pendulum' (frontends.gait)"),
                       KeySpec("gait.highpass_hz", None, "--solver gait: the excursion's drift removal, Hz (frontends.gait.StepLengthConfig)"),
-                      KeySpec("gait.correction", None, "--solver gait: the step length's scale (the pendulum's correction, or step per excursion)")),
+                      KeySpec("gait.correction", None, "--solver gait: the step length's scale (the pendulum's correction, or step per excursion)"),
+                      KeySpec("gait.peak_threshold_m_s2", None, "--solver gait: a step's vertical peak at least, m/s^2 (frontends.gait.StepDetection)"),
+                      KeySpec("gait.forward_slope_m_s3", None, "--solver gait: a step's forward rise at least, m/s^3 (frontends.gait.StepDetection)")),
         solvers={"online": "iSAM2 causal", "batch": "smoother (fixes beyond the tuned threshold, tuned.toml [walking_fixes], rejected, solved again)",
                  "ekf": "the paper's Kalman framework",
                  "dead_reckoning": "steps and rides only", "steps": "step count of the accelerometer alone (a phone's step recording; no trajectory)",
