@@ -158,6 +158,12 @@ def test_import_oxford_counts_steps_through_run(tmp_path: Path, capsys: pytest.C
     assert main(["run", str(tmp_path / name), "--solver", "steps", "--json"]) == 0
     metrics = json.loads(capsys.readouterr().out)["metrics"]
     assert metrics["steps_true"] == 248 and metrics["step_error_frac"] < 0.05, metrics  # the bench's 5 % bound for phone recordings
+    from fusegraph.evaluation.runner import solve_session
+
+    # a declared [steps] peak_threshold_m_s2 reaches the detector: a stricter one counts fewer steps (2 m/s^2: half of them or fewer)
+    session = load_session(tmp_path / name)
+    strict = solve_session(session.with_meta(steps={"peak_threshold_m_s2": 2.0}), "steps").estimate.extras["steps"]
+    assert strict < 0.7 * 248, strict
     assert main(["run", str(tmp_path / name), "--solver", "batch"]) != 0  # trajectories need the gyro: a clear error, not a traceback
     assert "no gyro stream" in capsys.readouterr().err
 

@@ -99,10 +99,14 @@ def format_walking_table(result: dict[str, object]) -> str:
     assert isinstance(oxford, dict)
     if oxford:
         lines.append("")
-        lines.append(f"{'oxford recording':40s}{'true':>8s}{'counted':>9s}{'error':>8s}{'foot switches':>15s}{'phone':>7s}")
+        lines.append(f"{'oxford recording':40s}{'true':>8s}{'counted':>9s}{'error':>8s}{'peak':>7s}{'in-sample':>11s}{'foot switches':>15s}{'phone':>7s}")
         for name, r in oxford.items():
             switches, phone = ("-" if r.get(key) is None else str(r[key]) for key in ("foot_switches", "phone"))
-            lines.append(f"{name:40s}{r['true']:8d}{r['counted']:9d}{100 * (r['counted'] - r['true']) / r['true']:7.1f}%{switches:>15s}{phone:>7s}")
+            lines.append(f"{name:40s}{r['true']:8d}{r['counted']:9d}{100 * (r['counted'] - r['true']) / r['true']:7.1f}%{r['peak_threshold_m_s2']:7.2f}"
+                         f"{r['counted_in_sample']:11d}{switches:>15s}{phone:>7s}")
+        first = next(iter(oxford.values()))
+        lines.append("counted: cross-validated, each recording with the peak threshold (m/s^2) that counts the OTHER recordings best "
+                     f"(leave-one-recording-out); in-sample: the threshold chosen on all of them ({first['peak_threshold_in_sample_m_s2']:g} m/s^2)")
         lines.append("true: counted by hand (stats.csv); foot switches: the dataset's insoles (stepcounter.csv, heel contacts);"
                      " phone: the phone's own step counter, not in these recordings")
     plaza = result.get("plaza") or {}

@@ -216,8 +216,7 @@ def _gaze_score(session: Session, estimate: Result) -> dict[str, Any] | None:
     per = dispersions_deg(estimate.extras["world_R_head"], data, found)
     samples = int(sum(len(f.rows) for f in found))
     return {"dispersion_deg": float(np.median(per)) if len(per) else float("nan"), "dispersion_mean_deg": float(np.mean(per)) if len(per) else float("nan"),
-            "fixations": len(found), "fixation_samples": samples, "fixation_fraction": samples / max(len(data.tracker_t), 1),
-            "fixation_source": source}
+            "fixations": len(found), "fixation_samples": samples, "fixation_fraction": samples / max(len(data.tracker_t), 1), "fixation_source": source}
 
 
 # ----------------------------------------------------------------------------------- bicycle
@@ -280,11 +279,11 @@ def _walking_run(session: Session, solver: str) -> Result:
 
 def _count_steps(session: Session) -> PointEstimate:
     """Steps of the accelerometer (waist or phone) as their times; ``points`` hold the running count."""
-    from ..frontends.pdr import step_times
+    from ..frontends.pdr import phone_config, step_times
 
     accel = session.stream("accel")
     start = time.perf_counter()
-    step_t = step_times(accel.t, accel.values)
+    step_t = step_times(accel.t, accel.values, phone_config(session.meta))
     count = np.arange(1, len(step_t) + 1, dtype=float)
     return PointEstimate("steps", step_t, count[:, None, None], ("steps",), time.perf_counter() - start, {"steps": len(step_t)})
 
@@ -508,6 +507,7 @@ PRESETS: dict[str, Preset] = {
                       KeySpec("building.riser_m", 0.175, "stair riser, m"), KeySpec("building.tread_m", 0.28, "stair tread, m"),
                       KeySpec("truth_extra.steps", None, "steps counted by hand (scores --solver steps)"),
                       KeySpec("truth_extra.foot_switch_steps", None, "steps of a reference's foot switches (documentation)"),
+                      KeySpec("steps.peak_threshold_m_s2", None, "--solver steps: a step's least vertical peak, m/s^2 (default frontends.pdr.PHONE's)"),
                       KeySpec("placement", None, "where the sensor was carried, e.g. pocket, hand (documentation)"),
                       KeySpec("speed_model.intercept_m_s", None, "walking speed = intercept + slope x peak-to-peak acceleration (required: a person's own)"),
                       KeySpec("speed_model.slope_s", None, "see intercept_m_s (required)"),
