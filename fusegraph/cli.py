@@ -681,6 +681,22 @@ def _seeds_block(seeds: Any, system: str) -> dict[str, Any]:
     return {"seeds": chosen, "tuning_seeds": list(TUNING_SEEDS), "settings": settings_of(system)}
 
 
+def _seeds_line(seeds: Any) -> str:
+    """What a simulated report's figures are: test seeds, or in-sample where they are tuning seeds."""
+    from .evaluation.tuning import TUNING_SEEDS
+
+    chosen = sorted(int(x) for x in seeds)
+    tuning = sorted(set(chosen) & set(TUNING_SEEDS))
+    where = f"simulated seeds {_seed_text(chosen)}"
+    if tuning:
+        return f"what these figures are: {where}, IN-SAMPLE on {_seed_text(tuning)} (the tuning seeds settings were chosen on)"
+    return f"what these figures are: {where}, test seeds (the simulated settings were chosen on tuning seeds {_seed_text(list(TUNING_SEEDS))})"
+
+
+def _seed_text(seeds: list[int]) -> str:
+    return f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1 else ", ".join(map(str, seeds))
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     solvers = [x.strip() for x in args.solvers.split(",") if x.strip()] if args.solvers else None
     if args.viewing and (args.system != "gaze" or args.sessions):
@@ -708,7 +724,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         seeds = tuple(args.seeds)
         found = make(seeds, plot=str(args.plot) if args.plot else None, **({"viewing": True} if args.viewing else {}))
         found.update(_seeds_block(seeds, args.system))
-        print(_dump(found) if args.json else table(found))
+        print(_dump(found) if args.json else table(found) + "\n" + _seeds_line(seeds))
         if args.plot:
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
         return 0
@@ -722,7 +738,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         found = generic_report(args.system, chosen, args.duration, solvers, **options)
         found.pop("per_seed")
         found.update(_seeds_block(chosen, args.system))
-        print(_dump(found) if args.json else format_generic_report(found))
+        print(_dump(found) if args.json else format_generic_report(found) + "\n" + _seeds_line(chosen))
         if args.plot:
             from .evaluation.runner import solve_session
             from .report.pictures import PICTURES
@@ -741,7 +757,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if args.json:
         print(_dump({**report.as_json(), **_seeds_block(args.seeds, "head")}))
     else:
-        print(report.table())
+        print(report.table() + "\n" + _seeds_line(args.seeds))
     if args.plot:
         path = head_figure(args.seeds[0], args.profile, duration, args.plot)
         print(f"wrote {path}", file=sys.stderr if args.json else sys.stdout)
@@ -888,18 +904,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise FileNotFoundError(f"Oxford recordings not found at {oxford} (use --oxford DIR or --oxford none)")
         seed = (args.seeds or (0,))[0]
         walk = walking.bench_walking(seed, oxford, plaza=not args.no_plaza, plot=args.plot)
-        print(_dump(walk) if args.json else format_walking_table(walk))
+        print(_dump(walk) if args.json else format_walking_table(walk) + "\n" + _seeds_line([seed]) + " (the simulated walks; the recordings: as labelled)")
         return 0
     if args.system == "ultrasonic":
         from .evaluation import ultrasonic
         from .report.ultrasonic import format_ultrasonic_table
 
         counts = tuple(int(x) for x in args.transmitters.split(","))
+        seeds = tuple(args.seeds or (0, 1, 2))
         found = ultrasonic.bench_ultrasonic(
-            counts, tuple(args.seeds or (0, 1, 2)), duration_s=20.0 if args.duration == 600.0 else args.duration,
-            uwb_dir=None if args.uwb == "none" else args.uwb, plot=args.plot,
+            counts, seeds, duration_s=20.0 if args.duration == 600.0 else args.duration, uwb_dir=None if args.uwb == "none" else args.uwb, plot=args.plot,
         )
-        print(_dump(found) if args.json else format_ultrasonic_table(found))
+        print(_dump(found) if args.json else format_ultrasonic_table(found) + "\n" + _seeds_line(seeds) + " (the simulated rows; the LIAS runs: as labelled)")
         return 0
     if args.directory is not None:
         raise ValueError("bench head takes no directory (it simulates its session)")

@@ -336,6 +336,7 @@ def test_bench_on_the_attached_magnet_trial(tmp_path, capsys) -> None:  # type: 
     capsys.readouterr()
     assert main(["report", "attitude9", str(tmp_path / stem), "--solvers", "vqf,online", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
+    assert "tuned.toml [broad_mag]" in report["in_sample"][stem]  # a shared trial: the settings on main were chosen on it
     for method in ("vqf", "online"):
         assert report["methods"][method]["metrics"] == result["methods"][method]["metrics"]
         assert report["sessions"][stem][method]["metrics"] == result["sessions"][stem][method]["metrics"]

@@ -62,6 +62,7 @@ def test_report_without_truth_says_what_it_can(tmp_path: Path, capsys: pytest.Ca
     row = found["sessions"]["s0"]["online"]
     assert row["metrics"] == {} and row["no_truth"]["covered_frac"] > 0.9 and row["no_truth"]["sigma_deg_median"] > 0
     assert found["methods"]["online"]["sessions_scored"] == 0 and found["methods"]["online"]["sessions_failed"] == 0
+    assert found["in_sample"] == {}  # test seed 0: no setting was chosen on it
 
 
 def test_a_declared_gyro_noise_is_honoured_and_a_setting_nobody_reads_is_an_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

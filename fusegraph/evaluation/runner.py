@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..estimate import Estimate, PointEstimate, Result
+from ..provenance import choices_that_saw
 from ..results import flatten
 from ..session import NotApplicableError, Session, SessionError, load_session
 from ..systems.presets import PRESETS, Preset, preset_for
@@ -401,7 +402,7 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]],
 
     jobs = [(name, session, tuple(names), traces is not None) for name, session in sessions]
     jobs = list(costliest_first(jobs, lambda job: _size(job[1]), workers, scheduler))
-    finished: dict[str, tuple[dict[str, dict[str, Any]], list[Any], float, str]] = {}
+    finished: dict[str, tuple[dict[str, dict[str, Any]], list[Any], float, dict[str, str]]] = {}
     for (name, _, _, _), future in progress(completed(_report_one_session, jobs, workers, scheduler), len(jobs), f"report {system}",
                                             enabled=None if show_progress else False):
         finished[name] = future.result()
@@ -423,9 +424,10 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]],
                            "sessions_not_applicable": sum(rows[name][solver]["status"] == "n/a" for name, _ in sessions),
                            "sessions_not_scored": sum("not_scored" in r for r in done),
                            "sessions_suspect": sum("suspect" in r for r in done), "suspect_in_means": include_suspect}
-    datasets = sorted({finished[name][3] for name, _ in sessions} - {""})
+    datasets = sorted({finished[name][3].get("dataset", "") for name, _ in sessions} - {""})
+    saw = {name: choices_that_saw(system, finished[name][3]) for name, _ in sessions}
     return {"system": system, "solvers": names, "metric_keys": list(preset.metric_keys), "sessions": rows, "methods": methods,
-            "datasets": datasets}
+            "datasets": datasets, "in_sample": {name: what for name, what in saw.items() if what}}
 
 
 def _declared_system(directory: Path) -> str | None:
@@ -448,10 +450,11 @@ def _size(session: Session | Path) -> float:
     return path_bytes(session)
 
 
-def _report_one_session(job: tuple[str, Session | Path, tuple[str, ...], bool]) -> tuple[dict[str, dict[str, Any]], list[Any], float, str]:
+def _report_one_session(job: tuple[str, Session | Path, tuple[str, ...], bool]) -> tuple[dict[str, dict[str, Any]], list[Any], float, dict[str, str]]:
     """Worker: every solver on one session (read here when given as a folder), each through ``solve_session`` with its
     warnings; a solver that fails or cannot take the session is a row saying why, and so is every solver of a session that
-    cannot be read. Returns the rows by solver, when asked the traces a page draws, the session's duration (s) and dataset."""
+    cannot be read. Returns the rows by solver, when asked the traces a page draws, the session's duration (s) and its
+    ``[session]`` dataset, trial, subject and simulated seed (those it declares)."""
     import warnings
 
     from ..results import trace_of
@@ -460,7 +463,7 @@ def _report_one_session(job: tuple[str, Session | Path, tuple[str, ...], bool]) 
     try:
         session = source if isinstance(source, Session) else load_session(source)
     except (SessionError, OSError, ValueError) as exc:  # one unreadable session is a row per solver, the report goes on
-        return {solver: {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "metrics": {}} for solver in names}, [], 0.0, ""
+        return {solver: {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "metrics": {}} for solver in names}, [], 0.0, {}
     preset = PRESETS[session.system]
     rows: dict[str, dict[str, Any]] = {}
     traces: list[Any] = []
@@ -490,7 +493,7 @@ def _report_one_session(job: tuple[str, Session | Path, tuple[str, ...], bool]) 
         if unscored:
             row["not_scored"] = unscored
         rows[solver] = row
-    return rows, traces, session.duration_s, str(session.meta.get("session", {}).get("dataset", ""))
+    return rows, traces, session.duration_s, {k: str(v) for k, v in session.meta.get("session", {}).items() if k in ("dataset", "trial", "subject", "seed")}
 
 
 def not_scored_reason(preset: Preset, metrics: dict[str, Any] | None, said: Sequence[str]) -> str | None:

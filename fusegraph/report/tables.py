@@ -18,6 +18,20 @@ def _keys(headline: list[str], rows: list[dict[str, float]]) -> list[str]:
     return keys or sorted(present)
 
 
+def provenance_line(in_sample: dict[str, list[str]], count: int) -> str:
+    """What a report's figures are: which sessions are recordings that settings on main were chosen on (``in_sample``:
+    the choices by session, ``provenance.choices_that_saw``), whose figures are therefore in-sample."""
+    if not in_sample:
+        return "what these figures are: held out: no session is a recording (or simulated seed) any setting on main was chosen on"
+    choices = sorted({what for whats in in_sample.values() for what in whats})
+    studies = [c[len("tuned.toml [") : -1] for c in choices if c.startswith("tuned.toml [")]  # one entry for tuned.toml's studies
+    choices = ([f"tuned.toml [{', '.join(studies)}]"] if studies else []) + [c for c in choices if not c.startswith("tuned.toml [")]
+    names = ", ".join(list(in_sample)[:6]) + (f" and {len(in_sample) - 6} more" if len(in_sample) > 6 else "")
+    return (f"what these figures are: IN-SAMPLE for {len(in_sample)} of the {count} sessions, recordings or simulated seeds that settings on main "
+            "were chosen on "
+            f"({'; '.join(choices)}): {names}" + ("; the others held out" if len(in_sample) < count else ""))
+
+
 def format_session_report(report: dict[str, Any]) -> str:
     """The report as a text table (numbers as the JSON holds them, 4 significant digits), columns as wide as their content;
     a run not scored (a NaN figure) or suspect says why in its row and is counted apart from the means."""
@@ -32,6 +46,7 @@ def format_session_report(report: dict[str, Any]) -> str:
     lines = [f"{system}: {count} session{'s' if count != 1 else ''}; means over the sessions each solver scored"
              + ("" if suspect_in else " (suspect runs left out)")
              + (f"; data: {', '.join(report['datasets'])}" if report.get("datasets") else ""),
+             provenance_line(report.get("in_sample", {}), count),
              f"{'solver':<{width}}" + "".join(f"{k:>{cell}}" for k in keys) + f"{'x real time':>13}{'scored':>8}{'not scored':>12}{'suspect':>9}{'failed':>8}"]
     for name, row in methods.items():
         flat = flatten(row["metrics"])
