@@ -189,6 +189,12 @@ def test_the_gait_solver_reads_its_declared_step_thresholds() -> None:
     accel, gyro = session.synchronous("accel", "gyro")
     cycles = front_end(accel.t, accel.values, gyro.values, WAIST)[1]
     assert set(np.round([c.t for c in cycles], 9)) <= set(np.round(hand, 9))  # the front end's cycles, plus inferred contacts
+    # the settings' search computes what the solver computes, the gravity filter run once
+    from fusegraph.evaluation.gait import Setting, _Searched, fusegraph_counts, reference_of
+
+    for setting in (Setting(), Setting(StepDetection(0.5, 3.0), StepLengthConfig(0.1, 0.5, 4, 1.25, "pendulum"))):
+        searched = _Searched.of(session).counts(setting, reference_of(session))
+        assert searched == fusegraph_counts(declare(session, setting.length, setting.detection))
     with pytest.raises(SessionError, match=r"\[gait\]: unknown key 'peak_threshold' \(did you mean 'peak_threshold_m_s2'\?\)"):
         solve_session(session.with_meta(gait={"peak_threshold": 0.2}), "gait")
 

@@ -120,6 +120,37 @@ def fusegraph_counts(session: Session) -> dict[str, Any]:
     return dict(outcome.metrics["counts"])
 
 
+@dataclass(frozen=True)
+class _Searched:
+    """One recording as the settings' search reads it: ``--solver gait``'s computation with the gravity filter run once
+    (it reads none of the settings searched); the rows a table prints are ``fusegraph_counts``, the solver's own run
+    (a test holds the two equal)."""
+
+    t: np.ndarray
+    accel_m_s2: np.ndarray
+    gyro_rad_s: np.ndarray
+    leg_m: float
+    gravity: np.ndarray
+
+    @classmethod
+    def of(cls, session: Session) -> _Searched:
+        from ..frontends.pdr import gravity_filter
+        from ..systems.walking import WAIST
+
+        accel, gyro = session.synchronous("accel", "gyro")
+        leg = float(session.meta.get("person", {}).get("sensor_height_m", float("nan")))
+        return cls(accel.t, accel.values, gyro.values, leg, gravity_filter(accel.t, accel.values, gyro.values, WAIST))
+
+    def counts(self, setting: Setting, reference: GaitReference) -> dict[str, Any]:
+        """``fusegraph_counts`` of the session declaring ``setting``."""
+        from ..frontends.gait import waist_gait
+        from ..systems.walking import WAIST
+
+        steps, _, stride_t, length, speed = waist_gait(self.t, self.accel_m_s2, self.gyro_rad_s, self.leg_m, setting.detection.front_end(WAIST),
+                                                       setting.length, self.gravity)
+        return score_recording(GaitEstimate(steps, stride_t, length, speed), reference)
+
+
 def mobgap_estimates(directory: str | Path) -> tuple[dict[str, GaitEstimate], dict[str, str]]:
     """mobgap's universal pipeline (its healthy or impaired one by the participant's cohort) on every trial of the folder,
     through mobgap's own reader: the estimates and the pipeline used, by trial name. A trial the pipeline fails on has
@@ -182,10 +213,11 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
     # the settings, leave-one-participant-out, each grid point the sessions declaring it: the step thresholds by step F1,
     # then the step length by stride-length MAE on the thresholds its fold chose
     counted: dict[Setting, dict[str, dict[str, Any]]] = {}
+    searched = {name: _Searched.of(session) for name, (_, session, _) in scored.items()}
 
     def counts(setting: Setting) -> dict[str, dict[str, Any]]:
         if setting not in counted:
-            counted[setting] = {name: fusegraph_counts(declare(session, setting.length, setting.detection)) for name, (_, session, _) in scored.items()}
+            counted[setting] = {name: searched[name].counts(setting, reference) for name, (_, _, reference) in scored.items()}
         return counted[setting]
 
     def f1(detection: StepDetection, names: Sequence[str]) -> float:
@@ -212,7 +244,7 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
                 else Setting(HAND_SET_DETECTION) for subject, others in folds.items()}
     for name, (subject, session, reference) in scored.items():
         # fusegraph: run --solver gait on the session declaring the setting chosen without its participant
-        rows = {"fusegraph": counts(chosen[subject])[name],
+        rows = {"fusegraph": fusegraph_counts(declare(session, chosen[subject].length, chosen[subject].detection)),
                 "paper_speed": score_recording(paper_speed(session), reference),
                 **({"mobgap": score_recording(peer[name], reference)} if name in peer else {})}
         recordings[name] = {"scored": True, "bouts": len(reference.bouts_s), "reference_contacts": len(reference.contacts_s),

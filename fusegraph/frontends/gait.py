@@ -213,11 +213,13 @@ def strides(steps_s: FloatArray, step_m: FloatArray) -> tuple[FloatArray, FloatA
 
 
 def waist_gait(t: FloatArray, accel_m_s2: FloatArray, gyro_rad_s: FloatArray, leg_m: float, front_end: PdrConfig,
-               config: StepLengthConfig = StepLengthConfig()) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray, FloatArray]:
+               config: StepLengthConfig = StepLengthConfig(), gravity: FloatArray | None = None
+               ) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray, FloatArray]:
     """Steps and strides of one lower-back recording: the walking cycles (``pdr.detect_cycles`` with ``front_end``) as
     steps, with the contacts it missed inferred (``with_missed_steps``), their step lengths (``config``), two steps a stride.
+    ``gravity``: ``pdr.gravity_filter``'s output for ``front_end`` when the caller has it (a search over the thresholds).
     Returns (step times, True where inferred, stride times, stride lengths, speeds)."""
-    gravity, cycles = walking_front_end(t, accel_m_s2, gyro_rad_s, front_end)
+    gravity, cycles = walking_front_end(t, accel_m_s2, gyro_rad_s, front_end, gravity)
     steps, inferred = with_missed_steps(np.array([c.t for c in cycles]))
     vertical, _ = vertical_horizontal(accel_m_s2, gravity)
     return (steps, inferred, *strides(steps, step_lengths(t, vertical, steps, leg_m, config)))

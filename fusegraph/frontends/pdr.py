@@ -214,10 +214,12 @@ def _dominant_period(x: FloatArray, fs: float, lo_s: float, hi_s: float) -> floa
     return math.nan
 
 
-def front_end(t: FloatArray, accel: FloatArray, gyro: FloatArray | None, config: PdrConfig = PdrConfig()) -> tuple[FloatArray, list[Cycle]]:
+def front_end(t: FloatArray, accel: FloatArray, gyro: FloatArray | None, config: PdrConfig = PdrConfig(),
+              gravity: FloatArray | None = None) -> tuple[FloatArray, list[Cycle]]:
     """The walking front end of one recording: ``gravity_filter``'s gravity and the ``detect_cycles`` found with it (the
-    filter runs once for everything after it that needs gravity)."""
-    gravity = gravity_filter(t, accel, gyro, config)
+    filter runs once for everything after it that needs gravity; ``gravity``: its output when the caller has it, for the
+    same ``gravity_*`` settings)."""
+    gravity = gravity_filter(t, accel, gyro, config) if gravity is None else gravity
     return gravity, detect_cycles(t, accel, gyro, config, gravity)
 
 
