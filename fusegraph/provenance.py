@@ -9,6 +9,7 @@ that live in code (``GAIT_PARTICIPANTS``, ``PHONE_RECORDINGS``). A session is ma
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -62,11 +63,16 @@ def chosen_on(system: str) -> list[ChosenOn]:
             first, last = (int(x) for x in entry["seeds"])
             out.append(ChosenOn(f"tuned.toml [{study}]", "", "seed", frozenset(str(x) for x in range(first, last + 1))))
     if system == "walking":
-        recordings = json.loads(ACTIVITY_MODEL.read_text()).get("provenance", {}).get("recordings", [])
-        out += [ChosenOn("the activity model (models/activity_waist.json)", "UCI HAPT", "trial", frozenset(recordings)),
+        out += [ChosenOn("the activity model (models/activity_waist.json)", "UCI HAPT", "trial", _activity_recordings()),
                 ChosenOn("--solver gait's defaults (frontends.gait)", "Mobilise-D", "subject", frozenset(GAIT_PARTICIPANTS)),
                 ChosenOn("--solver steps's peak threshold (frontends.pdr.PHONE)", "Oxford", "trial", frozenset(PHONE_RECORDINGS))]
     return out
+
+
+@functools.cache
+def _activity_recordings() -> frozenset[str]:
+    """The HAPT recordings the activity model was fitted on (read once: the model is ~0.5 MB)."""
+    return frozenset(json.loads(ACTIVITY_MODEL.read_text()).get("provenance", {}).get("recordings", []))
 
 
 def choices_that_saw(system: str, header: Mapping[str, Any]) -> list[str]:

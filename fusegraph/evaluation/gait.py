@@ -137,9 +137,11 @@ class _Searched:
         from ..frontends.pdr import gravity_filter
         from ..systems.walking import WAIST
 
+        leg = session.meta.get("person", {}).get("sensor_height_m")
+        if leg is None:
+            fusegraph_counts(session)  # the solver's own error: it needs the sensor's height
         accel, gyro = session.synchronous("accel", "gyro")
-        leg = float(session.meta.get("person", {}).get("sensor_height_m", float("nan")))
-        return cls(accel.t, accel.values, gyro.values, leg, gravity_filter(accel.t, accel.values, gyro.values, WAIST))
+        return cls(accel.t, accel.values, gyro.values, float(leg), gravity_filter(accel.t, accel.values, gyro.values, WAIST))
 
     def counts(self, setting: Setting, reference: GaitReference) -> dict[str, Any]:
         """``fusegraph_counts`` of the session declaring ``setting``."""
