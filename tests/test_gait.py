@@ -195,6 +195,11 @@ def test_the_gait_solver_reads_its_declared_step_thresholds() -> None:
     for setting in (Setting(), Setting(StepDetection(0.5, 3.0), StepLengthConfig(0.1, 0.5, 4, 1.25, "pendulum"))):
         searched = _Searched.of(session).counts(setting, reference_of(session))
         assert searched == fusegraph_counts(declare(session, setting.length, setting.detection))
+    # a value that is no number, or below its least, is an error naming the key (not a bare conversion error)
+    for table, wrong in (({"peak_threshold_m_s2": "high"}, "not a number"), ({"forward_slope_m_s3": -1.0}, "must be at least 0"),
+                         ({"correction": 0.0}, "must be above 0")):
+        with pytest.raises(ValueError, match=wrong):
+            solve_session(session.with_meta(gait=table), "gait")
     with pytest.raises(SessionError, match=r"\[gait\]: unknown key 'peak_threshold' \(did you mean 'peak_threshold_m_s2'\?\)"):
         solve_session(session.with_meta(gait={"peak_threshold": 0.2}), "gait")
 

@@ -164,6 +164,8 @@ def test_import_oxford_counts_steps_through_run(tmp_path: Path, capsys: pytest.C
     session = load_session(tmp_path / name)
     strict = solve_session(session.with_meta(steps={"peak_threshold_m_s2": 2.0}), "steps").estimate.extras["steps"]
     assert strict < 0.7 * 248, strict
+    with pytest.raises(ValueError, match=r"\[steps\] peak_threshold_m_s2 = '0.5 m/s\^2': not a number"):
+        solve_session(session.with_meta(steps={"peak_threshold_m_s2": "0.5 m/s^2"}), "steps")
     assert main(["run", str(tmp_path / name), "--solver", "batch"]) != 0  # trajectories need the gyro: a clear error, not a traceback
     assert "no gyro stream" in capsys.readouterr().err
 

@@ -36,7 +36,7 @@ import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from ..geometry import FloatArray
-from .pdr import PdrConfig, vertical_horizontal
+from .pdr import PdrConfig, declared_number, vertical_horizontal
 from .pdr import front_end as walking_front_end
 
 CORRECTION = 1.25
@@ -80,6 +80,9 @@ class StepLengthConfig:
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise ValueError(f"step-length model {self.model!r}: one of {', '.join(MODELS)}")
+        if not (self.highpass_hz > 0 and self.correction > 0 and self.order >= 1 and (self.accel_highpass_hz is None or self.accel_highpass_hz > 0)):
+            raise ValueError(f"step length: highpass_hz {self.highpass_hz:g}, accel_highpass_hz {self.accel_highpass_hz}, correction "
+                             f"{self.correction:g} must be above 0 and order {self.order} at least 1")
 
 
 CORNERS_HZ = (0.5, 0.7, 1.0, 1.2)
@@ -139,9 +142,13 @@ def declared_settings(meta: Mapping[str, Any], front_end: PdrConfig) -> tuple[Pd
     ``front_end`` with the step thresholds (``StepDetection``) and the step length, the defaults where a key is absent
     (the catalogue refuses a key that is none of these fields)."""
     declared: Mapping[str, Any] = meta.get("gait", {})
-    length_keys, detection_keys = {f.name for f in fields(StepLengthConfig)}, {f.name for f in fields(StepDetection)}
-    length = replace(StepLengthConfig(), **{k: type(getattr(StepLengthConfig(), k))(v) for k, v in declared.items() if k in length_keys})  # field types
-    return replace(StepDetection(), **{k: float(v) for k, v in declared.items() if k in detection_keys}).front_end(front_end), length
+    detection_keys = {f.name for f in fields(StepDetection)}
+    numbers = {k: declared_number("gait", k, v) for k, v in declared.items() if k != "model"}  # every other setting is a number >= 0
+    length_fields: dict[str, Any] = {k: int(v) if k == "order" else v for k, v in numbers.items() if k not in detection_keys}
+    if "model" in declared:
+        length_fields["model"] = str(declared["model"])
+    detection = replace(StepDetection(), **{k: v for k, v in numbers.items() if k in detection_keys})
+    return detection.front_end(front_end), replace(StepLengthConfig(), **length_fields)
 
 
 def with_missed_steps(steps_s: FloatArray) -> tuple[FloatArray, np.ndarray]:

@@ -367,11 +367,22 @@ PHONE_PEAK_THRESHOLDS_M_S2 = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 1.0, 1.5, 
 """The phone's peak thresholds ``bench walking`` tries (``[steps] peak_threshold_m_s2``); a tie goes to the first."""
 
 
+def declared_number(table: str, key: str, value: Any, least: float = 0.0) -> float:
+    """A number a session declares in ``[table] key``, at least ``least``; a ValueError naming the key otherwise."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"[{table}] {key} = {value!r}: not a number") from None
+    if not number >= least:  # NaN too
+        raise ValueError(f"[{table}] {key} = {value!r}: must be at least {least:g}")
+    return number
+
+
 def phone_config(meta: Mapping[str, Any]) -> PdrConfig:
     """``PHONE`` with the peak threshold a session declares (``[steps] peak_threshold_m_s2``), which ``--solver steps``
     reads."""
     declared = meta.get("steps", {}).get("peak_threshold_m_s2")
-    return PHONE if declared is None else replace(PHONE, peak_threshold_m_s2=float(declared))
+    return PHONE if declared is None else replace(PHONE, peak_threshold_m_s2=declared_number("steps", "peak_threshold_m_s2", declared))
 
 
 def step_times(t: FloatArray, accel: FloatArray, config: PdrConfig = PHONE) -> FloatArray:
