@@ -687,10 +687,10 @@ def _seeds_line(seeds: Any) -> str:
 
     chosen = sorted(int(x) for x in seeds)
     tuning = sorted(set(chosen) & set(TUNING_SEEDS))
-    where = f"simulated seeds {_seed_text(chosen)}"
+    where = f"simulated seed{'s' if len(chosen) > 1 else ''} {_seed_text(chosen)}"
     if tuning:
         return f"what these figures are: {where}, IN-SAMPLE on {_seed_text(tuning)} (the tuning seeds settings were chosen on)"
-    return f"what these figures are: {where}, test seeds (the simulated settings were chosen on tuning seeds {_seed_text(list(TUNING_SEEDS))})"
+    return f"what these figures are: {where}, held out (the simulated settings were chosen on tuning seeds {_seed_text(list(TUNING_SEEDS))})"
 
 
 def _seed_text(seeds: list[int]) -> str:

@@ -36,3 +36,12 @@ def test_the_report_line_says_in_sample_for_which_sessions() -> None:
     assert provenance_line({}, 3).startswith("what these figures are: held out")
     line = provenance_line({"a": ["tuned.toml [broad_mag]", "tuned.toml [broad_bias]"], "b": ["tuned.toml [broad_mag]"]}, 3)
     assert "IN-SAMPLE for 2 of the 3 sessions" in line and "(tuned.toml [broad_bias, broad_mag]): a, b; the others held out" in line
+
+
+def test_a_simulated_report_says_whether_its_seeds_are_held_out() -> None:
+    from fusegraph.cli import _seeds_line
+
+    assert _seeds_line(range(10)) == ("what these figures are: simulated seeds 0-9, held out (the simulated settings were chosen on tuning "
+                                      "seeds 100-119)")
+    assert _seeds_line([3]).startswith("what these figures are: simulated seed 3, held out")
+    assert _seeds_line([7, 104, 105]).endswith("simulated seeds 7, 104, 105, IN-SAMPLE on 104-105 (the tuning seeds settings were chosen on)")
