@@ -45,3 +45,12 @@ def test_a_simulated_report_says_whether_its_seeds_are_held_out() -> None:
                                       "seeds 100-119)")
     assert _seeds_line([3]).startswith("what these figures are: simulated seed 3, held out")
     assert _seeds_line([7, 104, 105]).endswith("simulated seeds 7, 104, 105, IN-SAMPLE on 104-105 (the tuning seeds settings were chosen on)")
+
+
+def test_the_page_marks_an_in_sample_session_where_it_is_drawn(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from fusegraph.report.html import write_html
+
+    report = {"system": "attitude9", "sessions": {"a": {}, "b": {}}, "in_sample": {"a": ["tuned.toml [broad_mag]"]}}
+    text = write_html(report, "table", {"a": [], "b": []}, tmp_path / "r.html").read_text()
+    a, b = text.index("<h2 id='a'>"), text.index("<h2 id='b'>")
+    assert text.count("IN-SAMPLE") == 1 and a < text.index("IN-SAMPLE: settings on main were chosen on this recording (tuned.toml [broad_mag])") < b

@@ -64,6 +64,9 @@ def write_html(report: Mapping[str, Any], table: str, traces: Mapping[str, Seque
              f"<pre class='table'>{html.escape(table)}</pre>"]
     for name, session_traces in traces.items():
         parts.append(f"<h2 id='{html.escape(name)}'>{html.escape(name)}</h2>")
+        if report.get("in_sample", {}).get(name):  # its figures are in-sample: say so where they are drawn
+            parts.append("<p class='in-sample'>IN-SAMPLE: settings on main were chosen on this recording ("
+                         + html.escape("; ".join(report["in_sample"][name])) + ")</p>")
         said = sorted({w for row in report["sessions"].get(name, {}).values() for w in row.get("warnings", [])})
         failed = [f"{solver}: {row['error']}" for solver, row in report["sessions"].get(name, {}).items() if row.get("status") == "failed"]
         if said or failed:
