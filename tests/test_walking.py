@@ -184,9 +184,13 @@ def test_oxford_step_counts_within_three_percent(tmp_path, capsys) -> None:  # t
         assert isinstance(counted, int) and isinstance(true, int)
         assert abs(counted - true) <= 0.03 * true, (name, counted, true)
         assert row["peak_threshold_in_sample_m_s2"] == PHONE.peak_threshold_m_s2
-        assert report["sessions"][name]["steps"]["metrics"]["steps"] == row["counted_in_sample"]
+        assert report["sessions"][name]["steps"]["metrics"]["steps"] == row["counted_in_sample"] == row["counted_by_peak"][str(PHONE.peak_threshold_m_s2)]
         # the insoles are the dataset's reference instrument: their heel contacts are the manual count
         assert row["foot_switches"] == true, (name, row["foot_switches"], true)
+    from fusegraph.report.walking import plot_oxford
+
+    plot_oxford(bench, tmp_path / "oxford.png")  # bench walking --plot's picture of the search
+    assert (tmp_path / "oxford.png").stat().st_size > 10_000
 
 
 def test_foot_switch_steps_are_heel_contacts_of_both_feet(tmp_path: object) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -11,7 +12,7 @@ from ..datasets import steps_oxford
 from ..estimate import PointEstimate
 from ..frontends.pdr import Cycle, Ride, front_end
 from ..records import ACTIVITIES, WalkingSession
-from ..report.walking import plot_gait_statistics, plot_walk
+from ..report.walking import plot_gait_statistics, plot_oxford, plot_walk
 from ..results import WALK_METHODS as METHODS
 from ..results import WalkRun
 from ..scenarios.walking import WalkingScenarioConfig, calibrated_speed, session_of_walk, simulate_walking
@@ -74,19 +75,22 @@ def bench_walking(seed: int = 0, oxford_dir: Path | None = steps_oxford.DEFAULT_
         plot_gait_statistics(steps, STEP_STATISTICS, plot.with_name(f"{plot.stem}_gait{plot.suffix}"))
     oxford = bench_oxford(Path(oxford_dir)) if oxford_dir is not None and Path(oxford_dir).is_dir() else {}
     out["oxford"] = oxford
+    if plot is not None and oxford:
+        plot_oxford(oxford, plot.with_name(f"{plot.stem}_oxford{plot.suffix}"))
     if plaza:
         out["plaza"] = plaza_system.bench_plaza()
     return out
 
 
-def bench_oxford(directory: Path) -> dict[str, dict[str, int | float | str | None]]:
+def bench_oxford(directory: Path) -> dict[str, dict[str, Any]]:
     """Every Oxford recording imported (as ``import oxford`` writes it) and counted by the walking preset's ``steps``
     solver (``report walking DIR --solvers steps``), its peak threshold chosen by leave-one-recording-out: each
     recording is counted with the threshold of ``pdr.PHONE_PEAK_THRESHOLDS_M_S2`` whose mean absolute count error on the
     OTHER recordings is least (declared as ``[steps] peak_threshold_m_s2``): ``counted`` and ``peak_threshold_m_s2``.
-    ``counted_in_sample``: with the threshold chosen on every recording. Beside them the true count, the insoles' count and
-    where the phone was carried. ``phone``: the phone's own step counter, which these recordings do not hold
-    (stepcounter.csv is the foot switches, see datasets.steps_oxford); null rather than a guess."""
+    ``counted_in_sample``: with the threshold chosen on every recording; ``counted_by_peak``: at every threshold. Beside
+    them the true count, the insoles' count and where the phone was carried. ``phone``: the phone's own step counter,
+    which these recordings do not hold (stepcounter.csv is the foot switches, see datasets.steps_oxford); null rather
+    than a guess."""
     from ..datasets.importers import oxford_sessions
     from ..frontends.pdr import PHONE_PEAK_THRESHOLDS_M_S2
 
@@ -103,13 +107,13 @@ def bench_oxford(directory: Path) -> dict[str, dict[str, int | float | str | Non
 
     everyone = [name for name, _ in recorded]
     in_sample = chosen(everyone)
-    out: dict[str, dict[str, int | float | str | None]] = {}
+    out: dict[str, dict[str, Any]] = {}
     for name, phone in recorded:
         peak = chosen([n for n in everyone if n != name]) if len(everyone) > 1 else in_sample
         extra = phone.meta.get("truth_extra", {})
         out[name] = {"true": true[name], "counted": counted[peak][name], "peak_threshold_m_s2": peak, "counted_in_sample": counted[in_sample][name],
-                     "peak_threshold_in_sample_m_s2": in_sample, "phone": None, "foot_switches": extra.get("foot_switch_steps"),
-                     "position": str(phone.meta["session"]["placement"])}
+                     "peak_threshold_in_sample_m_s2": in_sample, "counted_by_peak": {str(p): counted[p][name] for p in PHONE_PEAK_THRESHOLDS_M_S2},
+                     "phone": None, "foot_switches": extra.get("foot_switch_steps"), "position": str(phone.meta["session"]["placement"])}
     return out
 
 

@@ -52,6 +52,28 @@ def plot_gait_statistics(rows: dict[str, dict[str, np.ndarray]], names: tuple[st
     save_figure(fig, path)
 
 
+def plot_oxford(oxford: dict[str, dict[str, object]], path: Path) -> None:
+    """Each Oxford recording's count error against the phone's peak threshold (the search ``bench walking`` makes), the
+    threshold chosen without the recording marked, and the hand count's 0."""
+    from ..report.plots import plt, save_figure  # headless pyplot
+
+    fig, ax = plt.subplots(figsize=(9, 5))
+    for name, row in oxford.items():
+        by_peak = row["counted_by_peak"]
+        assert isinstance(by_peak, dict)
+        true = float(row["true"])  # type: ignore[arg-type]
+        peaks = np.array([float(p) for p in by_peak])
+        error = 100.0 * (np.array([float(c) for c in by_peak.values()]) - true) / true
+        (line,) = ax.plot(peaks, error, "o-", ms=3, lw=1, label=name)
+        chosen = float(row["peak_threshold_m_s2"])  # type: ignore[arg-type]
+        ax.plot([chosen], [100.0 * (float(row["counted"]) - true) / true], "s", ms=9, mfc="none", color=line.get_color())  # type: ignore[arg-type]
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set(xscale="log", xlabel="peak threshold (m/s^2)", ylabel="count error vs the hand count (%)", ylim=(-20, 10),
+           title="Oxford phone steps: count error per peak threshold\nsquare: the threshold chosen without the recording (cross-validated)")
+    ax.legend(fontsize=7)
+    save_figure(fig, path)
+
+
 def format_walking_table(result: dict[str, object]) -> str:
     """The bench's tables as text."""
     lines = []
