@@ -681,20 +681,11 @@ def _seeds_block(seeds: Any, system: str) -> dict[str, Any]:
     return {"seeds": chosen, "tuning_seeds": list(TUNING_SEEDS), "settings": settings_of(system)}
 
 
-def _seeds_line(seeds: Any) -> str:
-    """What a simulated report's figures are: test seeds, or in-sample where they are tuning seeds."""
-    from .evaluation.tuning import TUNING_SEEDS
+def _seeds_label(seeds: Any) -> str:
+    """``evaluation.tuning.seeds_label`` (imported when a report prints)."""
+    from .evaluation.tuning import seeds_label as label
 
-    chosen = sorted(int(x) for x in seeds)
-    tuning = sorted(set(chosen) & set(TUNING_SEEDS))
-    where = f"simulated seed{'s' if len(chosen) > 1 else ''} {_seed_text(chosen)}"
-    if tuning:
-        return f"what these figures are: {where}, IN-SAMPLE on {_seed_text(tuning)} (the tuning seeds settings were chosen on)"
-    return f"what these figures are: {where}, held out (the simulated settings were chosen on tuning seeds {_seed_text(list(TUNING_SEEDS))})"
-
-
-def _seed_text(seeds: list[int]) -> str:
-    return f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1 else ", ".join(map(str, seeds))
+    return label(seeds)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -724,7 +715,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         seeds = tuple(args.seeds)
         found = make(seeds, plot=str(args.plot) if args.plot else None, **({"viewing": True} if args.viewing else {}))
         found.update(_seeds_block(seeds, args.system))
-        print(_dump(found) if args.json else table(found) + "\n" + _seeds_line(seeds))
+        print(_dump(found) if args.json else table(found) + "\n" + _seeds_label(seeds))
         if args.plot:
             print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
         return 0
@@ -738,7 +729,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         found = generic_report(args.system, chosen, args.duration, solvers, **options)
         found.pop("per_seed")
         found.update(_seeds_block(chosen, args.system))
-        print(_dump(found) if args.json else format_generic_report(found) + "\n" + _seeds_line(chosen))
+        print(_dump(found) if args.json else format_generic_report(found) + "\n" + _seeds_label(chosen))
         if args.plot:
             from .evaluation.runner import solve_session
             from .report.pictures import PICTURES
@@ -757,7 +748,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if args.json:
         print(_dump({**report.as_json(), **_seeds_block(args.seeds, "head")}))
     else:
-        print(report.table() + "\n" + _seeds_line(args.seeds))
+        print(report.table() + "\n" + _seeds_label(args.seeds))
     if args.plot:
         path = head_figure(args.seeds[0], args.profile, duration, args.plot)
         print(f"wrote {path}", file=sys.stderr if args.json else sys.stdout)
@@ -904,7 +895,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise FileNotFoundError(f"Oxford recordings not found at {oxford} (use --oxford DIR or --oxford none)")
         seed = (args.seeds or (0,))[0]
         walk = walking.bench_walking(seed, oxford, plaza=not args.no_plaza, plot=args.plot)
-        print(_dump(walk) if args.json else format_walking_table(walk) + "\n" + _seeds_line([seed]) + " (the simulated walks; the recordings: as labelled)")
+        print(_dump(walk) if args.json else format_walking_table(walk) + "\n" + _seeds_label([seed]) + " (the simulated walks; the recordings: as labelled)")
         return 0
     if args.system == "ultrasonic":
         from .evaluation import ultrasonic
@@ -915,7 +906,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         found = ultrasonic.bench_ultrasonic(
             counts, seeds, duration_s=20.0 if args.duration == 600.0 else args.duration, uwb_dir=None if args.uwb == "none" else args.uwb, plot=args.plot,
         )
-        print(_dump(found) if args.json else format_ultrasonic_table(found) + "\n" + _seeds_line(seeds) + " (the simulated rows; the LIAS runs: as labelled)")
+        print(_dump(found) if args.json else format_ultrasonic_table(found) + "\n" + _seeds_label(seeds) + " (the simulated rows; the LIAS runs: as labelled)")
         return 0
     if args.directory is not None:
         raise ValueError("bench head takes no directory (it simulates its session)")

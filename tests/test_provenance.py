@@ -39,12 +39,12 @@ def test_the_report_line_says_in_sample_for_which_sessions() -> None:
 
 
 def test_a_simulated_report_says_whether_its_seeds_are_held_out() -> None:
-    from fusegraph.cli import _seeds_line
+    from fusegraph.evaluation.tuning import seeds_label
 
-    assert _seeds_line(range(10)) == ("what these figures are: simulated seeds 0-9, held out (the simulated settings were chosen on tuning "
+    assert seeds_label(range(10)) == ("what these figures are: simulated seeds 0-9, held out (the simulated settings were chosen on tuning "
                                       "seeds 100-119)")
-    assert _seeds_line([3]).startswith("what these figures are: simulated seed 3, held out")
-    assert _seeds_line([7, 104, 105]).endswith("simulated seeds 7, 104, 105, IN-SAMPLE on 104-105 (the tuning seeds settings were chosen on)")
+    assert seeds_label([3]).startswith("what these figures are: simulated seed 3, held out")
+    assert seeds_label([7, 104, 105]).endswith("simulated seeds 7, 104, 105, IN-SAMPLE on 104-105 (the tuning seeds settings were chosen on)")
 
 
 def test_the_page_marks_an_in_sample_session_where_it_is_drawn(tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -29,6 +29,20 @@ TEST_SEEDS: tuple[int, ...] = tuple(range(10))
 """Seeds reports and benches score (never used to choose a setting)."""
 
 
+def seeds_label(seeds: Any) -> str:
+    """What a simulated report's figures are: held-out test seeds, or in-sample where they are tuning seeds."""
+    chosen = sorted(int(x) for x in seeds)
+    tuning = sorted(set(chosen) & set(TUNING_SEEDS))
+    where = f"simulated seed{'s' if len(chosen) > 1 else ''} {_seed_text(chosen)}"
+    if tuning:
+        return f"what these figures are: {where}, IN-SAMPLE on {_seed_text(tuning)} (the tuning seeds settings were chosen on)"
+    return f"what these figures are: {where}, held out (the simulated settings were chosen on tuning seeds {_seed_text(list(TUNING_SEEDS))})"
+
+
+def _seed_text(seeds: list[int]) -> str:
+    return f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1 else ", ".join(map(str, seeds))
+
+
 @dataclass(frozen=True)
 class Study:
     """One tuning study: a grid of settings and the score (lower is better) of one setting on one seed."""
