@@ -232,3 +232,11 @@ def test_a_trial_the_peer_fails_on_is_said_and_left_out(monkeypatch: pytest.Monk
     estimates, used = mobgap_estimates(DEFAULT_DIR)
     assert not estimates and len(used) == 6 and all(v == "failed: ValueError: no lower-back sensor" for v in used.values())
     assert "HA_001_Test5_Trial1 failed: ValueError: no lower-back sensor" in _pipelines_text(used)
+
+
+def test_the_hand_set_thresholds_are_the_walking_front_ends() -> None:
+    """What bench gait scores as hand-set is what the walking front end (the activity classifier's cycles) runs with."""
+    from fusegraph.frontends.gait import HAND_SET_DETECTION
+    from fusegraph.systems.walking import WAIST
+
+    assert HAND_SET_DETECTION.front_end(WAIST) == WAIST

@@ -129,10 +129,11 @@ FORWARD_SLOPES_M_S3 = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)
 """The forward rise thresholds tried, around the front end's hand-set 1.5 m/s^3; 0 is the forward test off. First 0.5-3:
 with the peaks widened the in-sample choice lay at 0.5, so 0 was added; 4-6 m/s^3 were tried above and chosen by no
 fold (HA/002 alone: 0.556 at 4, against 0.691 at 3)."""
-HAND_SET_DETECTION = StepDetection(PdrConfig.peak_threshold_m_s2, PdrConfig.forward_slope_m_s3)
+HAND_SET_DETECTION = StepDetection(0.3, 1.5)
 """The walking front end's thresholds as they were set by hand when the walking system was written (2026-11-22, on its
 simulated walks, before any Mobilise-D recording was read), which ``systems.walking.WAIST`` keeps for the activity
-classifier's cycles: ``bench gait`` scores them beside the chosen ones."""
+classifier's cycles (``PdrConfig``'s defaults, written out here so that this stays what was set by hand if those
+change): ``bench gait`` scores them beside the chosen ones."""
 STEP_DETECTION_GRID = tuple(StepDetection(p, s) for p in PEAK_THRESHOLDS_M_S2 for s in FORWARD_SLOPES_M_S3)
 """Every pair; a tie in F1 goes to the first in this order."""
 
