@@ -380,6 +380,8 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]],
     without truth gets ``metrics: {}`` and ``no_truth`` (the estimate's own sigma, the fraction of samples it covers); a
     solver that fails is a row with its error; a run whose headline metric is NaN is ``not_scored`` with the reason, and a
     ``suspect`` run (its own diagnostics) stays out of the means unless ``include_suspect``: neither is averaged silently.
+    ``in_sample``: the sessions that are recordings (or simulated seeds) a setting on main was chosen on, with the choices
+    (``provenance.choices_that_saw``): their figures are in-sample.
     ``traces``: a dict to fill with each session's ``results.Trace`` per solver that ran (what ``report --html`` draws).
     ``workers``/``scheduler``: sessions in parallel (processes, or Dask: ``local`` or ``tcp://host:port``), gathered in
     the order of the sessions. A session given as its folder (``named_session_dirs``) is read by the worker that runs it, so
