@@ -44,9 +44,11 @@ class ChosenOn:
     """The recordings' trials (or subjects)."""
 
 
-def chosen_on(system: str) -> list[ChosenOn]:
-    """Every choice the system's methods run with and the recordings (or simulated seeds) it was made on."""
-    out = []
+@functools.cache
+def chosen_on(system: str) -> tuple[ChosenOn, ...]:
+    """Every choice the system's methods run with and the recordings (or simulated seeds) it was made on (made once per
+    process: a report asks it for every session)."""
+    out: list[ChosenOn] = []
     studies = SYSTEM_STUDIES.get(system, ())
     if system == "gaze":  # its head is the 9-axis estimate's graph with that system's settings (systems.gaze)
         studies = (*studies, *SYSTEM_STUDIES["attitude9"])
@@ -66,7 +68,7 @@ def chosen_on(system: str) -> list[ChosenOn]:
         out += [ChosenOn("the activity model (models/activity_waist.json)", "UCI HAPT", "trial", _activity_recordings()),
                 ChosenOn("--solver gait's defaults (frontends.gait)", "Mobilise-D", "subject", frozenset(GAIT_PARTICIPANTS)),
                 ChosenOn("--solver steps's peak threshold (frontends.pdr.PHONE)", "Oxford", "trial", frozenset(PHONE_RECORDINGS))]
-    return out
+    return tuple(out)
 
 
 @functools.cache
