@@ -167,7 +167,7 @@ def test_import_mobgap_and_bench_gait_on_the_sessions(tmp_path: Path, capsys: py
 @requires_shared_data("mobgap")
 def test_the_gait_solver_reads_its_declared_step_thresholds() -> None:
     """``[gait] peak_threshold_m_s2`` / ``forward_slope_m_s3`` reach the step detector (a stricter threshold finds fewer
-    steps, and the hand-set pair gives what the walking front end's own cycles give); a key that is no setting is an
+    steps, and the walking front end's own cycles are among the default thresholds' steps); a key that is no setting is an
     error naming it, and declaring keeps the session's checks made once."""
     from fusegraph.datasets.mobgap_lab import DEFAULT_DIR, mobgap_sessions
     from fusegraph.evaluation.gait import declare
@@ -184,11 +184,14 @@ def test_the_gait_solver_reads_its_declared_step_thresholds() -> None:
         assert declared.__dict__.get("_validation_warnings") is not None  # checked once, for the original and its copy
         return np.asarray(solve_session(declared, "gait").estimate.extras["steps_s"])
 
-    loose, strict, hand = steps(StepDetection(0.1, 0.5)), steps(StepDetection(0.5, 3.0)), steps(HAND_SET_DETECTION)
+    loose, strict, hand = steps(StepDetection(0.05, 0.0)), steps(StepDetection(0.5, 3.0)), steps(HAND_SET_DETECTION)
     assert len(strict) < len(hand) < len(loose)
+    # one step detector: the walking front end (the activity classifier's cycles) runs with the solver's default thresholds
     accel, gyro = session.synchronous("accel", "gyro")
     cycles = front_end(accel.t, accel.values, gyro.values, WAIST)[1]
-    assert set(np.round([c.t for c in cycles], 9)) <= set(np.round(hand, 9))  # the front end's cycles, plus inferred contacts
+    chosen = steps(StepDetection())
+    assert set(np.round([c.t for c in cycles], 9)) <= set(np.round(chosen, 9))  # the front end's cycles, plus inferred contacts
+    assert not set(np.round([c.t for c in cycles], 9)) <= set(np.round(strict, 9))
     # the settings' search computes what the solver computes, the gravity filter run once
     from fusegraph.evaluation.gait import Setting, _Searched, fusegraph_counts, reference_of
 
@@ -233,10 +236,3 @@ def test_a_trial_the_peer_fails_on_is_said_and_left_out(monkeypatch: pytest.Monk
     assert not estimates and len(used) == 6 and all(v == "failed: ValueError: no lower-back sensor" for v in used.values())
     assert "HA_001_Test5_Trial1 failed: ValueError: no lower-back sensor" in _pipelines_text(used)
 
-
-def test_the_hand_set_thresholds_are_the_walking_front_ends() -> None:
-    """What bench gait scores as hand-set is what the walking front end (the activity classifier's cycles) runs with."""
-    from fusegraph.frontends.gait import HAND_SET_DETECTION
-    from fusegraph.systems.walking import WAIST
-
-    assert HAND_SET_DETECTION.front_end(WAIST) == WAIST

@@ -18,7 +18,7 @@ Rows:
   in order: the step thresholds from ``frontends.gait.STEP_DETECTION_GRID`` by step F1, then the step-length model, its
   drift removal and its scale from ``STEP_LENGTH_GRID`` by stride-length MAE on the thresholds just chosen. The held-out
   participant's rows are its sessions DECLARING the settings chosen on the others (``[gait]``); the in-sample choice is
-  printed beside, and so are the walking front end's hand-set thresholds with the step length chosen the same way. A
+  printed beside, and so are the step thresholds as first set by hand with the step length chosen the same way. A
   folder of one participant is scored with the settings on main (``Setting()``).
 * ``paper_speed``: the walking paper's speed regression on the vertical peak-to-peak acceleration (``pdr.SpeedModel``)
   UNCALIBRATED: its per-person fit needs a calibration walk at known speeds, and these recordings have none outside the
@@ -77,12 +77,13 @@ def reference_of(session: Session) -> GaitReference:
 
 def paper_speed(session: Session) -> GaitEstimate:
     """The walking paper's speed regression (``pdr.SpeedModel``, uncalibrated) on the walking preset's cycles
-    (``pdr.detect_cycles`` with ``systems.walking.WAIST``): a step per cycle, speed x two cycle times a stride."""
+    (``pdr.detect_cycles`` with ``systems.walking.WAIST``, its step thresholds as set by hand, ``HAND_SET_DETECTION``: the
+    walking front end's are chosen on these participants): a step per cycle, speed x two cycle times a stride."""
     from ..frontends.pdr import SpeedModel, detect_cycles
     from ..systems.walking import WAIST
 
     accel, gyro = session.synchronous("accel", "gyro")
-    cycles = detect_cycles(accel.t, accel.values, gyro.values, WAIST)
+    cycles = detect_cycles(accel.t, accel.values, gyro.values, HAND_SET_DETECTION.front_end(WAIST))
     steps = np.array([c.t for c in cycles])
     speed = np.array([SpeedModel().speed(c.vertical_pp_m_s2) for c in cycles])
     return GaitEstimate(steps, steps, speed * 2.0 * np.array([c.period_s for c in cycles]), speed)
@@ -381,7 +382,7 @@ def format_gait(result: dict[str, Any]) -> str:
                      f"stride MAE {ours['stride_length_mae_m_in_sample']:.3f} m); on main {step_length['on_main']}")
     hand = ours.get("hand_set_thresholds")
     if hand:
-        lines.append(f"    with the walking front end's thresholds as set by hand ({HAND_SET_DETECTION.peak_threshold_m_s2:g} m/s^2, "
+        lines.append(f"    with the step thresholds as first set by hand ({HAND_SET_DETECTION.peak_threshold_m_s2:g} m/s^2, "
                      f"{HAND_SET_DETECTION.forward_slope_m_s3:g} m/s^3; no rule chose them) and the step length {rule.split(' (')[0]}: "
                      f"step F1 {cell(hand['step_f1'], '.3f')}, stride MAE {cell(hand['stride_length_mae_m'], '.3f')} m, "
                      f"speed MAE {cell(hand['walking_speed_mae_m_s'], '.3f')} m/s")

@@ -112,10 +112,11 @@ class StepDetection:
     m/s^2 and 1.5 m/s^3, HA/002 0.2 and 3); the hand-set ``HAND_SET_DETECTION`` scores 0.825 there, and its strides
     are better (see ``StepLengthConfig``)."""
 
-    peak_threshold_m_s2: float = 0.1
-    """A vertical peak (positive or negative) must exceed this, m/s^2."""
-    forward_slope_m_s3: float = 0.5
-    """The forward rise from its valley to its peak must be this steep at least, m/s^3."""
+    peak_threshold_m_s2: float = PdrConfig.peak_threshold_m_s2
+    """A vertical peak (positive or negative) must exceed this, m/s^2 (``PdrConfig``'s default holds the choice: the
+    walking front end runs with it too)."""
+    forward_slope_m_s3: float = PdrConfig.forward_slope_m_s3
+    """The forward rise from its valley to its peak must be this steep at least, m/s^3 (as ``peak_threshold_m_s2``)."""
 
     def front_end(self, base: PdrConfig) -> PdrConfig:
         """``base`` with these thresholds."""
@@ -131,9 +132,10 @@ with the peaks widened the in-sample choice lay at 0.5, so 0 was added; 4-6 m/s^
 fold (HA/002 alone: 0.556 at 4, against 0.691 at 3)."""
 HAND_SET_DETECTION = StepDetection(0.3, 1.5)
 """The walking front end's thresholds as they were set by hand when the walking system was written (2026-11-22, on its
-simulated walks, before any Mobilise-D recording was read), which ``systems.walking.WAIST`` keeps for the activity
-classifier's cycles (``PdrConfig``'s defaults, written out here so that this stays what was set by hand if those
-change): ``bench gait`` scores them beside the chosen ones."""
+simulated walks, before any Mobilise-D recording was read; ``PdrConfig``'s defaults until 2026-11-29, when the walking
+front end took the chosen ones): ``bench gait`` scores them beside the chosen ones, and the walking paper's speed row
+(``evaluation.gait.paper_speed``) runs with them, so that no threshold of a peer's row is chosen on the scored
+participants."""
 STEP_DETECTION_GRID = tuple(StepDetection(p, s) for p in PEAK_THRESHOLDS_M_S2 for s in FORWARD_SLOPES_M_S3)
 """Every pair; a tie in F1 goes to the first in this order."""
 

@@ -50,16 +50,20 @@ class PdrConfig:
     """The same without a gyro (a random walk: low-pass), m/s^2 per sqrt(s)."""
     lowpass_hz: float = 2.5
     """Low-pass of the vertical and forward acceleration for peak finding, Hz."""
-    peak_threshold_m_s2: float = 0.3
-    """A vertical peak (positive or negative) must exceed this, m/s^2."""
+    peak_threshold_m_s2: float = 0.1
+    """A vertical peak (positive or negative) must exceed this, m/s^2. Chosen with ``forward_slope_m_s3`` by ``bench gait``'s
+    rule (step F1 against the reference system, ``frontends.gait.StepDetection``) on the two Mobilise-D participants in
+    ../shared/data/mobgap, lower-back sensors like HAPT's waist phone; no HAPT recording and no simulated walk chose it
+    (it was 0.3 by hand before, ``frontends.gait.HAND_SET_DETECTION``)."""
     min_period_s: float = 0.25
     """Shortest step, seconds."""
     max_period_s: float = 1.2
     """Longest step, seconds; a longer gap ends a walking bout."""
     require_forward_pair: bool = True
     """Also require the forward negative-then-positive pair (needs a usable forward axis)."""
-    forward_slope_m_s3: float = 1.5
-    """Steep-slope test: the forward rise from its valley to its peak, m/s^3 at least."""
+    forward_slope_m_s3: float = 0.5
+    """Steep-slope test: the forward rise from its valley to its peak, m/s^3 at least (chosen as ``peak_threshold_m_s2``;
+    1.5 by hand before)."""
     pca_window_s: float = 2.0
     """Window of horizontal acceleration around a cycle for the PCA heading, seconds."""
     travel_median_cycles: int = 7

@@ -57,7 +57,7 @@ VEHICLE_ONLINE = OnlineConfig(window_s=5.0, reanchor_every=50, relinearize_thres
 re-anchors every 50 states (5-10 s): iSAM2 hands every Python range factor a copy of all its variables, so a small
 window is what keeps it fast (the 30 s step window: Plaza2 42x real time against 123x)."""
 WAIST = PdrConfig()
-"""Front-end settings for the waist IMU."""
+"""Front-end settings for the waist IMU (its step thresholds chosen by ``bench gait`` on Mobilise-D: ``PdrConfig``)."""
 
 
 @dataclass(frozen=True)
