@@ -114,6 +114,29 @@ def test_scoring_counts_each_cycle_against_its_segment() -> None:
     assert sum(found["cycles"].values()) == 10  # the unlabelled two are not among the scored
 
 
+def test_the_bench_names_the_worst_user_and_recording_per_class() -> None:
+    """Three constructed recordings of two users (20 flat cycles each, 20 up in two of them): each recording's and each
+    user's fraction correct per class, and the worst of them among those with enough cycles of the class; a class no one
+    has enough of has no worst."""
+    from fusegraph.evaluation.activity import worst
+
+    labels = np.repeat([1, 2], 20)
+    per_second = np.repeat([1, 2], 20)
+
+    def rec(name: str, user: str, up_right: int, flat_right: int = 20) -> tuple[Recording, list[str]]:
+        calls = ["flat"] * flat_right + ["stairs_down"] * (20 - flat_right) + ["stairs_up"] * up_right + ["flat"] * (20 - up_right)
+        return Recording(name, user, np.arange(40.0), np.zeros((40, 1)), labels, ("flat",) * 40, per_second, 1.0), calls
+
+    made = [rec("a1", "a", 20), rec("a2", "a", 0, flat_right=15), rec("b1", "b", 10)]
+    found = score([r for r, _ in made], [c for _, c in made])
+    assert found["by_recording"]["a2"]["correct"]["stairs_up"] == 0.0 and found["by_recording"]["b1"]["correct"]["stairs_up"] == 0.5
+    assert found["by_user"]["a"]["correct"]["stairs_up"] == 0.5 and found["by_user"]["a"]["cycles"]["stairs_up"] == 40
+    assert found["by_user"]["a"]["correct"]["flat"] == 35 / 40
+    assert worst(found["by_recording"], least_cycles=20) == {"flat": ("a2", 0.75, 20), "stairs_up": ("a2", 0.0, 20), "stairs_down": None, "not_walking": None}
+    assert worst(found["by_user"], least_cycles=20)["flat"] == ("a", 35 / 40, 40)
+    assert worst(found["by_user"], least_cycles=41)["flat"] is None
+
+
 def test_the_model_on_main_matches_this_versions_features() -> None:
     """The model on main reads one of the feature sets the fit chooses from, and says which in its provenance."""
     from fusegraph.evaluation.activity import FEATURE_SETS

@@ -57,6 +57,10 @@ NOT_WALKING_CONTEXTS = (0, 1, 2, 4, 8)
 FIXED = {"max_depth": 3, "learning_rate": 0.1, "subsample": 0.8, "random_state": 0}
 """Boosting settings not searched (scikit-learn's default depth and rate; subsampling as its documentation's examples)."""
 
+WORST_LEAST_CYCLES = 20
+"""``bench activity`` names the worst user and recording per class among those with at least this many of its cycles
+(a recording with five cycles of a class says little about it)."""
+
 INNER_FOLDS = 3
 """Folds over the training subjects that choose the stages and the context."""
 
@@ -332,8 +336,30 @@ def fit_model(recordings: Sequence[Recording], dataset: str = "", simulated: Seq
 
 
 def score(recordings: Sequence[Recording], predicted: Sequence[Sequence[str]]) -> dict[str, Any]:
-    """``metrics.activity_scores`` pooled over the recordings, each with its calls."""
-    return activity_scores([activity_counts(r.label, calls, r.labels, r.label_dt_s) for r, calls in zip(recordings, predicted, strict=True)])
+    """``metrics.activity_scores`` pooled over the recordings, each with its calls; with ``by_recording`` and ``by_user``,
+    each recording's and each user's fraction correct and cycles per class (how far the pooled figure holds across
+    people: a class can be right on most users and wrong on one)."""
+    counts = [activity_counts(r.label, calls, r.labels, r.label_dt_s) for r, calls in zip(recordings, predicted, strict=True)]
+    out = activity_scores(counts)
+
+    def each(scored: dict[str, Any]) -> dict[str, Any]:
+        return {"correct": scored["correct"], "cycles": scored["cycles"]}
+
+    out["by_recording"] = {r.name: each(activity_scores([c])) for r, c in zip(recordings, counts, strict=True)}
+    out["by_user"] = {user: each(activity_scores([c for r, c in zip(recordings, counts, strict=True) if r.subject == user]))
+                      for user in sorted({r.subject for r in recordings})}
+    return out
+
+
+def worst(by: dict[str, Any], least_cycles: int = WORST_LEAST_CYCLES) -> dict[str, tuple[str, float, int] | None]:
+    """Per class, the recording or user (a ``score`` result's ``by_recording`` or ``by_user``) with the lowest fraction
+    correct among those with at least ``least_cycles`` of the class: (name, fraction, cycles); None where none has."""
+    out: dict[str, tuple[str, float, int] | None] = {}
+    for name in next(iter(by.values()))["correct"] if by else ():
+        scored = [(who, v["correct"][name], v["cycles"][name]) for who, v in by.items()
+                  if v["correct"][name] is not None and v["cycles"][name] >= least_cycles]
+        out[name] = min(scored, key=lambda x: x[1]) if scored else None
+    return out
 
 
 def _load(directory: str | Path | None, sessions: Sequence[str | Path]) -> list[tuple[str, Session]]:
@@ -385,7 +411,8 @@ def bench_activity(directory: str | Path | None = None, sessions: Sequence[str |
     """The JSON of ``fusegraph bench activity`` (see the module docstring): ``directory`` is HAPT's raw folder or a folder
     of imported sessions (``sessions``: session directories instead). The model on main scores through ``run --solver
     activity`` (``runner.solve_session``): its figures are ``report walking DIR --solvers activity``'s counts pooled.
-    ``workers``: leave-one-user-out folds fitted side by side in processes (the same figures: the fits are seeded)."""
+    ``workers``: leave-one-user-out folds fitted side by side in processes (the same figures: the fits are seeded). Each
+    method's figures carry ``by_user`` and ``by_recording`` (``score``), and the table names the worst of each per class."""
     model = load_model()
     loaded = _load(directory, sessions)
     recordings = []
@@ -437,6 +464,12 @@ def format_activity(result: dict[str, Any]) -> str:
         sets = Counter(c.get("feature_set", "all") for c in result["chosen_per_user"].values())
         lines.append("feature sets the held-out users' folds chose: " + ", ".join(f"{name} ({n})" for name, n in sets.most_common())
                      + f"; on main: {result['model'].get('feature_set') or 'all'}")
+    for name, m in result["methods"].items():
+        for by, what in (("by_user", "user"), ("by_recording", "recording")):
+            if by in m:
+                found = worst(m[by])
+                lines.append(f"worst {what}, {name} (of those with {WORST_LEAST_CYCLES} cycles of the class or more): " + "; ".join(
+                    f"{label} {pct(w[1]).strip()} ({w[0]}, {w[2]} cycles)" if w else f"{label} -" for label, w in found.items()))
     for name, m in result["methods"].items():
         lines.append(f"confusion, {name} (row: label, columns: called flat / up / down / not walking):")
         for label, row in m["confusion"].items():
