@@ -118,7 +118,7 @@ def test_the_bench_names_the_worst_user_and_recording_per_class() -> None:
     """Three constructed recordings of two users (20 flat cycles each, 20 up in two of them): each recording's and each
     user's fraction correct per class, and the worst of them among those with enough cycles of the class; a class no one
     has enough of has no worst."""
-    from fusegraph.evaluation.activity import worst
+    from fusegraph.evaluation.activity import _worst_line, worst
 
     labels = np.repeat([1, 2], 20)
     per_second = np.repeat([1, 2], 20)
@@ -135,6 +135,9 @@ def test_the_bench_names_the_worst_user_and_recording_per_class() -> None:
     assert worst(found["by_recording"], least_cycles=20) == {"flat": ("a2", 0.75, 20), "stairs_up": ("a2", 0.0, 20), "stairs_down": None, "not_walking": None}
     assert worst(found["by_user"], least_cycles=20)["flat"] == ("a", 35 / 40, 40)
     assert worst(found["by_user"], least_cycles=41)["flat"] is None
+    # the table says what the worst one's cycles were called instead
+    line = _worst_line(found["by_recording"], "recording", "fusegraph")
+    assert "flat 75.0% (a2, 20 cycles; called stairs_down 25%)" in line and "stairs_up 0.0% (a2, 20 cycles; called flat 100%)" in line
 
 
 def test_the_model_on_main_matches_this_versions_features() -> None:

@@ -343,7 +343,7 @@ def score(recordings: Sequence[Recording], predicted: Sequence[Sequence[str]]) -
     out = activity_scores(counts)
 
     def each(scored: dict[str, Any]) -> dict[str, Any]:
-        return {"correct": scored["correct"], "cycles": scored["cycles"]}
+        return {"correct": scored["correct"], "confusion": scored["confusion"], "cycles": scored["cycles"]}
 
     out["by_recording"] = {r.name: each(activity_scores([c])) for r, c in zip(recordings, counts, strict=True)}
     out["by_user"] = {user: each(activity_scores([c for r, c in zip(recordings, counts, strict=True) if r.subject == user]))
@@ -360,6 +360,20 @@ def worst(by: dict[str, Any], least_cycles: int = WORST_LEAST_CYCLES) -> dict[st
                   if v["correct"][name] is not None and v["cycles"][name] >= least_cycles]
         out[name] = min(scored, key=lambda x: x[1]) if scored else None
     return out
+
+
+def _worst_line(by: dict[str, Any], what: str, method: str) -> str:
+    """``worst`` as the table prints it: each class's worst user or recording and what its cycles were called instead."""
+
+    def called_instead(who: str, label: str) -> str:
+        row = by[who].get("confusion", {}).get(label, {})
+        wrong = [f"{other} {100 * v:.0f}%" for other, v in row.items() if other != label and v]
+        return f"; called {', '.join(wrong)}" if wrong else ""
+
+    found = worst(by)
+    return (f"worst {what}, {method} (of those with {WORST_LEAST_CYCLES} cycles of the class or more): "
+            + "; ".join(f"{label} {100 * w[1]:.1f}% ({w[0]}, {w[2]} cycles{called_instead(w[0], label)})" if w else f"{label} -"
+                        for label, w in found.items()))
 
 
 def _load(directory: str | Path | None, sessions: Sequence[str | Path]) -> list[tuple[str, Session]]:
@@ -465,11 +479,7 @@ def format_activity(result: dict[str, Any]) -> str:
         lines.append("feature sets the held-out users' folds chose: " + ", ".join(f"{name} ({n})" for name, n in sets.most_common())
                      + f"; on main: {result['model'].get('feature_set') or 'all'}")
     for name, m in result["methods"].items():
-        for by, what in (("by_user", "user"), ("by_recording", "recording")):
-            if by in m:
-                found = worst(m[by])
-                lines.append(f"worst {what}, {name} (of those with {WORST_LEAST_CYCLES} cycles of the class or more): " + "; ".join(
-                    f"{label} {pct(w[1]).strip()} ({w[0]}, {w[2]} cycles)" if w else f"{label} -" for label, w in found.items()))
+        lines += [_worst_line(m[by], what, name) for by, what in (("by_user", "user"), ("by_recording", "recording")) if by in m]
     for name, m in result["methods"].items():
         lines.append(f"confusion, {name} (row: label, columns: called flat / up / down / not walking):")
         for label, row in m["confusion"].items():
