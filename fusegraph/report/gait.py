@@ -64,7 +64,7 @@ def plot_confusions(methods: dict[str, dict[str, Any]], path: str | Path, title:
         for i, row in enumerate(grid):
             for j, v in enumerate(row):
                 ax.text(j, i, f"{100 * v:.1f}%", ha="center", va="center", color="white" if v > 0.6 else "black", fontsize=9)
-        ax.set_xticks(range(len(called)), [c.replace("_", " ") for c in called])
+        ax.set_xticks(range(len(called)), [c.replace("_", "\n") for c in called])  # two lines: "stairs down" and "not walking" met
         ax.set_yticks(range(len(labels)), [f"{a.replace('_', ' ')}\n({m['cycles'][a]} cycles)" for a in labels])
         ax.set(xlabel="called", ylabel="label", title=name)
     if title:
