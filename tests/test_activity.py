@@ -115,9 +115,9 @@ def test_scoring_counts_each_cycle_against_its_segment() -> None:
 
 
 def test_the_bench_names_the_worst_user_and_recording_per_class() -> None:
-    """Three constructed recordings of two users (20 flat cycles each, 20 up in two of them): each recording's and each
-    user's fraction correct per class, and the worst of them among those with enough cycles of the class; a class no one
-    has enough of has no worst."""
+    """Three constructed recordings of two users (20 flat and 20 up cycles each, called right or not as set): each
+    recording's and each user's fraction correct per class, and the worst of them among those with enough cycles of the
+    class; a class no one has enough of (here: none at all) has no worst."""
     from fusegraph.evaluation.activity import _worst_line, worst
 
     labels = np.repeat([1, 2], 20)
