@@ -99,6 +99,21 @@ def test_gravity_filter_follows_a_tilt_with_the_gyro() -> None:
     assert err[50:].max() < 0.5  # degrees: the filter is exact up to its Euler step
 
 
+def test_a_cycle_called_not_walking_travels_nothing_but_turns() -> None:
+    """The walking graph's odometry: a flat cycle travels the speed model's step along its direction of travel, one
+    called not walking (standing, sitting, a transition) travels nothing and keeps its heading change, stairs climb."""
+    from fusegraph.records import Building
+
+    def cycle(activity: str) -> pdr.Cycle:
+        return pdr.Cycle(t=1.0, period_s=0.5, vertical_pp_m_s2=4.0, forward_pp_m_s2=2.0, travel_rad=0.0, dyaw_rad=0.1, activity=activity)
+
+    speed = pdr.SpeedModel(0.35, 0.12)
+    flat, still, up = (walking.events_from([cycle(a)], [], speed, Building())[0].motion for a in ("flat", "not_walking", "stairs_up"))
+    assert flat.forward_m == pytest.approx((0.35 + 0.12 * 4.0) * 0.5) and flat.up_m == 0.0
+    assert (still.forward_m, still.left_m, still.up_m, still.dyaw_rad) == (0.0, 0.0, 0.0, 0.1)
+    assert up.up_m == Building().riser_m
+
+
 def test_front_end_on_the_walk(walk: walking.WalkingSession) -> None:
     cycles = pdr.detect_cycles(walk.t, walk.accel_m_s2, walk.gyro_rad_s)
     rides = pdr.detect_rides(walk.t, walk.accel_m_s2, walk.gyro_rad_s, cycles)

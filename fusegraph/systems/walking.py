@@ -71,12 +71,11 @@ class Event:
 
 
 def events_from(cycles: list[Cycle], rides: list[Ride], speed: SpeedModel, building: Building) -> list[Event]:
-    """Steps and rides as odometry increments in time order (a cycle called not walking is a level step)."""
+    """Steps and rides as odometry increments in time order (a cycle called not walking moves nothing but the heading)."""
     out: list[Event] = []
     for c in cycles:
-        # not walking (a postural transition): no stairs; the step kept (dropped, a swapped gyro's misled calls cost 8.7 m)
-        if c.activity in ("flat", "not_walking"):
-            length, up = speed.speed(c.vertical_pp_m_s2) * c.period_s, 0.0
+        if c.activity in ("flat", "not_walking"):  # not walking (standing, sitting, a transition): no travel (docs/systems/walking.md)
+            length, up = speed.speed(c.vertical_pp_m_s2) * c.period_s if c.activity == "flat" else 0.0, 0.0
         else:
             length, up = building.tread_m, building.riser_m * (1.0 if c.activity == "stairs_up" else -1.0)
         motion = PlanarMotion(forward_m=length * math.cos(c.travel_rad), left_m=length * math.sin(c.travel_rad), up_m=up, dyaw_rad=c.dyaw_rad)
