@@ -68,7 +68,8 @@ def test_gauss_newton_batch_equals_levenberg_marquardt_with_its_covariances() ->
     increment = builder.take()
     graph, order = increment.graph(), time_ordering(increment.values.keys())
     keys = [X(k) for k in range(len(builder.keyframe_t))]
-    results = [solve_batch(graph, increment.values, keys, BatchConfig(gauss_newton=gn, max_iterations=cap), ordering=order)
+    # Gauss-Newton's own stopping rule here (``stop_when_predicted`` ends one step sooner: the next test holds the two equal)
+    results = [solve_batch(graph, increment.values, keys, BatchConfig(gauss_newton=gn, max_iterations=cap, stop_when_predicted=False), ordering=order)
                for gn, cap in ((True, 50), (False, 50), (True, 1), (False, 1))]
     gn, lm, capped, lm_capped = results
     assert gn.iterations > 1  # the start is not the optimum: the comparison means something
@@ -81,6 +82,29 @@ def test_gauss_newton_batch_equals_levenberg_marquardt_with_its_covariances() ->
         # ~1/200 of them, so their relative differences are larger)
         np.testing.assert_allclose(cov, lm.covariances[key], rtol=0, atol=1e-4 * float(np.max(np.diag(cov))))
     assert capped.final_error == lm_capped.final_error > 2 * gn.final_error  # LM's one iteration, not GN's
+
+
+def test_a_step_its_linear_model_predicted_ends_gauss_newton_at_the_same_optimum() -> None:
+    """``BatchConfig.stop_when_predicted``: Gauss-Newton stops after a step whose new cost its linear model predicted to
+    within the tolerance, one iteration before the slow path (which takes a further step to see it lower the cost by
+    less than the tolerance), at the same optimum: the attitudes within 1e-4 rad (~0.006 deg; the tracker's noise is
+    0.4 deg), the cost within the tolerance, the covariances from a linearisation one small step away."""
+    from fusegraph.graphs.head import time_ordering
+    from fusegraph.solvers.batch import BatchConfig
+
+    session = simulate_head(5, profile="realistic", duration_s=8.0)
+    builder = HeadGraphBuilder(head_model_for(session))
+    feed(builder, session)
+    increment = builder.take()
+    graph, order = increment.graph(), time_ordering(increment.values.keys())
+    keys = [X(k) for k in range(len(builder.keyframe_t))]
+    fast, slow = (solve_batch(graph, increment.values, keys, BatchConfig(stop_when_predicted=stop), ordering=order) for stop in (True, False))
+    assert fast.iterations == slow.iterations - 1 >= 1
+    assert abs(fast.final_error - slow.final_error) <= 1e-5 * slow.final_error
+    for key in keys:
+        assert fast.values.atRot3(key).between(slow.values.atRot3(key)).axisAngle()[1] < 1e-4
+    for key, cov in fast.covariances.items():
+        np.testing.assert_allclose(cov, slow.covariances[key], rtol=0, atol=1e-3 * float(np.max(np.diag(cov))))
 
 
 @pytest.mark.parametrize("overrides", [

@@ -25,6 +25,12 @@ class BatchConfig:
     relative_error_tol: float = 1e-5
     """Stop when the error decreases by less than this fraction (1e-7 cost the 600 s head batch a fourth
     iteration, 1.8 s, that lowered the cost by 6e-6 of 4.4e4)."""
+    stop_when_predicted: bool = True
+    """Gauss-Newton also stops after a full step whose new cost its linear model predicted to within
+    ``relative_error_tol`` (the linearisation held over the whole step, so the point is the minimum of a model that is
+    right there: another step would lower the cost by about that tolerance), instead of taking that further step to see
+    it. On BROAD's head sessions (the first four trials) 3, 3, 3, 4 iterations became 2, 2, 2, 3, the attitudes moved by
+    at most 0.006 deg, and the batch ran 189x -> 214x real time."""
     covariance: bool = True
     """Compute marginal covariances of the requested keys."""
     covariance_stride: int = 25
@@ -68,7 +74,7 @@ def solve_batch(
     values: gtsam.Values | None = None
     iterations, final_error = 0, float("nan")
     if elimination is not None and cfg.gauss_newton:
-        steps = _gauss_newton(graph, initial, cfg.max_iterations, cfg.relative_error_tol, elimination)
+        steps = _gauss_newton(graph, initial, cfg.max_iterations, cfg.relative_error_tol, elimination, cfg.stop_when_predicted)
         if steps.converged:
             values, tree, iterations, final_error = steps.values, steps.tree, steps.iterations, steps.error
     if values is None:  # no ordering, or Gauss-Newton did not converge: the damped solver
@@ -98,12 +104,15 @@ class _Steps:
     iterations: int
     converged: bool
     tree: gtsam.GaussianBayesTree | None
-    """The factorisation whose step met the tolerance (linearised a negligible step before ``values``)."""
+    """The factorisation whose step met the tolerance (linearised one step before ``values``: a negligible step, or one its
+    linear model predicted to within the tolerance)."""
 
 
 def _gauss_newton(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int, relative_error_tol: float,
-                  elimination: gtsam.Ordering | None = None) -> _Steps:
-    """Gauss-Newton steps, each halved until the cost does not rise; stops when one lowers it by less than the tolerance.
+                  elimination: gtsam.Ordering | None = None, stop_when_predicted: bool = False) -> _Steps:
+    """Gauss-Newton steps, each halved until the cost does not rise; stops when one lowers it by less than the tolerance,
+    or (``stop_when_predicted``, see ``BatchConfig``) when a full step's new cost is what its linear model predicted,
+    to within the tolerance.
 
     A step that cannot lower the cost even at 1/1024 of its length is not taken: the result says it did not converge.
     """
@@ -127,6 +136,8 @@ def _gauss_newton(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_
             if step < 1e-3:
                 return _Steps(values, error, iteration, False, tree)
         converged = error - new_error <= relative_error_tol * max(error, 1e-12)
+        if stop_when_predicted and step == 1.0 and not converged:
+            converged = abs(new_error - linear.error(delta)) <= relative_error_tol * max(new_error, 1e-12)
         values, error = candidate, new_error
         if converged:
             return _Steps(values, error, iteration, True, tree)
