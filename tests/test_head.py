@@ -55,21 +55,26 @@ def test_noise_free_batch_recovers_truth(profile: str) -> None:
     assert err.max() < (2e-4 if profile == "ideal" else 1e-3)
 
 
+def _simulated_head_graph(seed: int, duration_s: float) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int], list[int]]:
+    """A simulated head session's whole graph (realistic profile): graph, initial values, keyframe keys, time ordering."""
+    from fusegraph.graphs.head import time_ordering
+
+    session = simulate_head(seed, profile="realistic", duration_s=duration_s)
+    builder = HeadGraphBuilder(head_model_for(session))
+    feed(builder, session)
+    increment = builder.take()
+    return increment.graph(), increment.values, [X(k) for k in range(len(builder.keyframe_t))], time_ordering(increment.values.keys())
+
+
 def test_gauss_newton_batch_equals_levenberg_marquardt_with_its_covariances() -> None:
     """The head batch's Gauss-Newton (covariances from its last factorisation) and gtsam's Levenberg-Marquardt
     (covariances from a fresh one) reach the same optimum; when Gauss-Newton does not converge within the
     iteration cap, the result is Levenberg-Marquardt's."""
-    from fusegraph.graphs.head import time_ordering
     from fusegraph.solvers.batch import BatchConfig
 
-    session = simulate_head(4, profile="realistic", duration_s=4.0)
-    builder = HeadGraphBuilder(head_model_for(session))
-    feed(builder, session)
-    increment = builder.take()
-    graph, order = increment.graph(), time_ordering(increment.values.keys())
-    keys = [X(k) for k in range(len(builder.keyframe_t))]
+    graph, values, keys, order = _simulated_head_graph(4, 4.0)
     # Gauss-Newton's own stopping rule here (``stop_when_predicted`` ends one step sooner: the next test holds the two equal)
-    results = [solve_batch(graph, increment.values, keys, BatchConfig(gauss_newton=gn, max_iterations=cap, stop_when_predicted=False), ordering=order)
+    results = [solve_batch(graph, values, keys, BatchConfig(gauss_newton=gn, max_iterations=cap, stop_when_predicted=False), ordering=order)
                for gn, cap in ((True, 50), (False, 50), (True, 1), (False, 1))]
     gn, lm, capped, lm_capped = results
     assert gn.iterations > 1  # the start is not the optimum: the comparison means something
@@ -89,16 +94,10 @@ def test_a_step_its_linear_model_predicted_ends_gauss_newton_at_the_same_optimum
     within the tolerance, one iteration before the slow path (which takes a further step to see it lower the cost by
     less than the tolerance), at the same optimum: the attitudes within 1e-4 rad (~0.006 deg; the tracker's noise is
     0.4 deg), the cost within the tolerance, the covariances from a linearisation one small step away."""
-    from fusegraph.graphs.head import time_ordering
     from fusegraph.solvers.batch import BatchConfig
 
-    session = simulate_head(5, profile="realistic", duration_s=8.0)
-    builder = HeadGraphBuilder(head_model_for(session))
-    feed(builder, session)
-    increment = builder.take()
-    graph, order = increment.graph(), time_ordering(increment.values.keys())
-    keys = [X(k) for k in range(len(builder.keyframe_t))]
-    fast, slow = (solve_batch(graph, increment.values, keys, BatchConfig(stop_when_predicted=stop), ordering=order) for stop in (True, False))
+    graph, values, keys, order = _simulated_head_graph(5, 8.0)
+    fast, slow = (solve_batch(graph, values, keys, BatchConfig(stop_when_predicted=stop), ordering=order) for stop in (True, False))
     assert fast.iterations == slow.iterations - 1 >= 1
     assert abs(fast.final_error - slow.final_error) <= 1e-5 * slow.final_error
     for key in keys:
