@@ -73,9 +73,8 @@ def chosen_on(system: str) -> tuple[ChosenOn, ...]:
     return tuple(out)
 
 
-@functools.cache
 def _activity_recordings() -> frozenset[str]:
-    """The HAPT recordings the activity model was fitted on (read once: the model is ~0.5 MB)."""
+    """The HAPT recordings the activity model was fitted on (read once, through ``chosen_on``'s cache: the model is ~0.5 MB)."""
     return frozenset(json.loads(ACTIVITY_MODEL.read_text()).get("provenance", {}).get("recordings", []))
 
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -52,21 +54,19 @@ def plot_gait_statistics(rows: dict[str, dict[str, np.ndarray]], names: tuple[st
     save_figure(fig, path)
 
 
-def plot_oxford(oxford: dict[str, dict[str, object]], path: Path) -> None:
+def plot_oxford(oxford: Mapping[str, Mapping[str, Any]], path: Path) -> None:
     """Each Oxford recording's count error against the phone's peak threshold (the search ``bench walking`` makes), the
     threshold chosen without the recording marked, and the hand count's 0."""
     from ..report.plots import plt, save_figure  # headless pyplot
 
     fig, ax = plt.subplots(figsize=(9, 5))
     for name, row in oxford.items():
-        by_peak = row["counted_by_peak"]
-        assert isinstance(by_peak, dict)
-        true = float(row["true"])  # type: ignore[arg-type]
+        by_peak, true = row["counted_by_peak"], float(row["true"])
         peaks = np.array([float(p) for p in by_peak])
         error = 100.0 * (np.array([float(c) for c in by_peak.values()]) - true) / true
         (line,) = ax.plot(peaks, error, "o-", ms=3, lw=1, label=name)
-        chosen = float(row["peak_threshold_m_s2"])  # type: ignore[arg-type]
-        ax.plot([chosen], [100.0 * (float(row["counted"]) - true) / true], "s", ms=9, mfc="none", color=line.get_color())  # type: ignore[arg-type]
+        chosen = float(row["peak_threshold_m_s2"])
+        ax.plot([chosen], [100.0 * (float(row["counted"]) - true) / true], "s", ms=9, mfc="none", color=line.get_color())
     ax.axhline(0.0, color="k", lw=0.8)
     ax.set(xscale="log", xlabel="peak threshold (m/s^2)", ylabel="count error vs the hand count (%)", ylim=(-20, 10),
            title="Oxford phone steps: count error per peak threshold\nsquare: the threshold chosen without the recording (cross-validated)")
