@@ -55,7 +55,7 @@ from ..factors.latency import (
     offset_walk_factor,
 )
 from ..factors.linear import zeros
-from ..geometry import FloatArray, rot3_from_quat_wxyz
+from ..geometry import FloatArray, quat_from_rotvec, quat_multiply, quat_normalize, quat_wxyz_from_rot3, rot3_from_quat_wxyz
 from ..session import Session, SessionWarning
 from .increment import GraphIncrement
 from .ordering import SYMBOL_INDEX_BITS, SYMBOL_INDEX_MASK, nested_dissection
@@ -584,6 +584,98 @@ _RANK = {"t": 0, "e": 1, "b": 2, "x": 3}
 _RANK_OF_CHR = np.full(256, -1)
 for _tag, _rank in _RANK.items():
     _RANK_OF_CHR[ord(_tag)] = _rank
+
+
+def carried_by_gyro(t: FloatArray, omega: FloatArray, rows: np.ndarray, start: np.ndarray, bias: FloatArray) -> FloatArray:
+    """The rotation (w, x, y, z) from sample ``start[m]`` to sample ``rows[m]``: the midpoints of consecutive rates less
+    ``bias[m]``, each over its sample step (``GyroInterval``'s rule), composed in order. Vectorised over the rows: step
+    ``p`` moves every row at least ``p`` samples past its start."""
+    steps = rows - start
+    q = np.zeros((len(rows), 4))
+    q[:, 0] = 1.0
+    for p in range(1, int(steps.max(initial=0)) + 1):
+        moving = steps >= p
+        j = start[moving] + p  # the sample that ends this step
+        rate = 0.5 * (omega[j] + omega[j - 1]) - bias[moving]
+        q[moving] = quat_multiply(q[moving], quat_from_rotvec(rate * (t[j] - t[j - 1])[:, None]))
+    return q
+
+
+def interpolate_keyframes(t: FloatArray, omega: FloatArray, kf_t: FloatArray, kf_quat: FloatArray, kf_bias: FloatArray,
+                          kf_cov: FloatArray | None = None) -> tuple[FloatArray, FloatArray | None]:
+    """Attitude at every gyro sample: its keyframe's estimate carried forward by the bias-corrected gyro (and the keyframe's
+    covariance: the <= one keyframe period of gyro adds ~1e-4 rad, negligible here)."""
+    n = len(t)
+    quats = np.full((n, 4), np.nan)
+    covs = None if kf_cov is None else np.full((n, 3, 3), np.nan)
+    kf_index = np.searchsorted(kf_t, t + 1e-9, side="right") - 1
+    rows = np.nonzero(kf_index >= 0)[0]
+    k = kf_index[rows]
+    kf_sample = np.searchsorted(t, np.asarray(kf_t) - 1e-9)  # gyro index of each keyframe
+    quats[rows] = quat_normalize(quat_multiply(kf_quat[k], carried_by_gyro(t, omega, rows, kf_sample[k], kf_bias[k])))
+    if covs is not None and kf_cov is not None:
+        covs[rows] = kf_cov[k]
+    return quats, covs
+
+
+class OnlinePredictions:
+    """The online estimate at every gyro sample of a replay, computed at its end in numpy (``fill``) from what ``note``
+    records as each sample is pushed: the open interval (its first sample's time and the bias it integrates with) and the
+    newest keyframe's state (attitude, bias, the solver's covariances, the solved keyframe's time), each when it changes.
+    It is ``HeadGraphBuilder.predict_now`` and ``predict_cov`` at every sample (to rounding; a test holds the two together)
+    without their Python per sample: with the quaternion's conversion, a sixth of the online head's time on BROAD's motion.
+    A live loop, which publishes each sample's estimate as it comes, asks ``OnlineHeadTracker.latest`` instead."""
+
+    def __init__(self) -> None:
+        self._interval: GyroInterval | IntegratedInterval | GapInterval | None = None
+        self._state: tuple[object, ...] = ()
+        self.intervals: list[tuple[int, float, FloatArray]] = []
+        """(the first sample noted in it, its start time, the bias it integrates with) per open interval."""
+        self.states: list[tuple[int, FloatArray | None, FloatArray, FloatArray, FloatArray, float]] = []
+        """(the first sample it served, attitude or None before an estimate, bias, covariance, bias covariance, solved
+        keyframe's time) per state."""
+
+    def note(self, i: int, builder: HeadGraphBuilder, cov: FloatArray, bias_cov: FloatArray, ready: bool) -> None:
+        """Gyro sample ``i`` has been pushed (and the solver updated): record what its estimate is made of, if it changed."""
+        interval = builder._interval
+        if interval is not self._interval and isinstance(interval, GyroInterval):
+            self._interval = interval
+            self.intervals.append((i, interval.t_start, interval.bias_hat))
+        rot, bias = builder._latest_rot, builder._latest_bias
+        last = self._state
+        # identity, not value: each update and each keyframe makes new objects (and this runs at every sample)
+        if not last or rot is not last[0] or bias is not last[1] or cov is not last[2] or bias_cov is not last[3] or ready is not last[4]:
+            self._state = (rot, bias, cov, bias_cov, ready)
+            quat = quat_wxyz_from_rot3(rot) if ready and rot is not None and builder.started else None
+            self.states.append((i, quat, bias, cov, bias_cov, builder.keyframe_t[builder._solved_keyframe] if builder.keyframe_t else math.nan))
+
+    def fill(self, t: FloatArray, omega: FloatArray, density_sq: float) -> tuple[FloatArray, FloatArray]:
+        """Attitude (w, x, y, z) and covariance at every pushed sample (``t``, ``omega``: all of them, in order); NaN before
+        the first estimate."""
+        n = len(t)
+        quats, covs = np.full((n, 4), np.nan), np.full((n, 3, 3), np.nan)
+        if not self.intervals or not self.states:
+            return quats, covs
+        everyone = np.arange(n)
+        interval = np.searchsorted([first for first, _, _ in self.intervals], everyone, side="right") - 1
+        state = np.searchsorted([first for first, *_ in self.states], everyone, side="right") - 1
+        have = [quat is not None for _, quat, *_ in self.states]
+        rows = everyone[(interval >= 0) & (state >= 0)]
+        rows = rows[np.asarray(have)[state[rows]]]
+        iv, st = interval[rows], state[rows]
+        start = np.searchsorted(t, [t_start for _, t_start, _ in self.intervals])[iv]
+        bias_hat = np.array([b for _, _, b in self.intervals])[iv]
+        delta = carried_by_gyro(t, omega, rows, start, bias_hat)
+        table = [s if s[1] is not None else (s[0], np.full(4, np.nan), *s[2:]) for s in self.states]
+        rot, bias, cov, bias_cov = (np.array([s[m] for s in table])[st] for m in (1, 2, 3, 4))
+        # the newest bias, to first order over the interval (``GyroInterval.delta``)
+        correction = quat_from_rotvec(-(bias - bias_hat) * (t[rows] - t[start])[:, None])
+        quats[rows] = quat_normalize(quat_multiply(rot, quat_multiply(delta, correction)))
+        dt = t[rows] - np.array([s[5] for s in table])[st]
+        grown = cov + (dt * dt)[:, None, None] * bias_cov
+        grown[:, [0, 1, 2], [0, 1, 2]] += (dt * density_sq)[:, None]
+        covs[rows] = grown
+        return quats, covs
 
 
 def rates_at(gyro_t: FloatArray, rate_rad_s: FloatArray, t: FloatArray) -> FloatArray:

@@ -32,7 +32,17 @@ from ..geometry import (
     quat_wxyz_from_rot3,
     rot3_from_quat_wxyz,
 )
-from ..graphs.head import HeadGraphBuilder, HeadModel, X, head_model_for, rates_at, time_ordering, with_gap_keyframes
+from ..graphs.head import (
+    HeadGraphBuilder,
+    HeadModel,
+    OnlinePredictions,
+    X,
+    head_model_for,
+    interpolate_keyframes,
+    rates_at,
+    time_ordering,
+    with_gap_keyframes,
+)
 from ..progress import progress as progress_bar
 from ..session import Session, replay_in_arrival_order
 from ..solvers.batch import BatchConfig, solve_batch
@@ -289,8 +299,9 @@ class OnlineHeadTracker:
         a = self._vector("accelerometer sample", t_sample, accel_m_s2, 3)
         self.builder.add_accel(float(t_sample), a)
 
-    def add_gyro(self, t: float, omega: FloatArray) -> AttitudeNow | None:
-        """A gyro sample at ``t`` (rad/s): update and return the estimate at ``t``."""
+    def add_gyro(self, t: float, omega: FloatArray, estimate: bool = True) -> AttitudeNow | None:
+        """A gyro sample at ``t`` (rad/s): update and return the estimate at ``t`` (None without ``estimate``: a replay's
+        ``OnlinePredictions`` computes them all at its end)."""
         w = self._vector("gyro sample", t, omega, 3)
         if float(w.dot(w)) > MAX_RATE_RAD_S**2:
             raise self._reject(f"gyro sample at t = {t:.6f} s: |omega| = {np.linalg.norm(w):.4g} rad/s is above {MAX_RATE_RAD_S:g} (deg/s?)")
@@ -308,7 +319,7 @@ class OnlineHeadTracker:
             self._update_due = True
         else:
             self.solver.update()
-        return self.latest()
+        return self.latest() if estimate else None
 
     def maintain(self) -> None:
         """Housekeeping once the estimate is out: a due re-anchoring of the online solver (~7 ms every 2 s of
@@ -339,7 +350,8 @@ class OnlineHeadTracker:
 @honours_gyro_delay
 def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineConfig | None = None, estimate_first: bool = False) -> Estimate:
     """fusegraph online: replay in arrival order through ``OnlineHeadTracker``; causal estimate per gyro sample
-    (``estimate_first``: see ``OnlineHeadTracker``)."""
+    (``estimate_first``: see ``OnlineHeadTracker``), the live one at each, computed at the end (``OnlinePredictions``:
+    ``extras["wall_s"]`` leaves that out)."""
     model = head_model_for(session, model)
     gyro = session.stream("gyro")
     max_latency = max((s.latency_s for s in session.streams_of_kind("attitude")), default=0.0)
@@ -348,10 +360,9 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     cfg = config or HEAD_ONLINE
     if cfg.window_s <= max_latency + model.keyframe_period_s:
         raise ValueError(f"online window_s = {cfg.window_s} s must exceed the largest tracker latency ({max_latency:.3f} s) plus one keyframe")
-    quats = np.full((len(gyro), 4), np.nan)
-    covs = np.full((len(gyro), 3, 3), np.nan)
-    wall = np.zeros(len(gyro))
+    wall, pushed_t, pushed = np.zeros(len(gyro)), np.zeros(len(gyro)), np.zeros((len(gyro), 3))
     live = OnlineHeadTracker(model, cfg, estimate_first)
+    predictions = OnlinePredictions()
     i = 0
     start = time.perf_counter()
     for event in replay_in_arrival_order(_with_latency(session, model), last_streams=("gyro",), kinds=USED_KINDS):
@@ -361,13 +372,13 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
         elif event.stream.kind == "accel":
             live.add_accel(event.t, event.values)
         elif event.stream.kind == "gyro":
-            now = live.add_gyro(event.t, event.values)
-            if now is not None:
-                quats[i] = now.quat_wxyz
-                covs[i] = now.cov
+            live.add_gyro(event.t, event.values, estimate=False)
+            pushed_t[i], pushed[i] = event.t, event.values
+            predictions.note(i, live.builder, live.solver.latest_cov, live.solver.latest_bias_cov, live.solver.latest_rot is not None)
             wall[i] = time.perf_counter()
             live.maintain()  # as the live loop does after publishing (its time is in the next sample's wall)
             i += 1
+    quats, covs = predictions.fill(pushed_t, pushed, live.builder.model.gyro.density**2)
     runtime = time.perf_counter() - start
     latency_estimate = live.latency()
     extras = {
@@ -476,33 +487,6 @@ def corrected_dead_reckoning(session: Session, bias: FloatArray | None = None) -
     gyro = session.stream("gyro")
     bias = gyro_bias_from_tracker(session) if bias is None else bias
     return integrate_gyro(gyro.t, gyro.values, np.array([1.0, 0.0, 0.0, 0.0]), bias=bias)
-
-
-def interpolate_keyframes(t, omega, kf_t, kf_quat, kf_bias, kf_cov=None):  # type: ignore[no-untyped-def]
-    """Attitude at every gyro sample: its keyframe's estimate carried forward by the bias-corrected gyro.
-
-    Vectorised over samples: a sample ``p`` steps after its keyframe composes ``p`` midpoint increments.
-    """
-    n = len(t)
-    quats = np.full((n, 4), np.nan)
-    covs = None if kf_cov is None else np.full((n, 3, 3), np.nan)
-    kf_index = np.searchsorted(kf_t, t + 1e-9, side="right") - 1
-    valid = kf_index >= 0
-    kf_sample = np.searchsorted(t, np.asarray(kf_t) - 1e-9)  # gyro index of each keyframe
-    idx = np.nonzero(valid)[0]
-    k = kf_index[idx]
-    steps_after = idx - kf_sample[k]
-    q = kf_quat[k].copy()
-    for p in range(1, int(steps_after.max(initial=0)) + 1):
-        moving = steps_after >= p
-        j = kf_sample[k[moving]] + p  # sample at the end of this step
-        rate = 0.5 * (omega[j] + omega[j - 1]) - kf_bias[k[moving]]
-        step = rate * (t[j] - t[j - 1])[:, None]
-        q[moving] = quat_multiply(q[moving], quat_from_rotvec(step))
-    quats[idx] = quat_normalize(q)
-    if covs is not None and kf_cov is not None:
-        covs[idx] = kf_cov[k]  # the <= one keyframe period of gyro adds ~1e-4 rad: negligible here
-    return quats, covs
 
 
 def run_tracker_only(session: Session) -> Estimate:
