@@ -7,14 +7,14 @@ height above the ground); a vertical excursion ``h`` within the step then means 
 (eq. 1 of the paper). The paper's model underestimated the measured step length; it multiplies by a correction factor
 1.25 fitted on its own subjects (``CORRECTION``: a literature constant, not fitted to any recording here).
 
-Excursion: the step length is ``scale x h``. On both Mobilise-D participants in ../shared/data/mobgap the pendulum's
-error followed the step length itself, the same way in both: the reference over the pendulum's estimate (correction 1)
-rose from 0.76 at the slowest bout (0.46 m strides at 0.25 m/s) to 1.31 at the fastest (1.26 m at 1.06 m/s), so no one
-correction serves a person who walks at several speeds (each participant's own best was a different one). A step in
-proportion to the excursion fitted both with one scale (fitted on either participant alone: 18 and 22). This form was
-found by looking at those two participants, so their leave-one-participant-out figure checks its scale, not the form: the
-participants that are not in ../shared check that. (A reading, not measured here: a short step lifts the pelvis more
-than the pendulum allows, with a flexed knee and a longer double support, and a long one less.)
+Excursion: the step length is ``scale x h``, declared (``[gait] model = "excursion"``), never chosen by ``bench gait``.
+On both Mobilise-D participants in ../shared/data/mobgap the pendulum's error followed the step length itself: the
+reference over the pendulum's estimate (correction 1) rose from 0.76 at the slowest bout (0.46 m strides at 0.25 m/s) to
+1.31 at the fastest (1.26 m at 1.06 m/s), and a step in proportion to the excursion fitted both with one scale. That form
+was found by looking at those two participants, the ones the bench scores, and no citation or other recording with a
+reference justifies it, so it is out of ``STEP_LENGTH_GRID``: the cited pendulum is what the bench chooses. Measured
+before it left (2026-12-07, the step thresholds re-chosen in each fold too): stride-length MAE with both models in the grid
+0.230 m leave-one-participant-out (0.112 in-sample), with the pendulum alone 0.200 m (0.131).
 
 ``h`` comes from the vertical acceleration (gravity removed, levelled frame) integrated twice, the drift taken out by
 high-passes (``StepLengthConfig``).
@@ -60,21 +60,20 @@ class StepLengthConfig:
     """How the vertical excursion is integrated and turned into a step length. ``bench gait`` chooses among
     ``STEP_LENGTH_GRID`` by leave-one-participant-out on the step thresholds its fold chose (``StepDetection``); the
     defaults are the in-sample choice on the two Mobilise-D participants in ../shared/data/mobgap, on the thresholds
-    chosen in-sample too (stride-length MAE 0.112 m in-sample; 0.230 m with both re-chosen without each participant;
-    with the thresholds as set by hand 0.059 m in-sample, 0.092 m leave-one-participant-out; the pendulum alone on those:
-    0.089 / 0.147 m)."""
+    chosen in-sample too: the pendulum with Mobilise-D's correction, 1.2 Hz (stride-length MAE 0.131 m in-sample; 0.200 m
+    with both re-chosen without each participant)."""
 
     accel_highpass_hz: float | None = 0.1
     """High-pass of the vertical acceleration before the first integral, Hz (None: none)."""
-    highpass_hz: float = 1.0
+    highpass_hz: float = 1.2
     """High-pass after each integral (drift removal), Hz."""
     order: int = 4
     """Butterworth order of those high-passes (applied forward and backward: zero phase)."""
-    correction: float = 16.0
-    """Scale of the step length: the pendulum's correction (1: the pendulum as it is; Mobilise-D's
-    ``MS_PROJECT_CORRECTION`` and Zijlstra & Hof's ``CORRECTION`` are the grid's others), or the excursion model's metres
-    of step per metre of excursion."""
-    model: str = "excursion"
+    correction: float = MS_PROJECT_CORRECTION
+    """Scale of the step length: the pendulum's correction (the grid's: 1, the pendulum as it is, Mobilise-D's
+    ``MS_PROJECT_CORRECTION`` and Zijlstra & Hof's ``CORRECTION``), or a declared excursion model's metres of step per
+    metre of excursion."""
+    model: str = "pendulum"
     """``pendulum`` or ``excursion`` (``MODELS``)."""
 
     def __post_init__(self) -> None:
@@ -85,21 +84,17 @@ class StepLengthConfig:
                              f"{self.correction:g} must be above 0 and order {self.order} at least 1")
 
 
-CORNERS_HZ = (0.5, 0.7, 1.0, 1.2)
+CORNERS_HZ = (0.5, 0.7, 1.0, 1.2, 1.5, 2.0)
 """The drift-removal corners of the grid (mobgap's reimplementation of Zijlstra's method: 0.1 Hz on the acceleration,
-1 Hz after the integral, 4th order, and its neighbours)."""
-EXCURSION_SCALES = (12.0, 14.0, 16.0, 18.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0, 33.0, 36.0, 40.0)
-"""The excursion model's scales tried: wide enough that no fold's choice (14-22 at this grid's corners) lies at an edge."""
-STEP_LENGTH_GRID = (tuple(StepLengthConfig(0.1, hp, 4, k, "pendulum") for hp in CORNERS_HZ for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
-                    + tuple(StepLengthConfig(0.1, hp, 4, k, "excursion") for hp in CORNERS_HZ for k in EXCURSION_SCALES))
-"""Both models at every corner: the pendulum with the literature's corrections (none, Mobilise-D's, Zijlstra & Hof's; no
-fitted one), the excursion model over ``EXCURSION_SCALES``. Measured with the pendulum alone (2026-11-26): its in-sample
-corner, 1.2 Hz, was the grid's upper edge; widened by 1.5 and 2 Hz every choice stayed (leave-one-participant-out 0.147
-m); a corner proportional to each bout's step frequency gave 0.262 m leave-one-participant-out (0.125 in-sample); the
+1 Hz after the integral, 4th order, and its neighbours). 1.5 and 2 Hz joined (2026-12-07) because the in-sample choice and
+both folds' sat at 1.2 Hz, the edge; the in-sample choice stayed there, HA/001's fold moved to 1.5 Hz (its held-out
+stride MAE 0.147 m before, 0.200 m after: reported as it came)."""
+STEP_LENGTH_GRID = tuple(StepLengthConfig(0.1, hp, 4, k, "pendulum") for hp in CORNERS_HZ for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
+"""The cited model (the pendulum, Zijlstra & Hof 2003) with the literature's corrections (none, Mobilise-D's, Zijlstra &
+Hof's; no fitted one) at every corner. Measured with the pendulum alone (2026-11-26, the thresholds as set by hand): a
+corner proportional to each bout's step frequency gave 0.262 m leave-one-participant-out (0.125 in-sample); the
 excursion integrated per step instead (each step's acceleration and velocity made zero-mean: no corner) left each
-fold's choice where it was. With both models (2026-11-27) every fold chooses the excursion model (HA/001's fold: 1.2 Hz,
-22; HA/002's: 1.0 Hz, 18), and with the corners widened by 1.5 and 2 Hz no choice changed. With the step thresholds
-chosen in each fold too (2026-11-29): HA/001's fold 1.2 Hz, 14; HA/002's 1.0 Hz, 18; in-sample 1.0 Hz, 16."""
+fold's choice where it was. The excursion model is out of it (module docstring)."""
 
 
 @dataclass(frozen=True)
