@@ -366,14 +366,16 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     i = 0
     start = time.perf_counter()
     for event in replay_in_arrival_order(_with_latency(session, model), last_streams=("gyro",), kinds=USED_KINDS):
-        if event.stream.kind == "attitude":
+        kind = event.stream.kind
+        if kind == "attitude":
             with contextlib.suppress(RejectedSampleError):  # the gate's outliers (counted in extras); the session was checked already
                 live.add_tracker(event.t, event.values)
-        elif event.stream.kind == "accel":
+        elif kind == "accel":
             live.add_accel(event.t, event.values)
-        elif event.stream.kind == "gyro":
-            live.add_gyro(event.t, event.values, estimate=False)
-            pushed_t[i], pushed[i] = event.t, event.values
+        elif kind == "gyro":
+            t_i, w_i = event.t, event.values
+            pushed_t[i], pushed[i] = t_i, w_i
+            live.add_gyro(t_i, w_i, estimate=False)
             predictions.note(i, live.builder, live.solver.latest_cov, live.solver.latest_bias_cov, live.solver.latest_rot is not None)
             wall[i] = time.perf_counter()
             live.maintain()  # as the live loop does after publishing (its time is in the next sample's wall)
