@@ -87,8 +87,8 @@ class StepLengthConfig:
 CORNERS_HZ = (0.5, 0.7, 1.0, 1.2, 1.5, 2.0)
 """The drift-removal corners of the grid (mobgap's reimplementation of Zijlstra's method: 0.1 Hz on the acceleration,
 1 Hz after the integral, 4th order, and its neighbours). 1.5 and 2 Hz joined (2026-12-07) because the in-sample choice and
-both folds' sat at 1.2 Hz, the edge; the in-sample choice stayed there, HA/001's fold moved to 1.5 Hz (its held-out
-stride MAE 0.147 m before, 0.200 m after: reported as it came)."""
+both folds' sat at 1.2 Hz, the edge; the in-sample choice stayed there, the fold holding out HA/001 moved to 1.5 Hz
+(stride MAE leave-one-participant-out 0.147 m before, 0.200 m after: reported as it came)."""
 STEP_LENGTH_GRID = tuple(StepLengthConfig(0.1, hp, 4, k, "pendulum") for hp in CORNERS_HZ for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
 """The cited model (the pendulum, Zijlstra & Hof 2003) with the literature's corrections (none, Mobilise-D's, Zijlstra &
 Hof's; no fitted one) at every corner. Measured with the pendulum alone (2026-11-26, the thresholds as set by hand): a
