@@ -612,3 +612,20 @@ def test_the_replay_s_estimates_filled_at_its_end_are_the_live_estimate_at_every
     apart = quat_multiply(quat_conjugate(slow_quats[~missing]), fast.quat_wxyz[~missing])
     assert 2.0 * np.linalg.norm(apart[:, 1:], axis=1).max() < 1e-12
     np.testing.assert_allclose(fast.cov[~missing], slow_covs[~missing], rtol=1e-12, atol=1e-18)
+
+
+def test_a_replay_checks_its_gyro_stream_at_once_and_a_stream_that_fails_meets_the_live_checks() -> None:
+    """``run_isam2`` skips the per-sample checks of a gyro stream that passes them all (``gyro_stream_passes``); one sample
+    at 40 rad/s (deg/s read as rad/s?) sends the replay through ``add_gyro``'s checks, which refuse it as live."""
+    from fusegraph.systems.head import gyro_stream_passes
+
+    session = simulate_head(0, duration_s=10.0)
+    gyro = session.stream("gyro")
+    assert gyro_stream_passes(gyro.t, gyro.values)
+    values = gyro.values.copy()
+    values[500] = [40.0, 0.0, 0.0]
+    assert not gyro_stream_passes(gyro.t, values) and not gyro_stream_passes(gyro.t[::-1], gyro.values)
+    assert not gyro_stream_passes(gyro.t, gyro.values.astype(np.float32))  # not the live path's float64: checked per sample
+    damaged = Session("head", {**session.streams, "gyro": replace(gyro, values=values)}, session.truth, session.meta)
+    with pytest.raises(RejectedSampleError, match=r"t = 5\.000000 s: \|omega\| = 40 rad/s is above 35 \(deg/s\?\)"):
+        run_isam2(damaged)
