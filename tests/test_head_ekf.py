@@ -83,3 +83,24 @@ def test_rate_jacobian_matches_central_differences() -> None:
             numeric[:, j] = (euler_rate_matrix(angles + step) @ omega - euler_rate_matrix(angles - step) @ omega) / 2e-6
         # central differences are exact to ~1e-9 here; 1e-6 leaves room for 1/cos(el)^2 up to ~15
         np.testing.assert_allclose(_d_rate_d_angles(angles, omega), numeric, atol=1e-6)
+
+
+def test_the_time_update_is_the_state_equation_and_its_jacobian() -> None:
+    """``HeadEkf.predict`` (written in Python floats for speed) against the module docstring's state equation written with
+    numpy: angles + T E^-1(angles) omega wrapped, P = F P F' + Q with F = I + T [[d(E^-1 omega)/d angles, E^-1], [0, 0]].
+    1e-13: the same operations, some summed in another order."""
+    from fusegraph.baselines.ekf import _d_rate_d_angles
+    from fusegraph.geometry import wrap_angle
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        ekf = HeadEkf("method2")
+        ekf.start(0.0, rng.uniform([-3, -1.3, -3], [3, 1.3, 3]), rng.normal(0, 2, 3))
+        ekf.P = np.cov(rng.normal(size=(6, 12)))  # a full covariance: every block of F P F' matters
+        x, P, dt = ekf.x.copy(), ekf.P.copy(), 0.0035
+        F = np.eye(6)
+        F[:3, 3:] = dt * euler_rate_matrix(x[:3])
+        F[:3, :3] += dt * _d_rate_d_angles(x[:3], x[3:])
+        ekf.predict(dt)
+        np.testing.assert_allclose(ekf.x[:3], wrap_angle(x[:3] + dt * euler_rate_matrix(x[:3]) @ x[3:]), rtol=0, atol=1e-13)
+        np.testing.assert_allclose(ekf.P, F @ P @ F.T + ekf._Q, rtol=1e-13, atol=1e-15)

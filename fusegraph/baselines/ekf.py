@@ -24,6 +24,7 @@ Updates use the Joseph form, which keeps P symmetric and positive definite in lo
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any, Literal
@@ -68,7 +69,7 @@ class HeadEkf:
         self.started = False
         self._t = float("nan")
         self._pending_tracker: FloatArray | None = None
-        self._preceding: list[FloatArray] = []  # Method II: the last gyro samples (at most 3)
+        self._preceding: list[list[float]] = []  # Method II: the last gyro samples (at most 3)
         self._Q = np.diag([self.cfg.process_angle_sigma_rad**2] * 3 + [self.cfg.process_rate_sigma_rad_s**2] * 3)
 
     def start(self, t: float, angles: FloatArray, omega: FloatArray | None = None) -> None:
@@ -76,20 +77,22 @@ class HeadEkf:
         self.x = np.concatenate([angles, np.zeros(3) if omega is None else omega])
         self.P = np.diag([self.cfg.tracker_sigma_rad**2] * 3 + [self.cfg.gyro_sigma_rad_s**2 if omega is not None else 1.0] * 3)
         self._t = t
-        self._preceding = [] if omega is None else [np.asarray(omega, dtype=float)]
+        self._preceding = [] if omega is None else [np.asarray(omega, dtype=float).tolist()]
         self.started = True
 
     def predict(self, t: float) -> None:
-        """Time update from the last step to ``t``."""
+        """Time update from the last step to ``t``: F = I + dt [[d(E^-1 omega)/d angles, E^-1], [0, 0]], in Python floats
+        but for P's products (numpy's per-scalar calls on 3-vectors were most of the filter's time)."""
         dt = t - self._t
         if dt <= 0:
             return
-        angles, omega = self.x[:3], self.x[3:]
-        rate_matrix = euler_rate_matrix(angles)
-        F = _EYE6.copy()
-        F[:3, 3:] = dt * rate_matrix
-        F[:3, :3] += dt * _d_rate_d_angles(angles, omega)
-        self.x[:3] = wrap_angle(angles + dt * rate_matrix @ omega)
+        az, el, roll, p, q, r = self.x.tolist()
+        (e01, e02, e11, e12, e21, e22), (j01, j02, j12, j21, j22) = _kinematics(el, roll, q, r)
+        f01, f02, f11, f12, f21, f22 = dt * e01, dt * e02, dt * e11, dt * e12, dt * e21, dt * e22  # dt E^-1 (its first column 0, 0, 1)
+        F = np.array([[1.0, dt * j01, dt * j02, 0.0, f01, f02], [0.0, 1.0, dt * j12, 0.0, f11, f12], [0.0, dt * j21, 1.0 + dt * j22, dt, f21, f22],
+                      [0.0, 0.0, 0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
+        moved = (az + (0.0 * p + f01 * q + f02 * r), el + (0.0 * p + f11 * q + f12 * r), roll + (dt * p + f21 * q + f22 * r))
+        self.x[:3] = [(angle + math.pi) % (2 * math.pi) - math.pi for angle in moved]  # ``wrap_angle``
         self.P = F @ self.P @ F.T + self._Q
         self._t = t
 
@@ -114,10 +117,10 @@ class HeadEkf:
     def _method2(self, t: float, omega: FloatArray, tracker: FloatArray | None) -> None:
         """Method II's step: rates from the mean of the 3 preceding gyro samples, the time update, and only
         at a tracker arrival the joint update of tracker and gyro."""
-        if self._preceding:
-            self.x[3:] = sum(self._preceding) / len(self._preceding)
+        if self._preceding:  # their mean, per axis in Python floats (the same sums as numpy's)
+            self.x[3:] = [sum(axis) / len(self._preceding) for axis in zip(*self._preceding, strict=True)]
         self.predict(t)
-        self._preceding = [*self._preceding[-2:], omega]
+        self._preceding = [*self._preceding[-2:], omega.tolist()]
         if tracker is None:
             return
         residual_t, H_t, R_t = self._tracker_model(tracker)
@@ -169,16 +172,21 @@ def joseph_update(
 
 
 def _d_rate_d_angles(angles: FloatArray, omega: FloatArray) -> FloatArray:
-    """Jacobian of E^-1(angles) @ omega with respect to the angles (analytic; a test checks it numerically).
+    """Jacobian of E^-1(angles) @ omega with respect to the angles (``_kinematics``'; a test checks it numerically)."""
+    _, (j01, j02, j12, j21, j22) = _kinematics(float(angles[1]), float(angles[2]), float(omega[1]), float(omega[2]))
+    return np.array([[0.0, j01, j02], [0.0, 0.0, j12], [0.0, j21, j22]])
+
+
+def _kinematics(el: float, roll: float, q: float, r: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The entries of E^-1 at (el, roll) other than its first column (0, 0, 1) (``geometry.euler_rate_matrix``), and the
+    non-zero ones of the Jacobian of E^-1 @ omega with respect to the angles, from one evaluation of the sines and cosines.
 
     With a = q sin(roll) + r cos(roll) and b = q cos(roll) - r sin(roll): d(az)/dt = a / cos(el),
     d(el)/dt = b, d(roll)/dt = p + a tan(el); da/droll = b, db/droll = -a; nothing depends on az.
     """
-    _, el, roll = float(angles[0]), float(angles[1]), float(angles[2])
-    _, q, r = float(omega[0]), float(omega[1]), float(omega[2])
-    ce, se, cr, sr = np.cos(el), np.sin(el), np.cos(roll), np.sin(roll)
+    ce, se, cr, sr = math.cos(el), math.sin(el), math.cos(roll), math.sin(roll)
     a, b = q * sr + r * cr, q * cr - r * sr
-    return np.array([[0.0, a * se / ce**2, b / ce], [0.0, 0.0, -a], [0.0, a / ce**2, b * se / ce]])
+    return (sr / ce, cr / ce, cr, -sr, sr * se / ce, cr * se / ce), (a * se / ce**2, b / ce, -a, a / ce**2, b * se / ce)
 
 
 def run_head_ekf(
