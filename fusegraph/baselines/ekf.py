@@ -172,7 +172,7 @@ def joseph_update(
 
 
 def _d_rate_d_angles(angles: FloatArray, omega: FloatArray) -> FloatArray:
-    """Jacobian of E^-1(angles) @ omega with respect to the angles (``_kinematics``'; a test checks it numerically)."""
+    """Jacobian of E^-1(angles) @ omega with respect to the angles (from ``_kinematics``; a test checks it numerically)."""
     _, (j01, j02, j12, j21, j22) = _kinematics(float(angles[1]), float(angles[2]), float(omega[1]), float(omega[2]))
     return np.array([[0.0, j01, j02], [0.0, 0.0, j12], [0.0, j21, j22]])
 
