@@ -69,9 +69,15 @@ def test_euler_angles_round_trip_in_the_helpers() -> None:
     assert np.allclose(euler_zyx_from_quat(quat_from_euler_zyx(angles)), angles)
 
 
-def test_rate_jacobian_matches_central_differences() -> None:
-    from fusegraph.baselines.ekf import _d_rate_d_angles
+def _rate_jacobian(angles: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """The Jacobian of E^-1(angles) @ omega with respect to the angles as ``HeadEkf.predict`` takes it (``_kinematics``)."""
+    from fusegraph.baselines.ekf import _kinematics
 
+    _, (j01, j02, j12, j21, j22) = _kinematics(float(angles[1]), float(angles[2]), float(omega[1]), float(omega[2]))
+    return np.array([[0.0, j01, j02], [0.0, 0.0, j12], [0.0, j21, j22]])
+
+
+def test_rate_jacobian_matches_central_differences() -> None:
     rng = np.random.default_rng(3)
     for _ in range(20):
         angles = rng.uniform([-3, -1.3, -3], [3, 1.3, 3])  # inside the Euler domain (|el| < 75 deg)
@@ -82,14 +88,13 @@ def test_rate_jacobian_matches_central_differences() -> None:
             step[j] = 1e-6
             numeric[:, j] = (euler_rate_matrix(angles + step) @ omega - euler_rate_matrix(angles - step) @ omega) / 2e-6
         # central differences are exact to ~1e-9 here; 1e-6 leaves room for 1/cos(el)^2 up to ~15
-        np.testing.assert_allclose(_d_rate_d_angles(angles, omega), numeric, atol=1e-6)
+        np.testing.assert_allclose(_rate_jacobian(angles, omega), numeric, atol=1e-6)
 
 
 def test_the_time_update_is_the_state_equation_and_its_jacobian() -> None:
     """``HeadEkf.predict`` (written in Python floats for speed) against the module docstring's state equation written with
     numpy: angles + T E^-1(angles) omega wrapped, P = F P F' + Q with F = I + T [[d(E^-1 omega)/d angles, E^-1], [0, 0]].
     1e-13: the same operations, some summed in another order."""
-    from fusegraph.baselines.ekf import _d_rate_d_angles
     from fusegraph.geometry import wrap_angle
 
     rng = np.random.default_rng(5)
@@ -100,7 +105,7 @@ def test_the_time_update_is_the_state_equation_and_its_jacobian() -> None:
         x, P, dt = ekf.x.copy(), ekf.P.copy(), 0.0035
         F = np.eye(6)
         F[:3, 3:] = dt * euler_rate_matrix(x[:3])
-        F[:3, :3] += dt * _d_rate_d_angles(x[:3], x[3:])
+        F[:3, :3] += dt * _rate_jacobian(x[:3], x[3:])
         ekf.predict(dt)
         np.testing.assert_allclose(ekf.x[:3], wrap_angle(x[:3] + dt * euler_rate_matrix(x[:3]) @ x[3:]), rtol=0, atol=1e-13)
         np.testing.assert_allclose(ekf.P, F @ P @ F.T + ekf._Q, rtol=1e-13, atol=1e-15)

@@ -91,7 +91,7 @@ class HeadEkf:
         f01, f02, f11, f12, f21, f22 = dt * e01, dt * e02, dt * e11, dt * e12, dt * e21, dt * e22  # dt E^-1 (its first column 0, 0, 1)
         F = np.array([[1.0, dt * j01, dt * j02, 0.0, f01, f02], [0.0, 1.0, dt * j12, 0.0, f11, f12], [0.0, dt * j21, 1.0 + dt * j22, dt, f21, f22],
                       [0.0, 0.0, 0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
-        moved = (az + (0.0 * p + f01 * q + f02 * r), el + (0.0 * p + f11 * q + f12 * r), roll + (dt * p + f21 * q + f22 * r))
+        moved = (az + (f01 * q + f02 * r), el + (f11 * q + f12 * r), roll + (dt * p + f21 * q + f22 * r))
         self.x[:3] = [(angle + math.pi) % (2 * math.pi) - math.pi for angle in moved]  # ``wrap_angle``
         self.P = F @ self.P @ F.T + self._Q
         self._t = t
@@ -169,12 +169,6 @@ def joseph_update(
     x[angle_rows] = wrap_angle(x[angle_rows])
     I_KH = np.eye(len(x)) - K @ H
     return x, I_KH @ P @ I_KH.T + K @ R @ K.T
-
-
-def _d_rate_d_angles(angles: FloatArray, omega: FloatArray) -> FloatArray:
-    """Jacobian of E^-1(angles) @ omega with respect to the angles (from ``_kinematics``; a test checks it numerically)."""
-    _, (j01, j02, j12, j21, j22) = _kinematics(float(angles[1]), float(angles[2]), float(omega[1]), float(omega[2]))
-    return np.array([[0.0, j01, j02], [0.0, 0.0, j12], [0.0, j21, j22]])
 
 
 def _kinematics(el: float, roll: float, q: float, r: float) -> tuple[tuple[float, ...], tuple[float, ...]]:

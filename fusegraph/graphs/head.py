@@ -586,18 +586,20 @@ for _tag, _rank in _RANK.items():
     _RANK_OF_CHR[ord(_tag)] = _rank
 
 
-def carried_by_gyro(t: FloatArray, omega: FloatArray, rows: np.ndarray, start: np.ndarray, bias: FloatArray) -> FloatArray:
-    """The rotation (w, x, y, z) from sample ``start[m]`` to sample ``rows[m]``: the midpoints of consecutive rates less
-    ``bias[m]``, each over its sample step (``GyroInterval``'s rule), composed in order. Vectorised over the rows: step
-    ``p`` moves every row at least ``p`` samples past its start."""
-    steps = rows - start
-    q = np.zeros((len(rows), 4))
-    q[:, 0] = 1.0
-    for p in range(1, int(steps.max(initial=0)) + 1):
-        moving = steps >= p
-        j = start[moving] + p  # the sample that ends this step
-        rate = 0.5 * (omega[j] + omega[j - 1]) - bias[moving]
-        q[moving] = quat_multiply(q[moving], quat_from_rotvec(rate * (t[j] - t[j - 1])[:, None]))
+def carried_by_gyro(t: FloatArray, omega: FloatArray, starts: np.ndarray, bias: FloatArray) -> FloatArray:
+    """The rotation (w, x, y, z) from the start of its segment to every sample: segments run from each of ``starts``
+    (increasing sample indices) to the next, the last to the end; within one, the midpoints of consecutive rates less its
+    ``bias``, each over its sample step (``GyroInterval``'s rule), composed in order. Each sample is its predecessor's
+    rotation times one step, for every segment at once (step ``p``: every segment's ``p``-th sample); NaN before the first
+    start."""
+    q = np.full((len(t), 4), np.nan)
+    q[starts] = [1.0, 0.0, 0.0, 0.0]
+    lengths = np.diff(np.r_[starts, len(t)])
+    for p in range(1, int(lengths.max(initial=1))):
+        longer = lengths > p
+        j = starts[longer] + p
+        rate = 0.5 * (omega[j] + omega[j - 1]) - bias[longer]
+        q[j] = quat_multiply(q[j - 1], quat_from_rotvec(rate * (t[j] - t[j - 1])[:, None]))
     return q
 
 
@@ -612,7 +614,7 @@ def interpolate_keyframes(t: FloatArray, omega: FloatArray, kf_t: FloatArray, kf
     rows = np.nonzero(kf_index >= 0)[0]
     k = kf_index[rows]
     kf_sample = np.searchsorted(t, np.asarray(kf_t) - 1e-9)  # gyro index of each keyframe
-    quats[rows] = quat_normalize(quat_multiply(kf_quat[k], carried_by_gyro(t, omega, rows, kf_sample[k], kf_bias[k])))
+    quats[rows] = quat_normalize(quat_multiply(kf_quat[k], carried_by_gyro(t, omega, kf_sample, kf_bias)[rows]))
     if covs is not None and kf_cov is not None:
         covs[rows] = kf_cov[k]
     return quats, covs
@@ -663,9 +665,10 @@ class OnlinePredictions:
         rows = everyone[(interval >= 0) & (state >= 0)]
         rows = rows[np.asarray(have)[state[rows]]]
         iv, st = interval[rows], state[rows]
-        start = np.searchsorted(t, [t_start for _, t_start, _ in self.intervals])[iv]
-        bias_hat = np.array([b for _, _, b in self.intervals])[iv]
-        delta = carried_by_gyro(t, omega, rows, start, bias_hat)
+        starts = np.searchsorted(t, [t_start for _, t_start, _ in self.intervals])
+        biases = np.array([b for _, _, b in self.intervals])
+        delta = carried_by_gyro(t, omega, starts, biases)[rows]
+        start, bias_hat = starts[iv], biases[iv]
         table = [s if s[1] is not None else (s[0], np.full(4, np.nan), *s[2:]) for s in self.states]
         rot, bias, cov, bias_cov = (np.array([s[m] for s in table])[st] for m in (1, 2, 3, 4))
         # the newest bias, to first order over the interval (``GyroInterval.delta``)

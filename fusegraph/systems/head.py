@@ -362,10 +362,10 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     cfg = config or HEAD_ONLINE
     if cfg.window_s <= max_latency + model.keyframe_period_s:
         raise ValueError(f"online window_s = {cfg.window_s} s must exceed the largest tracker latency ({max_latency:.3f} s) plus one keyframe")
-    wall, pushed_t, pushed = np.zeros(len(gyro)), np.zeros(len(gyro)), np.zeros((len(gyro), 3))
+    wall = np.zeros(len(gyro))
     live = OnlineHeadTracker(model, cfg, estimate_first)
     predictions = OnlinePredictions()
-    # the gyro in the order the replay pushes it (by arrival, then index): checked at once when it all passes
+    # the gyro in the order the replay pushes it (by arrival, then index): checked at once when it all passes; what was pushed
     order = np.argsort(np.round(gyro.arrival_t * 1e6).astype(np.int64), kind="stable")
     push = live._checked_gyro if gyro_stream_passes(gyro.t[order], gyro.values[order]) else live.add_gyro
     i = 0
@@ -378,14 +378,12 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
         elif kind == "accel":
             live.add_accel(event.t, event.values)
         elif kind == "gyro":
-            t_i, w_i = event.t, event.values
-            pushed_t[i], pushed[i] = t_i, w_i
-            push(t_i, w_i, False)
+            push(event.t, event.values, False)
             predictions.note(i, live.builder, live.solver.latest_cov, live.solver.latest_bias_cov, live.solver.latest_rot is not None)
             wall[i] = time.perf_counter()
             live.maintain()  # as the live loop does after publishing (its time is in the next sample's wall)
             i += 1
-    quats, covs = predictions.fill(pushed_t, pushed, live.builder.model.gyro.density**2)
+    quats, covs = predictions.fill(gyro.t[order], gyro.values[order], live.builder.model.gyro.density**2)
     runtime = time.perf_counter() - start
     latency_estimate = live.latency()
     extras = {
