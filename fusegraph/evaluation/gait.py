@@ -14,9 +14,10 @@ Rows:
 * ``fusegraph``: ``run --solver gait`` (the walking preset: a step per walking cycle of ``pdr.detect_cycles``, the
   contacts it missed inside a bout inferred, ``frontends.gait.with_missed_steps``; step length from the pelvis's
   vertical excursion by the inverted pendulum, ``frontends.gait``; a stride as two consecutive steps, speed = stride
-  length / stride time) on each session. Every setting of it is chosen by leave-one-participant-out, in order: the step
-  thresholds from ``frontends.gait.STEP_DETECTION_GRID`` by step F1, then the step length's drift removal and its
-  correction from ``STEP_LENGTH_GRID`` by stride-length MAE on the thresholds just chosen. The held-out
+  length / stride time) on each session. Every setting of it chosen on data is chosen by leave-one-participant-out: the
+  step thresholds from ``frontends.gait.STEP_DETECTION_GRID`` by step F1; the step length is then taken from
+  ``STEP_LENGTH_GRID`` by stride-length MAE on the thresholds just chosen, and that grid holds the cited configuration
+  alone (``frontends.gait.CITED``: Mobilise-D's published settings of Zijlstra & Hof's pendulum). The held-out
   participant's rows are its sessions DECLARING the settings chosen on the others (``[gait]``); the in-sample choice is
   printed beside, and so are the step thresholds as first set by hand with the step length chosen the same way. A
   folder of one participant is scored with the settings on main (``Setting()``).

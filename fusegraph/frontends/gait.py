@@ -7,14 +7,19 @@ height above the ground); a vertical excursion ``h`` within the step then means 
 (eq. 1 of the paper). The paper's model underestimated the measured step length; it multiplies by a correction factor
 1.25 fitted on its own subjects (``CORRECTION``: a literature constant, not fitted to any recording here).
 
-Excursion: the step length is ``scale x h``, declared (``[gait] model = "excursion"``), never chosen by ``bench gait``.
+Excursion: the step length is ``scale x h``, declared (``[gait] model = "excursion"``), never used by ``bench gait``.
 On both Mobilise-D participants in ../shared/data/mobgap the pendulum's error followed the step length itself: the
 reference over the pendulum's estimate (correction 1) rose from 0.76 at the slowest bout (0.46 m strides at 0.25 m/s) to
 1.31 at the fastest (1.26 m at 1.06 m/s), and a step in proportion to the excursion fitted both with one scale. That form
 was found by looking at those two participants, the ones the bench scores, and no citation or other recording with a
-reference justifies it, so it is out of ``STEP_LENGTH_GRID``: the cited pendulum is what the bench chooses. Measured
-before it left (2026-12-07, the step thresholds re-chosen in each fold too): stride-length MAE with both models in the grid
-0.230 m leave-one-participant-out (0.112 in-sample), with the pendulum alone 0.200 m (0.131).
+reference justifies it.
+
+What ``bench gait`` runs is the cited configuration alone (``CITED``): nothing of the step length is chosen on the
+data. It used to choose the drift removal's corner and the correction by leave-one-participant-out, and with two
+participants each fold's choice fitted the one left in (2026-12-07, the step thresholds re-chosen in each fold too):
+stride-length MAE with both models in the grid 0.230 m leave-one-participant-out (0.112 in-sample); with the pendulum
+alone over six corners and three corrections 0.200 m (0.131). The cited configuration, measured once after it was
+decided on (issue 62's rule: a model form justified by a citation), gives 0.126 m with the thresholds re-chosen per fold.
 
 ``h`` comes from the vertical acceleration (gravity removed, levelled frame) integrated twice, the drift taken out by
 high-passes (``StepLengthConfig``).
@@ -57,24 +62,26 @@ MODELS = ("pendulum", "excursion")
 
 @dataclass(frozen=True)
 class StepLengthConfig:
-    """How the vertical excursion is integrated and turned into a step length. ``bench gait`` chooses among
-    ``STEP_LENGTH_GRID`` by leave-one-participant-out on the step thresholds its fold chose (``StepDetection``); the
-    defaults are the in-sample choice on the two Mobilise-D participants in ../shared/data/mobgap, on the thresholds
-    chosen in-sample too: the pendulum with Mobilise-D's correction, 1.2 Hz (stride-length MAE 0.131 m in-sample; 0.200 m
-    with both re-chosen without each participant)."""
+    """How the vertical excursion is integrated and turned into a step length. The defaults are ``CITED``: Zijlstra &
+    Hof's pendulum as Mobilise-D's pipeline runs it (mobgap's ``SlZijlstra`` defaults: the vertical acceleration high-passed
+    at 0.1 Hz, the velocity at 1 Hz, 4th-order Butterworth, zero phase; the MS Project correction 4.587/4), chosen on no
+    recording here."""
 
     accel_highpass_hz: float | None = 0.1
     """High-pass of the vertical acceleration before the first integral, Hz (None: none)."""
-    highpass_hz: float = 1.2
+    highpass_hz: float = 1.0
     """High-pass after each integral (drift removal), Hz."""
     order: int = 4
     """Butterworth order of those high-passes (applied forward and backward: zero phase)."""
     correction: float = MS_PROJECT_CORRECTION
-    """Scale of the step length: the pendulum's correction (the grid's: 1, the pendulum as it is, Mobilise-D's
-    ``MS_PROJECT_CORRECTION`` and Zijlstra & Hof's ``CORRECTION``), or a declared excursion model's metres of step per
+    """Scale of the step length: the pendulum's correction (the literature's: Mobilise-D's ``MS_PROJECT_CORRECTION``,
+    Zijlstra & Hof's ``CORRECTION``; 1 is the pendulum as it is), or a declared excursion model's metres of step per
     metre of excursion."""
     model: str = "pendulum"
     """``pendulum`` or ``excursion`` (``MODELS``)."""
+    highpass_displacement: bool = False
+    """Also high-pass the displacement (the second integral) at ``highpass_hz``: Mobilise-D's ``SlZijlstra`` does not
+    (the velocity's high-pass keeps a step's drift small); the walking activity's excursion feature does."""
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -84,17 +91,12 @@ class StepLengthConfig:
                              f"{self.correction:g} must be above 0 and order {self.order} at least 1")
 
 
-CORNERS_HZ = (0.5, 0.7, 1.0, 1.2, 1.5, 2.0)
-"""The drift-removal corners of the grid (mobgap's reimplementation of Zijlstra's method: 0.1 Hz on the acceleration,
-1 Hz after the integral, 4th order, and its neighbours). 1.5 and 2 Hz joined (2026-12-07) because the in-sample choice and
-both folds' sat at 1.2 Hz, the edge; the in-sample choice stayed there, the fold holding out HA/001 moved to 1.5 Hz
-(stride MAE leave-one-participant-out 0.147 m before, 0.200 m after: reported as it came)."""
-STEP_LENGTH_GRID = tuple(StepLengthConfig(0.1, hp, 4, k, "pendulum") for hp in CORNERS_HZ for k in (1.0, MS_PROJECT_CORRECTION, CORRECTION))
-"""The cited model (the pendulum, Zijlstra & Hof 2003) with the literature's corrections (none, Mobilise-D's, Zijlstra &
-Hof's; no fitted one) at every corner. Measured with the pendulum alone (2026-11-26, the thresholds as set by hand): a
-corner proportional to each bout's step frequency gave 0.262 m leave-one-participant-out (0.125 in-sample); the
-excursion integrated per step instead (each step's acceleration and velocity made zero-mean: no corner) left each
-fold's choice where it was. The excursion model is out of it (module docstring)."""
+CITED = StepLengthConfig()
+"""The step length ``bench gait`` and ``--solver gait`` run: the cited pendulum with Mobilise-D's published settings (see
+``StepLengthConfig``); a user declares another (``[gait]``)."""
+STEP_LENGTH_GRID: tuple[StepLengthConfig, ...] = (CITED,)
+"""What ``bench gait`` chooses the step length among on the thresholds each fold chose: the cited configuration alone, so
+the step length is chosen on no recording (the module docstring has what a grid of corners and corrections did)."""
 
 
 @dataclass(frozen=True)
@@ -175,14 +177,15 @@ def with_missed_steps(steps_s: FloatArray) -> tuple[FloatArray, np.ndarray]:
 
 
 def pelvis_excursion(vertical_m_s2: FloatArray, fs: float, highpass_hz: float = 0.5, accel_highpass_hz: float | None = None,
-                     order: int = 2) -> FloatArray:
-    """The pelvis's vertical displacement about its mean, m: the vertical acceleration (gravity removed) integrated twice,
-    each integral high-passed (zero phase, Butterworth of ``order``) so an integration's drift does not enter."""
+                     order: int = 2, highpass_displacement: bool = True) -> FloatArray:
+    """The pelvis's vertical displacement, m: the vertical acceleration (gravity removed) integrated twice, the velocity
+    (and with ``highpass_displacement`` the displacement too, about its mean) high-passed at ``highpass_hz`` (zero phase,
+    Butterworth of ``order``) so an integration's drift does not enter."""
     sos = butter(order, highpass_hz / (fs / 2), btype="high", output="sos")
     acceleration = vertical_m_s2 if accel_highpass_hz is None else sosfiltfilt(butter(order, accel_highpass_hz / (fs / 2), btype="high", output="sos"),
                                                                                   vertical_m_s2)
-    velocity = sosfiltfilt(sos, np.cumsum(acceleration) / fs)
-    return np.asarray(sosfiltfilt(sos, np.cumsum(velocity) / fs))
+    displacement = np.cumsum(sosfiltfilt(sos, np.cumsum(acceleration) / fs)) / fs
+    return np.asarray(sosfiltfilt(sos, displacement) if highpass_displacement else displacement)
 
 
 def step_lengths(t: FloatArray, vertical_m_s2: FloatArray, steps_s: FloatArray, leg_m: float, config: StepLengthConfig = StepLengthConfig()) -> FloatArray:
@@ -193,7 +196,7 @@ def step_lengths(t: FloatArray, vertical_m_s2: FloatArray, steps_s: FloatArray, 
     if len(steps_s) < 2:
         return out
     fs = 1.0 / float(np.median(np.diff(t)))
-    height = pelvis_excursion(vertical_m_s2, fs, config.highpass_hz, config.accel_highpass_hz, config.order)
+    height = pelvis_excursion(vertical_m_s2, fs, config.highpass_hz, config.accel_highpass_hz, config.order, config.highpass_displacement)
     index = np.clip(np.searchsorted(t, steps_s), 0, len(t) - 1)
     for n in range(len(steps_s) - 1):
         if steps_s[n + 1] - steps_s[n] > MAX_STEP_S:
