@@ -20,8 +20,8 @@ from .tuned import SYSTEM_STUDIES, TunedError, tuned
 
 GAIT_PARTICIPANTS = ("HA/001", "HA/002")
 """The Mobilise-D participants the walking front end's step thresholds (``frontends.pdr.PdrConfig``, which every walking
-solver runs with) and ``--solver gait``'s step length (``frontends.gait.StepLengthConfig``) were chosen on in-sample
-(``bench gait`` re-chooses them without each participant)."""
+solver runs with) were chosen on in-sample (``bench gait`` re-chooses them without each participant); ``--solver gait``'s
+step length is Mobilise-D's published setting (``frontends.gait.CITED``), chosen on none."""
 PHONE_RECORDINGS = ("Pixel_Jamie_Hard_BackPocket_1", "Pixel_Jamie_Hard_FrontPocket_1", "Pixel_Jamie_Hard_NeckPouch_1",
                     "Samsung_Carmelo_Hard_FrontPocket_1", "Samsung_Dario_Hard_BackPocket_1")
 """The Oxford recordings ``--solver steps``'s peak threshold (``frontends.pdr.PHONE``) was chosen on (``bench walking``
@@ -67,7 +67,7 @@ def chosen_on(system: str) -> tuple[ChosenOn, ...]:
             out.append(ChosenOn(f"tuned.toml [{study}]", "", "seed", frozenset(str(x) for x in range(first, last + 1))))
     if system == "walking":
         out += [ChosenOn("the activity model (models/activity_waist.json)", "UCI HAPT", "trial", _activity_recordings()),
-                ChosenOn("the step thresholds and --solver gait's step length (frontends.pdr, frontends.gait)", "Mobilise-D", "subject",
+                ChosenOn("the step thresholds (frontends.pdr)", "Mobilise-D", "subject",
                          frozenset(GAIT_PARTICIPANTS)),
                 ChosenOn("--solver steps's peak threshold (frontends.pdr.PHONE)", "Oxford", "trial", frozenset(PHONE_RECORDINGS))]
     return tuple(out)

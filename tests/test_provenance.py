@@ -28,7 +28,7 @@ def test_walking_names_the_activity_model_the_gait_defaults_and_the_phone_thresh
     assert choices_that_saw("walking", {"dataset": "UCI HAPT", "trial": "exp01_user01"}) == ["the activity model (models/activity_waist.json)"]
     assert choices_that_saw("walking", {"dataset": "UCI HAPT", "trial": "exp45_user22"}) == []  # users 11-30 are held out
     assert choices_that_saw("walking", {"dataset": "Mobilise-D (mobgap example data)", "subject": "HA/002"}) == [
-        "the step thresholds and --solver gait's step length (frontends.pdr, frontends.gait)"]
+        "the step thresholds (frontends.pdr)"]
     assert choices_that_saw("walking", {"dataset": "Mobilise-D (mobgap example data)", "subject": "MS/001"}) == []
 
 
