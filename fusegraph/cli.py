@@ -360,7 +360,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "gait: a lower-back IMU against a reference system's walking bouts (DIR: Mobilise-D data in mobgap's layout, default "
                          "../shared/data/mobgap, or sessions from `import mobgap`): step F1 (matched within 0.25 s), stride-length and "
                          "walking-speed MAE per bout, for fusegraph's front end (step length from the pelvis's vertical excursion by the inverted "
-                         "pendulum, its correction chosen leave-one-participant-out), the walking paper's speed regression "
+                         "pendulum with Mobilise-D's published settings; the step thresholds chosen leave-one-participant-out), the walking paper's "
+                         "speed regression "
                          "and mobgap's own Mobilise-D pipeline.",
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png\n"
