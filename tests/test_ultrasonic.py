@@ -456,3 +456,37 @@ def test_the_uwb_bench_says_what_its_figures_are() -> None:
 
     assert "in-sample: the calibrated tracker's settings were chosen on this run" in uwb_figures_are(Path("data/uwb_lias"))
     assert uwb_figures_are(Path("data/uwb_lias_medium")) == "ran; held out: no setting was chosen on this run"
+
+
+@requires_shared_data("uwb_lias")
+def test_the_uwb_start_searches_the_heading_as_its_per_range_form() -> None:
+    """``UwbTracker.start`` on unlabelled ranges (the first second of the LIAS run, both handednesses) scores every heading
+    at once: its cost, heading and handedness are those of the per-anchor loop it replaced (written out here), the cost
+    to the bit."""
+    from fusegraph.datasets.uwb_lias import load_uwb_lias
+    from fusegraph.systems.uwb import UwbTracker
+
+    rec = load_uwb_lias()
+    first = rec.ranges[: int(np.searchsorted(rec.t, rec.t[0] + 1.0))]
+    for shift in (0, 400):  # the run's start and a moment 400 epochs on
+        epochs = rec.ranges[shift : shift + len(first)]
+        tracker = UwbTracker(rec.anchors, rec.tag_offsets)
+        tracker.start(epochs, labelled=False)
+        chosen = (tracker.start_cost, float(tracker.x[2]), tracker.mirror)
+        c, bias = tracker.x[:2], np.zeros((len(rec.anchors), 3))
+        best = (np.inf, 0.0, 1.0)
+        for handed in (1.0, -1.0):
+            tracker.mirror = handed
+            for heading in np.deg2rad(np.arange(0, 360, 5)):
+                predicted = tracker._scale.T * tracker._predicted_ranges(tracker.tag_xy(np.r_[c, heading])) + bias.T
+                rel_p = predicted - predicted.mean(axis=0)
+                cost = 0.0
+                for epoch in epochs:
+                    for a in range(len(rec.anchors)):
+                        heard = np.isfinite(epoch[a])
+                        if heard.sum() >= 2:
+                            rel_h = epoch[a][heard] - epoch[a][heard].mean()
+                            cost += float(np.min(np.abs(rel_h[:, None] - rel_p[None, :, a]), axis=1).sum())
+                if cost < best[0]:
+                    best = (cost, float(heading), handed)
+        assert chosen == best  # the cost to the bit

@@ -15,13 +15,14 @@ heading) that best explains the range DIFFERENCES at each anchor (no common bias
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import block_diag
 
-from ..frontends.association import assign_ranges, association_self_check, share_swaps
+from ..frontends.association import assign_receivers, association_self_check, relative_range_misfit, share_swaps
 from ..geometry import FloatArray
 from ..progress import progress
 from ..records import RangeEpochs
@@ -57,10 +58,16 @@ class UwbConfig:
     (``frontends.association.share_swaps``; the slow LIAS run 0.0432 -> 0.0422 m, the fast 0.0426 -> 0.0430, README)."""
 
 
+@functools.lru_cache(maxsize=1024)
 def _state_motion(dt: float, psd: float, psd_turn: float, bias_walk: float, biases: int) -> tuple[FloatArray, FloatArray]:
-    """Constant velocity in (x, y, heading) and random-walk biases: transition and whitening."""
+    """Constant velocity in (x, y, heading) and random-walk biases: transition and whitening (read-only). Cached: a
+    logger's stamps are quantised (LIAS's 13,481 epochs are 102 distinct steps), and building them was a quarter of the
+    tracker's time."""
     F_cv, Q_cv = constant_velocity(dt, [psd, psd, psd_turn])
-    return block_diag(F_cv, np.eye(biases)), whitening(block_diag(Q_cv, np.eye(biases) * bias_walk**2 * dt))
+    F, W = block_diag(F_cv, np.eye(biases)), whitening(block_diag(Q_cv, np.eye(biases) * bias_walk**2 * dt))
+    F.setflags(write=False)
+    W.setflags(write=False)
+    return F, W
 
 
 @dataclass(frozen=True)
@@ -95,6 +102,8 @@ class UwbTracker:
         self._t: float | None = None
         self.cost = 0.0
         """Sum of the Cauchy losses of the normalised range residuals so far (for model selection)."""
+        self.start_cost = float("nan")
+        """The misfit (m) of the start's pose: its ranges' spread against the prediction's, summed over the first epochs."""
 
     def tag_xy(self, x: FloatArray) -> FloatArray:
         """(T, 2) tag positions of a state."""
@@ -127,25 +136,24 @@ class UwbTracker:
             c, common_bias = c + step[:2], common_bias + step[2]
         best = (np.inf, 0.0, 1.0)
         epochs = [ranges] if labelled else list(first)
+        # each (epoch, anchor) that heard two or more: its ranges about their mean (they do not depend on the pose), in order
+        groups = [(a, heard, epoch[a][heard] - epoch[a][heard].mean()) for epoch in epochs for a in range(len(self.anchors))
+                  for heard in [np.isfinite(epoch[a])] if heard.sum() >= 2]
+        misfit = relative_range_misfit([(a, rel_h) for a, _, rel_h in groups]) if not labelled and groups else None
         for handed in (1.0, -1.0) if mirror is None else (mirror,):  # the offsets' frame seen from above: either handedness
             self.mirror = handed
             for heading in np.deg2rad(np.arange(0, 360, 5)):
                 predicted = self._scale.T * self._predicted_ranges(self.tag_xy(np.r_[c, heading])) + bias.T  # (T, A), as measured
                 rel_p = predicted - predicted.mean(axis=0)
                 cost = 0.0
-                for epoch in epochs:
-                    for a in range(len(self.anchors)):
-                        heard = np.isfinite(epoch[a])
-                        if heard.sum() < 2:
-                            continue
-                        rel_h = epoch[a][heard] - epoch[a][heard].mean()
-                        if labelled:
-                            cost += float(np.abs(rel_h - (rel_p[heard, a] - rel_p[heard, a].mean())).sum())
-                        else:
-                            cost += float(np.min(np.abs(rel_h[:, None] - rel_p[None, :, a]), axis=1).sum())
+                if labelled:
+                    for a, heard, rel_h in groups:
+                        cost += float(np.abs(rel_h - (rel_p[heard, a] - rel_p[heard, a].mean())).sum())
+                elif misfit is not None:
+                    cost = misfit(rel_p)
                 if cost < best[0]:
                     best = (cost, float(heading), handed)
-        self.mirror = best[2]
+        self.mirror, self.start_cost = best[2], best[0]
         biases = len(self.anchors) * self._bias_tags
         if self.calibration is None:
             self.x = np.r_[c, best[1], np.zeros(3), np.full(biases, common_bias)]
@@ -174,9 +182,10 @@ class UwbTracker:
             labels[np.isfinite(ranges)] = np.broadcast_to(np.arange(self.tags), ranges.shape)[np.isfinite(ranges)]
         else:  # the ranges the prediction expects per tag and anchor (T, A): the assignment's and the soft pairs'
             predicted = self._scale.T * self._predicted_ranges(self.tag_xy(pred)) + pred[6:].reshape(n_anchor, self._bias_tags).T
-            for a in range(n_anchor):
-                heard = np.isfinite(ranges[a])
-                labels[a, np.nonzero(heard)[0]] = assign_ranges(ranges[a][heard], predicted[:, a], np.full(self.tags, sigma_assoc), cfg.gate_chi2)
+            heard = np.isfinite(ranges)
+            # every anchor's assignment at once (each its own); the range order within an anchor as heard
+            labels[heard] = assign_receivers([ranges[a][heard[a]] for a in range(n_anchor)], predicted.T, np.full((n_anchor, self.tags), sigma_assoc),
+                                             cfg.gate_chi2)
         a_idx, t_idx = np.nonzero(labels >= 0)
         tag_of, z, share = labels[a_idx, t_idx], ranges[a_idx, t_idx], np.ones(len(a_idx))
         if not labelled and cfg.soft_pairs:  # wrong assignments: tags whose true ranges differed by 6 cm (median, slow run)
