@@ -290,36 +290,35 @@ def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: Fl
     is scored in x, y. A track is lost beyond ``lost_beyond_m(epochs)``."""
     assert epochs.labels is not None and epochs.positions is not None
     dims = 2 if epochs.planar else 3
-    correct = total = correct_u = total_u = 0
     errors, swaps, previous = [], 0, None
+    mappings = np.tile(np.arange(epochs.transmitters), (len(epochs.t), 1))  # a method's transmitter -> truth index, per epoch
     for k in range(len(epochs.t)):
         truth_k = epochs.positions[k]
-        mapping = None
         if positions is not None:
             mapping = identity_map(positions[k][:, :dims], truth_k[:, :dims])
             if previous is not None:
                 swaps += int(np.sum(mapping != previous)) // 2
-            previous = mapping
+            previous = mappings[k] = mapping
             matched = np.full((epochs.transmitters, dims), np.nan)
             matched[mapping[mapping >= 0]] = positions[k][mapping >= 0, :dims]
             errors.append(np.linalg.norm(matched - truth_k[:, :dims], axis=1))
-        direct = np.linalg.norm(truth_k[None, :, :] - epochs.receivers[:, None, :], axis=2)
-        for r in range(len(epochs.receivers)):
-            truth = epochs.labels[k][r]
-            guess = labels[k][r]
-            if mapping is not None:
-                guess = np.where(guess >= 0, mapping[np.clip(guess, 0, None)], -1)
-            want = np.where(truth >= 0, truth, -1)
-            hit = guess == want
-            correct += int(hit.sum())
-            total += len(truth)
-            # unambiguous: echoes, and direct distances > 2 cm from every OTHER transmitter's direct distance
-            own = np.clip(truth, 0, None)
-            others = np.abs(direct[r][None, :] - direct[r][own][:, None])
-            others[np.arange(len(truth)), own] = np.inf
-            clear = (truth < 0) | (others.min(axis=1, initial=np.inf) > 0.02)
-            correct_u += int(hit[clear].sum())
-            total_u += int(clear.sum())
+    # every distance of every epoch and receiver at once (counts: the same integers as a loop over them)
+    receivers = len(epochs.receivers)
+    truth = np.concatenate([np.zeros(0, dtype=int)] + [np.asarray(epochs.labels[k][r]) for k in range(len(epochs.t)) for r in range(receivers)]).astype(int)
+    guess = np.concatenate([np.zeros(0, dtype=int)] + [np.asarray(labels[k][r]) for k in range(len(epochs.t)) for r in range(receivers)]).astype(int)
+    counts = [len(epochs.labels[k][r]) for k in range(len(epochs.t)) for r in range(receivers)]
+    epoch_of = np.repeat(np.repeat(np.arange(len(epochs.t)), receivers), counts)
+    receiver_of = np.repeat(np.tile(np.arange(receivers), len(epochs.t)), counts)
+    if positions is not None:
+        guess = np.where(guess >= 0, mappings[epoch_of, np.clip(guess, 0, None)], -1)
+    hit = guess == np.where(truth >= 0, truth, -1)
+    # unambiguous: echoes, and direct distances > 2 cm from every OTHER transmitter's direct distance at that receiver
+    direct = np.linalg.norm(epochs.positions[epoch_of] - epochs.receivers[receiver_of][:, None, :], axis=2)  # (n, transmitters)
+    own = np.clip(truth, 0, None)
+    others = np.abs(direct - direct[np.arange(len(own)), own][:, None])
+    others[np.arange(len(own)), own] = np.inf
+    clear = (truth < 0) | (others.min(axis=1, initial=np.inf) > 0.02)
+    correct, total, correct_u, total_u = int(hit.sum()), len(truth), int(hit[clear].sum()), int(clear.sum())
     rmse = rmse_all = lost = float("nan")
     if errors:
         err = np.nan_to_num(np.array(errors), nan=np.inf)

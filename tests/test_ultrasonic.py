@@ -75,6 +75,31 @@ def test_tracker_meets_the_accuracy_figures_on_a_short_scenario() -> None:
     assert score.assoc_acc_unambiguous > 0.998 and score.lost_frac == 0.0
 
 
+def test_the_association_score_counts_as_a_loop_over_epochs_and_receivers() -> None:
+    """``score_run`` counts every epoch's and receiver's distances at once; written out here epoch by epoch and receiver by
+    receiver, with each epoch's matching of the method's transmitters to the truth (a run with wrong assignments: its
+    transmitters given to the wrong distances half the time, so that the counts are not all hits)."""
+    epochs = simulate_ultrasonic(6, transmitters=3, duration_s=4.0)
+    run = run_fusegraph(epochs, 3)
+    rng = np.random.default_rng(2)
+    labels = [[np.where(rng.random(len(g)) < 0.5, rng.integers(-1, 3, len(g)), g) for g in epoch] for epoch in run.labels]
+    score = score_run(epochs, labels, run.positions)
+    assert epochs.labels is not None and epochs.positions is not None
+    counts = np.zeros(4, dtype=int)  # correct, total, correct unambiguous, total unambiguous
+    for k in range(len(epochs.t)):
+        mapping = identity_map(run.positions[k], epochs.positions[k])
+        direct = np.linalg.norm(epochs.positions[k][None, :, :] - epochs.receivers[:, None, :], axis=2)
+        for r in range(len(epochs.receivers)):
+            truth, guess = epochs.labels[k][r], np.where(labels[k][r] >= 0, mapping[np.clip(labels[k][r], 0, None)], -1)
+            hit = guess == np.where(truth >= 0, truth, -1)
+            others = np.abs(direct[r][None, :] - direct[r][np.clip(truth, 0, None)][:, None])
+            others[np.arange(len(truth)), np.clip(truth, 0, None)] = np.inf
+            clear = (truth < 0) | (others.min(axis=1, initial=np.inf) > 0.02)
+            counts += [hit.sum(), len(truth), hit[clear].sum(), clear.sum()]
+    assert (score.assoc_acc, score.assoc_acc_unambiguous) == (counts[0] / counts[1], counts[2] / counts[3])
+    assert 0.3 < score.assoc_acc < 0.9  # the wrong labels count as misses
+
+
 def test_a_transmitter_that_disappears_comes_back() -> None:
     epochs = simulate_ultrasonic(5, transmitters=3, duration_s=6.0)
     assert epochs.labels is not None
