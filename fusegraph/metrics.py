@@ -283,6 +283,33 @@ def oracle_labels(epochs: RangeEpochs, gate_chi2: float = 16.0) -> list[list[np.
     return out
 
 
+SCORE_CHUNK_EPOCHS = 20_000
+"""``score_run`` counts this many epochs' distances at once: a LIAS run's 13,481 in one pass, an hour's at 100 Hz in 18
+passes of ~60 MB each."""
+
+
+def _association_counts(epochs: RangeEpochs, labels: list[list[np.ndarray]], mappings: np.ndarray | None, span: range) -> tuple[int, int, int, int]:
+    """(correct, total, correct unambiguous, total unambiguous) over the distances of the epochs in ``span``, every receiver's
+    at once (the same integers as a loop over them); ``mappings``: per epoch, the method's transmitter -> truth index."""
+    assert epochs.labels is not None and epochs.positions is not None
+    receivers = len(epochs.receivers)  # a chunk's distances, flat, epoch by epoch and receiver by receiver
+    truth = np.concatenate([np.zeros(0, dtype=int)] + [np.asarray(epochs.labels[k][r]) for k in span for r in range(receivers)]).astype(int)
+    guess = np.concatenate([np.zeros(0, dtype=int)] + [np.asarray(labels[k][r]) for k in span for r in range(receivers)]).astype(int)
+    counts = [len(epochs.labels[k][r]) for k in span for r in range(receivers)]
+    epoch_of = np.repeat(np.repeat(np.asarray(span), receivers), counts)
+    receiver_of = np.repeat(np.tile(np.arange(receivers), len(span)), counts)
+    if mappings is not None:
+        guess = np.where(guess >= 0, mappings[epoch_of, np.clip(guess, 0, None)], -1)
+    hit = guess == np.where(truth >= 0, truth, -1)
+    # unambiguous: echoes, and direct distances > 2 cm from every OTHER transmitter's direct distance at that receiver
+    direct = np.linalg.norm(epochs.positions[epoch_of] - epochs.receivers[receiver_of][:, None, :], axis=2)  # (n, transmitters)
+    own = np.clip(truth, 0, None)
+    others = np.abs(direct - direct[np.arange(len(own)), own][:, None])
+    others[np.arange(len(own)), own] = np.inf
+    clear = (truth < 0) | (others.min(axis=1, initial=np.inf) > 0.02)
+    return int(hit.sum()), len(truth), int(hit[clear].sum()), int(clear.sum())
+
+
 def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: FloatArray | None) -> AssociationScore:
     """Score a run. Each epoch, the method's transmitters are matched to the truth by position (the
     association question is which distance belongs to which transmitter; keeping identities over time
@@ -302,23 +329,10 @@ def score_run(epochs: RangeEpochs, labels: list[list[np.ndarray]], positions: Fl
             matched = np.full((epochs.transmitters, dims), np.nan)
             matched[mapping[mapping >= 0]] = positions[k][mapping >= 0, :dims]
             errors.append(np.linalg.norm(matched - truth_k[:, :dims], axis=1))
-    # every distance of every epoch and receiver at once (counts: the same integers as a loop over them)
-    receivers = len(epochs.receivers)
-    truth = np.concatenate([np.zeros(0, dtype=int)] + [np.asarray(epochs.labels[k][r]) for k in range(len(epochs.t)) for r in range(receivers)]).astype(int)
-    guess = np.concatenate([np.zeros(0, dtype=int)] + [np.asarray(labels[k][r]) for k in range(len(epochs.t)) for r in range(receivers)]).astype(int)
-    counts = [len(epochs.labels[k][r]) for k in range(len(epochs.t)) for r in range(receivers)]
-    epoch_of = np.repeat(np.repeat(np.arange(len(epochs.t)), receivers), counts)
-    receiver_of = np.repeat(np.tile(np.arange(receivers), len(epochs.t)), counts)
-    if positions is not None:
-        guess = np.where(guess >= 0, mappings[epoch_of, np.clip(guess, 0, None)], -1)
-    hit = guess == np.where(truth >= 0, truth, -1)
-    # unambiguous: echoes, and direct distances > 2 cm from every OTHER transmitter's direct distance at that receiver
-    direct = np.linalg.norm(epochs.positions[epoch_of] - epochs.receivers[receiver_of][:, None, :], axis=2)  # (n, transmitters)
-    own = np.clip(truth, 0, None)
-    others = np.abs(direct - direct[np.arange(len(own)), own][:, None])
-    others[np.arange(len(own)), own] = np.inf
-    clear = (truth < 0) | (others.min(axis=1, initial=np.inf) > 0.02)
-    correct, total, correct_u, total_u = int(hit.sum()), len(truth), int(hit[clear].sum()), int(clear.sum())
+    correct = total = correct_u = total_u = 0
+    for first in range(0, len(epochs.t), SCORE_CHUNK_EPOCHS):
+        counts = _association_counts(epochs, labels, mappings if positions is not None else None, range(first, min(first + SCORE_CHUNK_EPOCHS, len(epochs.t))))
+        correct, total, correct_u, total_u = correct + counts[0], total + counts[1], correct_u + counts[2], total_u + counts[3]
     rmse = rmse_all = lost = float("nan")
     if errors:
         err = np.nan_to_num(np.array(errors), nan=np.inf)

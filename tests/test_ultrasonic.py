@@ -75,7 +75,7 @@ def test_tracker_meets_the_accuracy_figures_on_a_short_scenario() -> None:
     assert score.assoc_acc_unambiguous > 0.998 and score.lost_frac == 0.0
 
 
-def test_the_association_score_counts_as_a_loop_over_epochs_and_receivers() -> None:
+def test_the_association_score_counts_as_a_loop_over_epochs_and_receivers(monkeypatch: pytest.MonkeyPatch) -> None:
     """``score_run`` counts every epoch's and receiver's distances at once; written out here epoch by epoch and receiver by
     receiver, with each epoch's matching of the method's transmitters to the truth (a run with wrong assignments: its
     transmitters given to the wrong distances half the time, so that the counts are not all hits)."""
@@ -98,6 +98,10 @@ def test_the_association_score_counts_as_a_loop_over_epochs_and_receivers() -> N
             counts += [hit.sum(), len(truth), hit[clear].sum(), clear.sum()]
     assert (score.assoc_acc, score.assoc_acc_unambiguous) == (counts[0] / counts[1], counts[2] / counts[3])
     assert 0.3 < score.assoc_acc < 0.9  # the wrong labels count as misses
+    import fusegraph.metrics
+
+    monkeypatch.setattr(fusegraph.metrics, "SCORE_CHUNK_EPOCHS", 7)  # many passes, one of fewer epochs: the same counts
+    assert score_run(epochs, labels, run.positions) == score
 
 
 def test_a_transmitter_that_disappears_comes_back() -> None:
