@@ -85,17 +85,15 @@ def _tracker_rows(residual: FloatArray, H: FloatArray, x: FloatArray, angles: Fl
 def _joseph(x: FloatArray, P: FloatArray, residual: FloatArray, H: FloatArray, R: FloatArray, m: int) -> None:
     """``ekf.joseph_update`` of m measurement rows (residual[:m], H[:m], R[:m, :m]), x and P in place; the angles (x[:3])
     wrapped. K = (S^-1 H P)' with S = H P H' + R."""
-    HP = np.zeros((m, 6))
-    S = np.zeros((m, m))
-    _product(HP, H, P, m, 6, 6, False)
-    _product(S, HP, H, m, 6, m, True)
-    # K' = S^-1 (H P) by LU with partial pivoting, as numpy's solve (LAPACK's gesv) does it
-    LU = S.copy()
+    rhs = np.zeros((m, 6))  # H P, then eliminated in place
+    LU = np.zeros((m, m))  # S, then its LU factors
+    _product(rhs, H, P, m, 6, 6, False)
+    _product(LU, rhs, H, m, 6, m, True)
     for i in range(m):
         for j in range(m):
             LU[i, j] += R[i, j]
+    # K' = S^-1 (H P) by LU with partial pivoting, as numpy's solve (LAPACK's gesv) does it
     K = np.zeros((6, m))
-    rhs = HP.copy()
     for col in range(m):
         pivot = col
         for i in range(col + 1, m):

@@ -27,6 +27,7 @@ Updates use the Joseph form, which keeps P symmetric and positive definite in lo
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -235,9 +236,10 @@ def run_head_ekf(
     return quat_from_euler_zyx(angles), attitude_cov_body(angles, angle_covs)
 
 
+@functools.cache
 def load_compiled() -> None:
-    """Import the compiled loop: numba's import and its machine code (compiled on a machine's first run, ~5 s, then loaded
-    from numba's cache, ~1 s). A caller that times a run calls this first, so that the time is the filter's."""
+    """Import the compiled loop, once per process: numba's import and its machine code (compiled on a machine's first run,
+    ~5 s, then loaded from numba's cache, ~1 s). A caller that times a run calls this first, so that the time is the filter's."""
     from ._ekf_compiled import head_ekf_loop
 
     two = np.zeros(2)

@@ -367,7 +367,8 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
     predictions = OnlinePredictions()
     # the gyro in the order the replay pushes it (by arrival, then index): checked at once when it all passes; what was pushed
     order = np.argsort(np.round(gyro.arrival_t * 1e6).astype(np.int64), kind="stable")
-    push = live._checked_gyro if gyro_stream_passes(gyro.t[order], gyro.values[order]) else live.add_gyro
+    pushed_t, pushed = gyro.t[order], gyro.values[order]
+    push = live._checked_gyro if gyro_stream_passes(pushed_t, pushed) else live.add_gyro
     i = 0
     start = time.perf_counter()
     for event in replay_in_arrival_order(_with_latency(session, model), last_streams=("gyro",), kinds=USED_KINDS):
@@ -383,7 +384,7 @@ def run_isam2(session: Session, model: HeadModel | None = None, config: OnlineCo
             wall[i] = time.perf_counter()
             live.maintain()  # as the live loop does after publishing (its time is in the next sample's wall)
             i += 1
-    quats, covs = predictions.fill(gyro.t[order], gyro.values[order], live.builder.model.gyro.density**2)
+    quats, covs = predictions.fill(pushed_t, pushed, live.builder.model.gyro.density**2)
     runtime = time.perf_counter() - start
     latency_estimate = live.latency()
     extras = {
