@@ -131,7 +131,6 @@ GATE_MAX_RUN = 25
 #: optimistic while the graph settles (a live start refused a sample 2.2 deg off at chi-square 26); 10 deg is over 5x a
 #: realistic tracker's error (white 0.4 plus a 0.7 deg Gauss-Markov term per axis) and far below a glitch's.
 GATE_MIN_DEG = 10.0
-_GATE_MIN_RAD_SQ = math.radians(GATE_MIN_DEG) ** 2
 
 
 def gyro_delay_s(session: Session) -> float:
@@ -271,23 +270,19 @@ class OnlineHeadTracker:
             self.gated += 1
             raise self._reject(f"tracker sample at t = {t_sample:.6f} s: older than the online window (newest gyro "
                                f"{self._last_gyro_t:.6f} s, window {window:g} s): its clock is not the gyro's?")
-        if self.solver.latest_rot is None or not self.builder.started:
-            return  # no estimate yet (``latest``)
         back = self._recent.since(t_sample)  # the body's rotation from t_sample to now, by the gyro samples in between
-        if back is None:
-            return
-        predicted = self.builder.predict_now()[1].compose(back.inverse())
-        error = gtsam.Rot3.Logmap(predicted.between(rot3_from_quat_wxyz(quat_wxyz)))
-        # the covariance and chi-square only for a sample far enough to be refused (GATE_MIN_DEG): ~3 % of the online head's
-        # time on BROAD's motion went to them at every tracker sample
-        if float(error.dot(error)) > _GATE_MIN_RAD_SQ and self._gated_run < GATE_MAX_RUN:
-            cov = self.builder.predict_cov(self.solver.latest_cov, self.solver.latest_bias_cov)
-            chi2 = _chi_square3(cov, self.model.tracker.total_sigma_rad**2, error)
-            if chi2 > GATE_CHI2:
-                self._gated_run += 1
-                self.gated += 1
-                raise self._reject(f"tracker sample at t = {t_sample:.6f} s: {np.rad2deg(np.linalg.norm(error)):.1f} deg from the estimate "
-                                   f"(chi-square {chi2:.0f} > {GATE_CHI2:g}): an outlier, not used")
+        if self.solver.latest_rot is None or not self.builder.started or back is None:
+            return  # no estimate yet (``latest``), or nothing to carry it back by
+        error = gtsam.Rot3.Logmap(self.builder.predict_now()[1].compose(back.inverse()).between(rot3_from_quat_wxyz(quat_wxyz)))
+        # the covariance and chi-square only for a sample far enough to be refused (``GATE_MIN_DEG``): ~3 % of the online
+        # head's time on BROAD's motion went to them at every tracker sample
+        far = float(error.dot(error)) > math.radians(GATE_MIN_DEG) ** 2 and self._gated_run < GATE_MAX_RUN
+        if far and (chi2 := _chi_square3(self.builder.predict_cov(self.solver.latest_cov, self.solver.latest_bias_cov),
+                                         self.model.tracker.total_sigma_rad**2, error)) > GATE_CHI2:
+            self._gated_run += 1
+            self.gated += 1
+            raise self._reject(f"tracker sample at t = {t_sample:.6f} s: {np.rad2deg(np.linalg.norm(error)):.1f} deg from the estimate "
+                               f"(chi-square {chi2:.0f} > {GATE_CHI2:g}): an outlier, not used")
         self._gated_run = 0
 
     def add_accel(self, t_sample: float, accel_m_s2: FloatArray) -> None:
