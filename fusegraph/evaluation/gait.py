@@ -15,9 +15,8 @@ Rows:
   contacts it missed inside a bout inferred, ``frontends.gait.with_missed_steps``; step length from the pelvis's
   vertical excursion by the inverted pendulum, ``frontends.gait``; a stride as two consecutive steps, speed = stride
   length / stride time) on each session. Every setting of it chosen on data is chosen by leave-one-participant-out: the
-  step thresholds from ``frontends.gait.STEP_DETECTION_GRID`` by step F1; the step length is then taken from
-  ``STEP_LENGTH_GRID`` by stride-length MAE on the thresholds just chosen, and that grid holds the cited configuration
-  alone (``frontends.gait.CITED``: Mobilise-D's published settings of Zijlstra & Hof's pendulum). The held-out
+  step thresholds from ``frontends.gait.STEP_DETECTION_GRID`` by step F1. The step length is chosen on none: it is the
+  cited configuration (``frontends.gait.CITED``: Mobilise-D's published settings of Zijlstra & Hof's pendulum). The held-out
   participant's rows are its sessions DECLARING the settings chosen on the others (``[gait]``); the in-sample choice is
   printed beside, and so are the step thresholds as first set by hand with the step length chosen the same way. A
   folder of one participant is scored with the settings on main (``Setting()``).
@@ -40,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..frontends.gait import HAND_SET_DETECTION, STEP_DETECTION_GRID, STEP_LENGTH_GRID, StepDetection, StepLengthConfig
+from ..frontends.gait import CITED, HAND_SET_DETECTION, STEP_DETECTION_GRID, StepDetection, StepLengthConfig
 from ..metrics import GAIT_MATCH_S, GaitReference, gait_counts, gait_scores
 from ..session import Session, SessionError
 from .runner import solve_session
@@ -96,8 +95,8 @@ class Setting:
 
     detection: StepDetection = StepDetection()
     """The step thresholds (chosen first, by step F1)."""
-    length: StepLengthConfig = StepLengthConfig()
-    """The step-length model and its scale (chosen on the thresholds, by stride-length MAE)."""
+    length: StepLengthConfig = CITED
+    """The step-length model and its scale (``CITED``, chosen on no recording; a session may declare another)."""
 
     def text(self) -> str:
         """As the JSON and the table print it (``setting_of_text`` reads it back)."""
@@ -214,8 +213,7 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
     cross_validated = len(subjects) > 1
     folds = {subject: [name for name, (s, _, _) in scored.items() if s != subject] for subject in subjects}
     everyone = list(scored)
-    # the settings, leave-one-participant-out, each grid point the sessions declaring it: the step thresholds by step F1,
-    # then the step length by stride-length MAE on the thresholds its fold chose
+    # the step thresholds, leave-one-participant-out by step F1, each grid point the sessions declaring it; the step length cited
     counted: dict[Setting, dict[str, dict[str, Any]]] = {}
     searched = {name: _Searched.of(session) for name, (_, session, _) in scored.items()}
 
@@ -225,7 +223,7 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
         return counted[setting]
 
     def f1(detection: StepDetection, names: Sequence[str]) -> float:
-        value = gait_scores([counts(Setting(detection, StepLengthConfig()))[name] for name in names])["step_f1"]
+        value = gait_scores([counts(Setting(detection))[name] for name in names])["step_f1"]
         return -1.0 if value is None else float(value)
 
     def mae(setting: Setting, names: Sequence[str]) -> float:
@@ -233,11 +231,10 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
         return float("inf") if value is None else float(value)
 
     def choose(names: Sequence[str], what: str, detection: StepDetection | None = None) -> Setting:
-        """The setting chosen on ``names``: the thresholds by step F1 (or ``detection`` as given), the step length on them."""
-        thresholds = detection or max(STEP_DETECTION_GRID, key=lambda d: f1(d, names))
+        """The setting chosen on ``names``: the thresholds by step F1 (or ``detection`` as given), the cited step length."""
         if progress is not None:
-            progress(f"{what}: step thresholds {'chosen' if detection is None else 'given'}; the step length on them ({len(STEP_LENGTH_GRID)} points)")
-        return min((Setting(thresholds, c) for c in STEP_LENGTH_GRID), key=lambda setting: mae(setting, names))
+            progress(f"{what}: step thresholds {'chosen' if detection is None else 'given'}")
+        return Setting(detection or max(STEP_DETECTION_GRID, key=lambda d: f1(d, names)), CITED)
 
     if progress is not None:
         progress(f"step-threshold grid ({len(STEP_DETECTION_GRID)} points) on {len(scored)} recordings")
@@ -376,7 +373,7 @@ def format_gait(result: dict[str, Any]) -> str:
         lines.append(f"{name}: {rec['bouts']} bouts, {rec['reference_contacts']} contacts; " + "; ".join(
             f"{m} F1 {cell(r['step_f1'], '.2f')} SL {cell(r['stride_length_mae_m'], '.3f')}" for m, r in rec["methods"].items()))
     step_length, ours = result["step_length"], result["methods"]["fusegraph"]
-    rule = "leave-one-participant-out (the step thresholds by step F1, the step length on them)" if result["cross_validated"] else "the settings on main"
+    rule = "leave-one-participant-out (the step thresholds by step F1; the step length cited)" if result["cross_validated"] else "the settings on main"
     lines.append(f"fusegraph's settings, {rule}: " + "; ".join(f"{s}: {c}" for s, c in step_length["chosen_per_participant"].items()))
     if result["cross_validated"]:
         lines.append(f"    in-sample best {step_length['in_sample']} (step F1 {ours['step_f1_in_sample']:.3f}, "

@@ -93,10 +93,8 @@ class StepLengthConfig:
 
 CITED = StepLengthConfig()
 """The step length ``bench gait`` and ``--solver gait`` run: the cited pendulum with Mobilise-D's published settings (see
-``StepLengthConfig``); a user declares another (``[gait]``)."""
-STEP_LENGTH_GRID: tuple[StepLengthConfig, ...] = (CITED,)
-"""What ``bench gait`` chooses the step length among on the thresholds each fold chose: the cited configuration alone, so
-the step length is chosen on no recording (the module docstring has what a grid of corners and corrections did)."""
+``StepLengthConfig``), chosen on no recording (the module docstring has what a grid of corners and corrections did); a user
+declares another (``[gait]``)."""
 
 
 @dataclass(frozen=True)
