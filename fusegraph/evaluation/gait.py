@@ -18,7 +18,7 @@ Rows:
   step thresholds from ``frontends.gait.STEP_DETECTION_GRID`` by step F1. The step length is chosen on none: it is the
   cited configuration (``frontends.gait.CITED``: Mobilise-D's published settings of Zijlstra & Hof's pendulum). The held-out
   participant's rows are its sessions DECLARING the settings chosen on the others (``[gait]``); the in-sample choice is
-  printed beside, and so are the step thresholds as first set by hand with the step length chosen the same way. A
+  printed beside, and so are the step thresholds as first set by hand with the cited step length. A
   folder of one participant is scored with the settings on main (``Setting()``).
 * ``paper_speed``: the walking paper's speed regression on the vertical peak-to-peak acceleration (``pdr.SpeedModel``)
   UNCALIBRATED: its per-person fit needs a calibration walk at known speeds, and these recordings have none outside the
@@ -240,7 +240,7 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
         progress(f"step-threshold grid ({len(STEP_DETECTION_GRID)} points) on {len(scored)} recordings")
     chosen = {subject: choose(others, f"without {subject}") if cross_validated else Setting() for subject, others in folds.items()}
     in_sample = choose(everyone, "in-sample") if cross_validated else Setting()
-    # beside it, the thresholds as the walking front end sets them by hand (no rule chose them), the step length chosen as above
+    # beside it, the thresholds as the walking front end sets them by hand (no rule chose them), the step length cited
     hand_set = {subject: choose(others, f"hand-set thresholds, without {subject}", HAND_SET_DETECTION) if cross_validated
                 else Setting(HAND_SET_DETECTION) for subject, others in folds.items()}
     for name, (subject, session, reference) in scored.items():
@@ -381,7 +381,7 @@ def format_gait(result: dict[str, Any]) -> str:
     hand = ours.get("hand_set_thresholds")
     if hand:
         lines.append(f"    with the step thresholds as first set by hand ({HAND_SET_DETECTION.peak_threshold_m_s2:g} m/s^2, "
-                     f"{HAND_SET_DETECTION.forward_slope_m_s3:g} m/s^3; no rule chose them) and the step length {rule.split(' (')[0]}: "
+                     f"{HAND_SET_DETECTION.forward_slope_m_s3:g} m/s^3; no rule chose them) and the step length cited: "
                      f"step F1 {cell(hand['step_f1'], '.3f')}, stride MAE {cell(hand['stride_length_mae_m'], '.3f')} m, "
                      f"speed MAE {cell(hand['walking_speed_mae_m_s'], '.3f')} m/s")
     lines += [f"{k}: {v}" for k, v in result["notes"].items()]
