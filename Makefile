@@ -6,6 +6,12 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: venv install sysdeps browser demo test docs lint bench clean
 
+# Python writes the bytecode of what it imports (__pycache__, gitignored) even where the shell says not to: with
+# PYTHONDONTWRITEBYTECODE set and pip's --no-compile below, every process compiled every module it imported from
+# source again (5.0 s to import the CLI, gtsam and scikit-learn; 2.4 s from the cache), in each test worker, each
+# CLI test's subprocess and each process-pool or Dask worker
+unexport PYTHONDONTWRITEBYTECODE
+
 # Debian packages open3d's headless renderer needs (open3d-cpu links libusb; offscreen rendering
 # runs on Mesa's Vulkan llvmpipe). Installed when we are root and they are missing; otherwise we say so
 # and `fusegraph view` falls back to a matplotlib render.
