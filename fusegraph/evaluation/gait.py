@@ -234,7 +234,7 @@ def bench_gait(directory: str | Path | None = None, with_mobgap: bool = True, pr
         """The setting chosen on ``names``: the thresholds by step F1 (or ``detection`` as given), the cited step length."""
         if progress is not None:
             progress(f"{what}: step thresholds {'chosen' if detection is None else 'given'}")
-        return Setting(detection or max(STEP_DETECTION_GRID, key=lambda d: f1(d, names)), CITED)
+        return Setting(detection or max(STEP_DETECTION_GRID, key=lambda d: f1(d, names)))  # the step length: Setting's default, CITED
 
     if progress is not None:
         progress(f"step-threshold grid ({len(STEP_DETECTION_GRID)} points) on {len(scored)} recordings")
