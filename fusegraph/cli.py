@@ -329,7 +329,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "next sample is read): no sample waits for an update, for an HMD. Cost measured on seeds 100-109: RMS +0.3 %% "
                      "(realistic), +0.8 %% (ideal)")
 
-    ben = sub.add_parser("bench", help="head: speed on a long session; broad: every BROAD trial, every method, side by side",
+    ben = sub.add_parser("bench", help="each system against its peers in one run: head, broad, ultrasonic, walking, live, soak, "
+                         "head-recorded, gaze-recorded, activity, gait; speed: every system's x real time, memory, throughput",
                          description="head: real-time factor of the whole causal loop in the first and last minute, batch time, peak memory.\n"
                          "broad: every trial in DIR through VQF online/offline, the papers' 9-axis EKF, fusegraph online and batch, in one run: "
                          "total/heading/inclination RMSE (deg, the benchmark's metric) and speed (x real time) per trial and mean.\n"
@@ -362,18 +363,23 @@ def build_parser() -> argparse.ArgumentParser:
                          "walking-speed MAE per bout, for fusegraph's front end (step length from the pelvis's vertical excursion by the inverted "
                          "pendulum with Mobilise-D's published settings; the step thresholds chosen leave-one-participant-out), the walking paper's "
                          "speed regression "
-                         "and mobgap's own Mobilise-D pipeline.",
+                         "and mobgap's own Mobilise-D pipeline.\n"
+                         "speed: in one run, every system's solvers in x real time against the peer run beside them (9-axis online and "
+                         "batch against VQF and offline VQF on the BROAD trials in DIR; the head tracker's iSAM2 and batch on BROAD's motion and "
+                         "online on simulations against Method II), the live head tracker's time per gyro sample (median, p99, worst), the "
+                         "9-axis windowed batch's peak memory on a 1 h and a 24 h recording, and a cohort's recordings per hour per core; "
+                         "without DIR (default ../shared/data/broad) the BROAD rows run on simulations and say so. Timings, never asserted.",
                          epilog="examples:\n  fusegraph bench head --duration 600\n  fusegraph bench broad ../shared/data/broad --json > broad.json\n"
                          "  fusegraph bench broad --trials 01,32 --methods vqf,online --plot broad.png\n"
                          "  fusegraph bench ultrasonic --transmitters 3,12 --seeds 0-4 --json\n  fusegraph bench ultrasonic --plot tags.png\n"
                          "  fusegraph bench walking --plot walk.png\n  fusegraph bench walking --oxford ../shared/data/steps_oxford --json\n"
                          "  fusegraph bench head-recorded --plot head_recorded.png\n  fusegraph bench gaze-recorded --plot gaze_recorded.png\n"
                          "  fusegraph import hapt ../shared/data/hapt --out sessions/hapt && fusegraph bench activity sessions/hapt --json\n"
-                         "  fusegraph bench gait ../shared/data/mobgap",
+                         "  fusegraph bench gait ../shared/data/mobgap\n  fusegraph bench speed ../shared/data/broad --workers 2 --json > speed.json",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     ben.add_argument("system", choices=["head", "broad", "ultrasonic", "walking", "live", "soak", "head-recorded", "gaze-recorded", "activity", "gait",
                                                "speed"])
-    ben.add_argument("directory", nargs="?", type=Path, help="broad, head-recorded: directory of BROAD trials (*.mat; default ../shared/data/broad) "
+    ben.add_argument("directory", nargs="?", type=Path, help="broad, head-recorded, speed: directory of BROAD trials (*.mat; default ../shared/data/broad) "
                      "or, head-recorded, of the head sessions `import broad --system head` wrote; "
                      "gaze-recorded: the eye-tracker export (Tobii, Pupil Invisible or Neon; default ../shared/data/gaze_tobii); "
                      "activity: HAPT's raw folder or imported sessions")
