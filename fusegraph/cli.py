@@ -110,6 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "  fusegraph import broad ../shared/data/broad --system head --out sessions/broad_head\n"
                          "  fusegraph report attitude9 sessions/broad --json > broad.json\n"
                          "  fusegraph report head sessions/broad_head --solvers online,batch,ekf\n"
+                         "  fusegraph report attitude9 sessions/cohort --workers 8 --scheduler tcp://10.0.0.5:8786 --cache out/cohort_cache\n"
                          "  fusegraph report ultrasonic sessions/uwb --solvers online,batch --plot uwb.png\n"
                          "  fusegraph report head --seeds 0-9 --plot head.png\n  fusegraph report gaze --seeds 0-4 --json\n"
                          "  fusegraph report bicycle --seeds 0-2 --json --plot bicycle.png",
@@ -136,6 +137,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "offline): the table, and per session each solver's estimate against the truth, its error and 3-sigma band, the warnings")
     rep.add_argument("--workers", type=int, default=None, help="sessions: how many in parallel (default: every core)")
     rep.add_argument("--scheduler", default=None, help="sessions: a Dask scheduler: local, or tcp://host:port of a running cluster")
+    rep.add_argument("--cache", type=Path, metavar="DIR", help="sessions: keep each session's rows in DIR by its files, the solver and the "
+                     "settings, and run again only what DIR does not hold (a report that was killed, a folder that grew, a session "
+                     "changed, a solver added, a run that failed)")
     rep.add_argument("--include-suspect", action="store_true", help="sessions: count runs marked suspect (a heavily clipped gyro, a long "
                      "dropout) in the means; by default they are left out and counted apart")
 
@@ -703,8 +707,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         raise ValueError("--gait chooses the gait of simulated walking seeds (report walking --seeds ...); recorded sessions have their own")
     if args.sessions:
         return _report_sessions(args, solvers)
-    if args.html or args.include_suspect or args.workers or args.scheduler:
-        raise ValueError("--html, --include-suspect, --workers, --scheduler: for session folders "
+    if args.html or args.include_suspect or args.workers or args.scheduler or args.cache:
+        raise ValueError("--html, --include-suspect, --workers, --scheduler, --cache: for session folders "
                          "(write simulated ones with `fusegraph simulate SYSTEM --seed N --out DIR`)")
     if args.seeds is None:
         args.seeds = list(range(10))
@@ -776,7 +780,7 @@ def _report_sessions(args: argparse.Namespace, solvers: list[str] | None) -> int
     import os
 
     found = report_sessions(args.system, named_session_dirs(args.sessions), solvers, include_suspect=args.include_suspect, traces=traces,
-                            workers=args.workers or os.cpu_count() or 1, scheduler=args.scheduler)
+                            workers=args.workers or os.cpu_count() or 1, scheduler=args.scheduler, cache=args.cache)
     table = format_session_report(found)
     print(_dump(found) if args.json else table)
     if args.html and traces is not None:

@@ -7,6 +7,7 @@ import csv
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fusegraph.cli import main
@@ -172,3 +173,52 @@ def test_a_report_in_two_processes_is_the_report_in_one(tmp_path: Path) -> None:
     for solver in ("online", "batch"):
         assert read_there["sessions"]["seed2"][solver]["metrics"] == one["sessions"]["seed2"][solver]["metrics"]
         assert read_there["methods"][solver]["sessions_failed"] == 1
+
+
+def test_a_cached_report_runs_only_what_its_cache_does_not_hold(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``report --cache``: run again, nothing is solved and the report is the same; a session whose file changed, a solver
+    added and a run that failed are run again; a torn last line (a kill while writing) is run again too."""
+    import fusegraph.evaluation.runner as runner
+    from fusegraph.evaluation.runner import named_session_dirs, report_sessions
+
+    for seed in (0, 1):
+        assert main(["simulate", "attitude9", "--seed", str(seed), "--duration", "4", "--out", str(tmp_path / "s" / f"seed{seed}")]) == 0
+    folders, cache = named_session_dirs([tmp_path / "s"]), tmp_path / "cache"
+    first = report_sessions("attitude9", folders, ["online", "vqf"], show_progress=False, cache=cache)
+    solved: list[str] = []
+    real = runner.solve_session
+
+    def counted(session, solver):  # type: ignore[no-untyped-def]
+        solved.append(f"{session.path.name}/{solver}")
+        return real(session, solver)
+
+    monkeypatch.setattr(runner, "solve_session", counted)
+    assert report_sessions("attitude9", folders, ["online", "vqf"], show_progress=False, cache=cache) == first and solved == []
+    with (tmp_path / "s" / "seed1" / "session.toml").open("a") as toml:
+        toml.write("# edited\n")  # the same data, another file: its runs are not known to be of this session
+    again = report_sessions("attitude9", folders, ["online", "vqf", "batch"], show_progress=False, cache=cache)
+    assert sorted(solved) == ["seed0/batch", "seed1/batch", "seed1/online", "seed1/vqf"]
+    assert again["sessions"]["seed0"]["online"] == first["sessions"]["seed0"]["online"]  # held, runtime and all
+    assert again["sessions"]["seed1"]["vqf"]["metrics"] == first["sessions"]["seed1"]["vqf"]["metrics"]  # made again, the same
+
+    def failing(session, solver):  # type: ignore[no-untyped-def]
+        raise RuntimeError("a node went down")
+
+    monkeypatch.setattr(runner, "solve_session", failing)
+    (tmp_path / "s" / "seed0" / "session.toml").write_text((tmp_path / "s" / "seed0" / "session.toml").read_text() + "# edited\n")
+    failed = report_sessions("attitude9", folders, ["online"], show_progress=False, cache=cache)
+    assert failed["sessions"]["seed0"]["online"]["status"] == "failed" and failed["sessions"]["seed1"]["online"]["status"] == "ok"
+    log = cache / "report.jsonl"
+    log.write_bytes(log.read_bytes() + b'{"key": "torn')
+    monkeypatch.setattr(runner, "solve_session", counted)
+    solved.clear()
+    assert report_sessions("attitude9", folders, ["online"], show_progress=False, cache=cache)["sessions"]["seed0"]["online"]["status"] == "ok"
+    assert solved == ["seed0/online"] and all(json.loads(line) for line in log.read_text().splitlines() if not line.startswith('{"key": "torn'))
+    # the traces a page draws are kept beside the rows: a page made again from the cache draws the same curves
+    drawn: dict[str, list[object]] = {}
+    report_sessions("attitude9", folders, ["online"], show_progress=False, cache=cache, traces=drawn)
+    monkeypatch.setattr(runner, "solve_session", failing)
+    kept: dict[str, list[object]] = {}
+    report_sessions("attitude9", folders, ["online"], show_progress=False, cache=cache, traces=kept)
+    assert [t.solver for t in kept["seed0"]] == ["online"]  # type: ignore[attr-defined]
+    assert np.array_equal(kept["seed0"][0].values, drawn["seed0"][0].values, equal_nan=True)  # type: ignore[attr-defined]

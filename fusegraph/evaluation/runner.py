@@ -6,6 +6,7 @@ Library functions that ``fusegraph run`` and ``fusegraph report`` wrap; generic 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -201,9 +202,10 @@ def session_digest(path: str | Path) -> str:
     return digest.hexdigest()[:16]
 
 
-def run_key(path: str | Path, solver: str, settings: str) -> str:
-    """The key a study's row is kept under: the session's content, the solver and the settings (``settings_digest``)."""
-    return f"{session_digest(path)}-{solver}-{settings}"
+def run_key(content: str, solver: str, settings: str) -> str:
+    """The key a row is kept under: the session's content (``session_digest``), the solver and the settings
+    (``settings_digest``)."""
+    return f"{content}-{solver}-{settings}"
 
 
 def _run_one_to_folder(args: tuple[str, str, str, str, str]) -> dict[str, Any]:
@@ -239,7 +241,7 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
                 done[row["path"]] = row
     names = unique_names(paths)
     settings = settings_digest()
-    keys = {str(p): run_key(p, solver, settings) for p in paths}
+    keys = {str(p): run_key(session_digest(p), solver, settings) for p in paths}
     done = {path: row for path, row in done.items() if row.get("key") == keys.get(path)}  # data or settings changed: run again
     todo = [(str(p), solver, str(out), name, keys[str(p)]) for p, name in zip(paths, names, strict=True) if str(p) not in done]
     if log.exists() and log.stat().st_size and not log.read_bytes().endswith(b"\n"):
@@ -370,7 +372,7 @@ def _without_truth(outcome: Outcome) -> dict[str, float]:
 
 def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]], solvers: Sequence[str] | None = None,
                     show_progress: bool = True, include_suspect: bool = False, traces: dict[str, list[Any]] | None = None,
-                    workers: int = 1, scheduler: str | None = None) -> dict[str, Any]:
+                    workers: int = 1, scheduler: str | None = None, cache: str | Path | None = None) -> dict[str, Any]:
     """Every solver of ``system`` on every session (imported, hand-made or simulated), each through ``solve_session``
     exactly as ``fusegraph run`` runs it.
 
@@ -387,6 +389,9 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]],
     the order of the sessions. A session given as its folder (``named_session_dirs``) is read by the worker that runs it, so
     reading runs in parallel too and this process holds no recording; one that cannot be read is a failed row per solver
     with the reader's error (its file and line), and the report goes on.
+    ``cache``: a folder where each session folder's rows are kept by its content, the solver and the settings
+    (``run_key``), so that a report run again (killed, or over a folder that grew) runs only what it does not hold: a
+    session whose files or settings changed, a solver not run on it yet, a run that failed.
     """
 
     from ..progress import progress
@@ -402,12 +407,17 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]],
             raise SessionError(f"{name}: a {kind} session, not {system} (report one system at a time)")
     from .cluster import completed, costliest_first
 
-    jobs = [(name, session, tuple(names), traces is not None) for name, session in sessions]
-    jobs = list(costliest_first(jobs, lambda job: _size(job[1]), workers, scheduler))
+    store = ReportCache(Path(cache), sessions, names, traces is not None) if cache is not None else None
+    jobs = [(name, session, store.missing(name) if store else tuple(names), traces is not None) for name, session in sessions]
+    jobs = list(costliest_first([job for job in jobs if job[2]], lambda job: _size(job[1]), workers, scheduler))
     finished: dict[str, tuple[dict[str, dict[str, Any]], list[Any], float, dict[str, str]]] = {}
     for (name, _, _, _), future in progress(completed(_report_one_session, jobs, workers, scheduler), len(jobs), f"report {system}",
                                             enabled=None if show_progress else False):
         finished[name] = future.result()
+        if store:
+            store.keep(name, *finished[name])
+    if store:
+        finished = {name: store.merged(name, finished.get(name)) for name, _ in sessions}
     rows = {name: finished[name][0] for name, _ in sessions}  # in the order of the sessions, however they finished
     if traces is not None:
         traces.update({name: finished[name][1] for name, _ in sessions})
@@ -430,6 +440,71 @@ def report_sessions(system: str, sessions: Sequence[tuple[str, Session | Path]],
     saw = {name: choices_that_saw(system, finished[name][3]) for name, _ in sessions}
     return {"system": system, "solvers": names, "metric_keys": list(preset.metric_keys), "sessions": rows, "methods": methods,
             "datasets": datasets, "in_sample": {name: what for name, what in saw.items() if what}}
+
+
+class ReportCache:
+    """``report_sessions``' rows kept in a folder (``report.jsonl``, a row per line; each trace a page draws beside it in
+    ``traces/``), each under its session folder's content, solver and settings (``run_key``). A row that failed is not
+    kept (it runs again); a line torn by a kill is skipped (that run is made again)."""
+
+    def __init__(self, folder: Path, sessions: Sequence[tuple[str, Session | Path]], solvers: Sequence[str], want_traces: bool):
+        self.folder, self.solvers, self.want_traces = folder, tuple(solvers), want_traces
+        self.log = folder / "report.jsonl"
+        settings = settings_digest()
+        contents = {name: session_digest(session) for name, session in sessions if isinstance(session, Path)}
+        self.keys = {(name, solver): run_key(content, solver, settings) for name, content in contents.items() for solver in solvers}
+        """The key of each (session, solver) that can be kept: in-memory sessions (simulated) have none."""
+        self.held: dict[str, dict[str, Any]] = {}
+        for line in self.log.read_text().splitlines() if self.log.exists() else []:
+            with contextlib.suppress(json.JSONDecodeError):
+                entry = json.loads(line)
+                if not want_traces or (entry["row"]["status"] != "ok" or self._trace_path(entry["key"]).exists()):
+                    self.held[entry["key"]] = entry
+
+    def _trace_path(self, key: str) -> Path:
+        return self.folder / "traces" / f"{key}.pkl"
+
+    def missing(self, name: str) -> tuple[str, ...]:
+        """The solvers to run on session ``name``: those whose row is not held."""
+        return tuple(solver for solver in self.solvers if self.keys.get((name, solver)) not in self.held)
+
+    def keep(self, name: str, rows: dict[str, dict[str, Any]], traces: list[Any], duration_s: float, meta: dict[str, str]) -> None:
+        """Append the rows a worker made (the failed ones left out) and their traces."""
+        import pickle
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        by_solver = {trace.solver: trace for trace in traces}
+        torn = self.log.exists() and self.log.stat().st_size and not self.log.read_bytes().endswith(b"\n")
+        with self.log.open("a") as handle:
+            handle.write("\n" if torn else "")  # a line torn by a kill ends here; the next row starts its own
+            for solver, row in rows.items():
+                key = self.keys.get((name, solver))
+                if key is None or row["status"] == "failed":
+                    continue
+                if solver in by_solver:
+                    self._trace_path(key).parent.mkdir(exist_ok=True)
+                    self._trace_path(key).write_bytes(pickle.dumps(by_solver[solver]))
+                entry = {"key": key, "row": row, "duration_s": duration_s, "meta": meta}
+                handle.write(json.dumps(entry) + "\n")
+                handle.flush()
+                self.held[key] = entry
+
+    def merged(self, name: str, ran: tuple[dict[str, dict[str, Any]], list[Any], float, dict[str, str]] | None
+               ) -> tuple[dict[str, dict[str, Any]], list[Any], float, dict[str, str]]:
+        """Session ``name``'s result as ``_report_one_session`` gives it: the rows just made (``ran``) and the held ones, in
+        the solvers' order."""
+        import pickle
+
+        rows, traces = dict(ran[0]) if ran else {}, {trace.solver: trace for trace in ran[1]} if ran else {}
+        duration_s, meta = (ran[2], ran[3]) if ran else (0.0, {})
+        for solver in self.solvers:
+            entry = self.held.get(self.keys.get((name, solver), ""))
+            if solver not in rows and entry is not None:
+                rows[solver] = entry["row"]
+                duration_s, meta = entry["duration_s"], entry["meta"]
+                if self.want_traces and entry["row"]["status"] == "ok":
+                    traces[solver] = pickle.loads(self._trace_path(entry["key"]).read_bytes())
+        return ({solver: rows[solver] for solver in self.solvers}, [traces[s] for s in self.solvers if s in traces], duration_s, meta)
 
 
 def _declared_system(directory: Path) -> str | None:
