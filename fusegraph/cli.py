@@ -287,6 +287,8 @@ def build_parser() -> argparse.ArgumentParser:
                          epilog="examples:\n  fusegraph tune gaze_ekf\n  fusegraph tune head_ekf --write --workers 2\n"
                          "  fusegraph tune broad_mag --solver batch --write\n  fusegraph tune broad_motion --workers 2\n"
                          "  fusegraph tune broad_nested --solver batch --workers 2 --write\n"
+                         "  fusegraph tune broad_nested --workers 2 --cache out/nested_online\n"
+                         "  fusegraph tune broad_nested --rule one_se --cache out/nested_online   # runs only what the first did not\n"
                          "  fusegraph tune activity --write",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     tun.add_argument("study", help="the study's name (see above)")
@@ -298,6 +300,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="BROAD studies: choose on these sessions (or folders of them, e.g. imported trials) by leave-one-recording-out")
     tun.add_argument("--workers", type=int, default=1, help="processes: a simulated study's settings, BROAD's trials or the UWB runs (default 1)")
     tun.add_argument("--scheduler", default=None, help="a Dask scheduler for the same jobs: local, or tcp://host:port of a running cluster")
+    tun.add_argument("--cache", type=Path, metavar="DIR", help="broad_nested: keep every trial's run in DIR by the trial's content, the code "
+                     "and the settings; run again (killed halfway, another --rule, more --passes) it runs only the settings not run yet")
     tun.add_argument("--passes", type=int, default=2, help="broad_nested: passes over the studies in their order at most (default 2; it "
                      "stops when no choice moves)")
     tun.add_argument("--rule", default="best", choices=["best", "one_se"],
@@ -977,7 +981,9 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     if args.study == "broad_nested":
         from .evaluation.nested import main_nested
 
-        return main_nested(args.solver, args.sessions, args.passes, args.workers, args.scheduler, args.write, args.rule)
+        return main_nested(args.solver, args.sessions, args.passes, args.workers, args.scheduler, args.write, args.rule, args.cache)
+    if args.cache is not None:
+        raise ValueError("--cache: for broad_nested (the other studies run each grid point once)")
 
     argv = [args.study, "--solver", args.solver, "--workers", str(args.workers)] + (["--write"] if args.write else [])
     argv += ["--scheduler", args.scheduler] if args.scheduler else []

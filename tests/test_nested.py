@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from fusegraph.evaluation.nested import ALL, choose_nested, study_order
 
@@ -85,3 +86,46 @@ def test_the_code_defaults_as_settings_give_the_default_model() -> None:
     assert sorted(defaults) == sorted(MODEL_STUDIES)
     for study in MODEL_STUDIES:  # each study's default point read back through its setter is the untouched model
         assert model_from_settings({study: defaults[study]}) == model_from_settings({}), study
+
+
+def test_a_cached_nested_run_runs_only_the_settings_it_has_not_run(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``tune broad_nested --cache``: the same call again runs nothing and gives the same figures; one more pass runs only
+    settings no earlier call ran; a trial whose file changed is run again (its runs only). The runs are stand-ins (a
+    function of the trial file and the settings), so the test is about what is run, not about BROAD."""
+    import zlib
+
+    import fusegraph.evaluation.nested as nested
+
+    made: list[tuple[str, str]] = []
+
+    def trial_runs(job: tuple[str, str, list[str]]) -> dict[str, tuple[float, float]]:
+        path, _, keys = job
+        made.extend((path, key) for key in keys)
+        salt = zlib.crc32(Path(path).read_bytes())
+        return {key: (1.0 + (zlib.crc32(key.encode()) ^ salt) % 997 / 997.0, 0.5) for key in keys}
+
+    monkeypatch.setattr(nested, "_trial_runs", trial_runs)
+    monkeypatch.setattr(nested, "_peer_run", lambda job: (2.0, 1.0))
+    for name in ("01_a", "04_b", "06_c"):
+        (tmp_path / "trials").mkdir(exist_ok=True)
+        (tmp_path / "trials" / f"{name}.mat").write_bytes(name.encode())
+    cache = tmp_path / "cache"
+
+    def call(passes: int) -> dict[str, object]:
+        return nested.nested_broad("batch", str(tmp_path / "trials"), passes=passes, say=lambda _: None, cache=cache)
+
+    first = call(1)
+    ran_first = set(made)
+    assert ran_first and len(ran_first) == len(made)  # each (trial, settings) run once
+    made.clear()
+    assert call(1) == first and made == []
+    second_pass = call(2)
+    assert not set(made) & ran_first and second_pass["passes"] == 2
+    before = ran_first | set(made)
+    made.clear()
+    (tmp_path / "trials" / "04_b.mat").write_bytes(b"another recording")
+    call(1)
+    changed = [key for path, key in made if Path(path).name == "04_b.mat"]
+    # the first study's grid (from the code's defaults, whatever the scores) was run on it before: now again
+    assert {key for path, key in before if Path(path).name == "04_b.mat"} & set(changed)
+    assert not {(path, key) for path, key in made if Path(path).name != "04_b.mat"} & before  # the others: only settings new to them

@@ -13,6 +13,7 @@ reuses that path's scores (each distinct model is run once per trial).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -69,30 +70,85 @@ def _peer_run(job: tuple[str, str]) -> tuple[float, float]:
     return float(errors.total), float(errors.inclination)
 
 
+class RunStore:
+    """Each trial's figures under each settings (and its peer's) kept in a folder (``runs.jsonl``, a run per line), under
+    the trial's content, the solver, the code (``runner.code_digest``) and the settings: a run killed halfway goes on from
+    its last kept study, and another rule or more passes on the same trials only runs the settings not run yet. A line a
+    kill tore is skipped (that run is made again)."""
+
+    def __init__(self, folder: Path, paths: Sequence[str], solver: str):
+        from .runner import code_digest, session_digest
+
+        self.log = folder / "runs.jsonl"
+        code = code_digest()
+        self._prefix = {path: f"{session_digest(path)}-{solver}-{code}" for path in paths}
+        self.held: dict[str, list[float]] = {}
+        for line in self.log.read_text().splitlines() if self.log.exists() else []:
+            with contextlib.suppress(json.JSONDecodeError, KeyError, TypeError):
+                entry = json.loads(line)
+                self.held[entry["key"]] = entry["figures"]
+        folder.mkdir(parents=True, exist_ok=True)
+
+    def key(self, path: str, what: str) -> str:
+        """The key of a trial's run under ``what``: a settings key, or ``peer``."""
+        return f"{self._prefix[path]}-{what}"
+
+    def get(self, path: str, what: str) -> tuple[float, float] | None:
+        figures = self.held.get(self.key(path, what))
+        return None if figures is None else (float(figures[0]), float(figures[1]))
+
+    def keep(self, runs: Sequence[tuple[str, str, tuple[float, float]]]) -> None:
+        """Append (path, what, (total, inclination)) runs."""
+        torn = self.log.exists() and self.log.stat().st_size and not self.log.read_bytes().endswith(b"\n")
+        with self.log.open("a") as handle:
+            handle.write("\n" if torn else "")
+            for path, what, figures in runs:
+                self.held[self.key(path, what)] = list(figures)
+                handle.write(json.dumps({"key": self.key(path, what), "figures": list(figures)}) + "\n")
+
+
+def _held(store: RunStore | None, path: str, what: str) -> tuple[float, float]:
+    """A run the store holds (``nested_broad`` asks only for those it did not make)."""
+    figures = store.get(path, what) if store is not None else None
+    if figures is None:
+        raise KeyError(f"{path}: no run of {what}")
+    return figures
+
+
 def nested_broad(solver: str = "online", directory: str | None = None, sessions: Sequence[str | Path] = (), passes: int = 2,
                  workers: int = 1, scheduler: str | None = None, say: Callable[[str], None] = print,
-                 compare: Mapping[str, Mapping[str, float]] | None = None, rule: str = RULES[0]) -> dict[str, Any]:
+                 compare: Mapping[str, Mapping[str, float]] | None = None, rule: str = RULES[0], cache: str | Path | None = None) -> dict[str, Any]:
     """The end-to-end nested leave-one-trial-out figure of one solver on the BROAD trials (or imported ``sessions``).
 
     Returns ``trials`` (held-out trial -> its fold's ``settings``, ``total`` and ``inclination`` there, and the peer's),
     ``in_sample`` (the same procedure on every trial: its ``settings`` and per-trial figures), ``cross_validated`` and
     ``in_sample_mean`` (mean total and inclination, degrees, and their ratios to the peer's means), ``passes`` run, and
     ``compare`` (``compare``'s settings, e.g. ``tuned.toml``'s, scored on every trial) when given. Every path starts from the
-    code's defaults (``graphs.attitude9.default_settings``) and chooses by ``rule`` (``choose_nested``)."""
+    code's defaults (``graphs.attitude9.default_settings``) and chooses by ``rule`` (``choose_nested``). ``cache``: a folder
+    that keeps every run (``RunStore``) for the next call."""
     from ..graphs.attitude9 import default_settings
 
     paths = [str(p) for p in recordings(directory, sessions)]
     trials = [Path(p).stem for p in paths]
-    peers = dict(zip(trials, in_order(_peer_run, [(p, solver) for p in paths], workers, scheduler), strict=True))
+    store = RunStore(Path(cache), paths, solver) if cache is not None else None
+    unheld = [p for p in paths if store is None or store.get(p, "peer") is None]
+    made = dict(zip(unheld, in_order(_peer_run, [(p, solver) for p in unheld], workers, scheduler), strict=True))
+    if store is not None:
+        store.keep([(p, "peer", figures) for p, figures in made.items()])
+    peers = {trial: made[p] if p in made else _held(store, p, "peer") for trial, p in zip(trials, paths, strict=True)}
     runs: dict[str, dict[str, tuple[float, float]]] = {}  # settings key -> trial -> (total, inclination)
 
     def run(keys: set[str]) -> None:
         todo = sorted(k for k in keys if k not in runs)
         if not todo:
             return
-        per_trial = in_order(_trial_runs, [(p, solver, todo) for p in paths], workers, scheduler, cost=lambda job: path_bytes(job[0]))
+        jobs = [(p, solver, [k for k in todo if store is None or store.get(p, k) is None]) for p in paths]
+        jobs = [job for job in jobs if job[2]]
+        per_trial = dict(zip([job[0] for job in jobs], in_order(_trial_runs, jobs, workers, scheduler, cost=lambda job: path_bytes(job[0])), strict=True))
+        if store is not None:
+            store.keep([(p, k, figures) for p, made_here in per_trial.items() for k, figures in made_here.items()])
         for key in todo:
-            runs[key] = {trial: figures[key] for trial, figures in zip(trials, per_trial, strict=True)}
+            runs[key] = {trial: per_trial[p][key] if key in per_trial.get(p, {}) else _held(store, p, key) for trial, p in zip(trials, paths, strict=True)}
 
     grids = {study: grid_settings(broad_grid(study, solver)) for study in study_order(solver)}
     defaults = {**default_settings(), "broad_online": DEFAULT_ONLINE}
@@ -199,13 +255,13 @@ def format_nested(result: Mapping[str, Any]) -> str:
 
 
 def main_nested(solver: str, sessions: Sequence[str | Path] = (), passes: int = 2, workers: int = 1, scheduler: str | None = None,
-                write: bool = False, rule: str = RULES[0]) -> int:
+                write: bool = False, rule: str = RULES[0], cache: str | Path | None = None) -> int:
     """Print the end-to-end nested leave-one-trial-out figure (``evaluation.nested``) beside the in-sample ones; with
     ``--write`` file it in ``tuned.toml`` as ``broad_nested`` / ``broad_nested_batch`` with the settings it was measured
     against, which ``bench broad`` prints beside its in-sample table while they are still the settings on main (``fusegraph
     tune broad_nested``)."""
     compare = tuned_compare(solver)
-    result = nested_broad(solver, sessions=sessions, passes=passes, workers=workers, scheduler=scheduler, compare=compare, rule=rule)
+    result = nested_broad(solver, sessions=sessions, passes=passes, workers=workers, scheduler=scheduler, compare=compare, rule=rule, cache=cache)
     print(format_nested(result))
     if write:
         print(f"wrote {write_nested(result)}")

@@ -175,27 +175,45 @@ def unique_names(paths: Sequence[Path]) -> list[str]:
 def settings_digest() -> str:
     """What every solver's settings are made of, hashed: the package version, the chosen settings (``tuned.toml``) and the
     fitted models (``models/``). A change to any of them makes a study's finished runs stale."""
-    import hashlib
+    package = Path(__file__).resolve().parent.parent
+    return _digest(_release(), [(path.name, path) for path in [package / "tuned.toml", *sorted((package / "models").glob("*"))]])
+
+
+def code_digest() -> str:
+    """The code every solver runs, hashed: the package version and every module's source (and the fitted models), so a
+    result made by other code is not taken for this code's."""
+    package = Path(__file__).resolve().parent.parent
+    files = [*sorted(package.rglob("*.py")), *sorted((package / "models").glob("*"))]
+    return _digest(_release(), [(str(path.relative_to(package)), path) for path in files])
+
+
+def _release() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
     try:
-        release = version("fusegraph")
+        return version("fusegraph")
     except PackageNotFoundError:  # run from a source tree that was not installed
-        release = "source"
-    package = Path(__file__).resolve().parent.parent
+        return "source"
+
+
+def _digest(release: str, files: Sequence[tuple[str, Path]]) -> str:
+    """``release`` and each (name, file)'s name and bytes, hashed (16 hex digits)."""
+    import hashlib
+
     digest = hashlib.sha256(release.encode())
-    for path in [package / "tuned.toml", *sorted((package / "models").glob("*"))]:
-        digest.update(path.name.encode() + path.read_bytes())
+    for name, path in files:
+        digest.update(name.encode() + path.read_bytes())
     return digest.hexdigest()[:16]
 
 
 def session_digest(path: str | Path) -> str:
-    """A session directory's content hashed (every file in it, by name and bytes), so a run is known to be of this data."""
+    """A session directory's content hashed (every file in it, by name and bytes), or a recording file's, so a run is
+    known to be of this data."""
     import hashlib
 
     digest = hashlib.sha256()
-    for file in sorted(p for p in Path(path).rglob("*") if p.is_file()):
-        digest.update(str(file.relative_to(path)).encode())
+    for file in sorted(p for p in Path(path).rglob("*") if p.is_file()) if Path(path).is_dir() else [Path(path)]:
+        digest.update(str(file.relative_to(path) if file != Path(path) else file.name).encode())
         with file.open("rb") as handle:
             for chunk in iter(lambda: handle.read(1 << 20), b""):
                 digest.update(chunk)
