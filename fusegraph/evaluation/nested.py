@@ -13,7 +13,6 @@ reuses that path's scores (each distinct model is run once per trial).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -77,17 +76,12 @@ class RunStore:
     kill tore is skipped (that run is made again)."""
 
     def __init__(self, folder: Path, paths: Sequence[str], solver: str):
-        from .runner import code_digest, session_digest
+        from .runner import code_digest, read_rows, session_digest
 
         self.log = folder / "runs.jsonl"
         code = code_digest()
         self._prefix = {path: f"{session_digest(path)}-{solver}-{code}" for path in paths}
-        self.held: dict[str, list[float]] = {}
-        for line in self.log.read_text().splitlines() if self.log.exists() else []:
-            with contextlib.suppress(json.JSONDecodeError, KeyError, TypeError):
-                entry = json.loads(line)
-                self.held[entry["key"]] = entry["figures"]
-        folder.mkdir(parents=True, exist_ok=True)
+        self.held: dict[str, list[float]] = {entry["key"]: entry["figures"] for entry in read_rows(self.log)}
 
     def key(self, path: str, what: str) -> str:
         """The key of a trial's run under ``what``: a settings key, or ``peer``."""
@@ -99,12 +93,10 @@ class RunStore:
 
     def keep(self, runs: Sequence[tuple[str, str, tuple[float, float]]]) -> None:
         """Append (path, what, (total, inclination)) runs."""
-        torn = self.log.exists() and self.log.stat().st_size and not self.log.read_bytes().endswith(b"\n")
-        with self.log.open("a") as handle:
-            handle.write("\n" if torn else "")
-            for path, what, figures in runs:
-                self.held[self.key(path, what)] = list(figures)
-                handle.write(json.dumps({"key": self.key(path, what), "figures": list(figures)}) + "\n")
+        from .runner import append_rows
+
+        self.held.update({self.key(path, what): list(figures) for path, what, figures in runs})
+        append_rows(self.log, [{"key": self.key(path, what), "figures": list(figures)} for path, what, figures in runs])
 
 
 def _held(store: RunStore | None, path: str, what: str) -> tuple[float, float]:

@@ -9,7 +9,7 @@ import argparse
 import contextlib
 import json
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -226,6 +226,32 @@ def run_key(content: str, solver: str, settings: str) -> str:
     return f"{content}-{solver}-{settings}"
 
 
+def read_rows(log: Path) -> list[dict[str, Any]]:
+    """The rows of a JSON-lines log (none when it does not exist); a line a kill tore, or any other that does not parse,
+    is left out (its run is made again)."""
+    rows = []
+    for line in log.read_text().splitlines() if log.exists() else []:
+        with contextlib.suppress(json.JSONDecodeError):
+            rows.append(json.loads(line))
+    return rows
+
+
+def append_rows(log: Path, rows: Iterable[dict[str, Any]]) -> None:
+    """Append ``rows`` to a JSON-lines log, each flushed as it is written (a kill loses at most the one being written); a
+    last line a kill tore is ended first, so the next row starts a line of its own."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    torn = False
+    if log.exists() and log.stat().st_size:
+        with log.open("rb") as handle:
+            handle.seek(-1, 2)
+            torn = handle.read(1) != b"\n"
+    with log.open("a") as handle:
+        handle.write("\n" if torn else "")
+        for row in rows:
+            handle.write(json.dumps(row) + "\n")
+            handle.flush()
+
+
 def _run_one_to_folder(args: tuple[str, str, str, str, str]) -> dict[str, Any]:
     """Worker: one session into the study folder; a failure is a row, not an exception."""
     path, solver, out_dir, name, key = args
@@ -248,28 +274,19 @@ def run_many(paths: Sequence[Path], solver: str, out_dir: str | Path, workers: i
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     log = out / "results.jsonl"
-    done: dict[str, dict[str, Any]] = {}
-    if log.exists():
-        for line in log.read_text().splitlines():
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # a torn last line (killed while writing): that session is run again
-            if row.get("status") == "ok" and row.get("solver") == solver:
-                done[row["path"]] = row
+    done = {row["path"]: row for row in read_rows(log) if row.get("status") == "ok" and row.get("solver") == solver}
     names = unique_names(paths)
     settings = settings_digest()
     keys = {str(p): run_key(session_digest(p), solver, settings) for p in paths}
     done = {path: row for path, row in done.items() if row.get("key") == keys.get(path)}  # data or settings changed: run again
     todo = [(str(p), solver, str(out), name, keys[str(p)]) for p, name in zip(paths, names, strict=True) if str(p) not in done]
-    if log.exists() and log.stat().st_size and not log.read_bytes().endswith(b"\n"):
-        with log.open("a") as handle:
-            handle.write("\n")  # end the torn line, so the next row starts a line of its own
-    with log.open("a") as handle:
-        for row in progress(_map(todo, workers, scheduler), len(todo), f"run {solver}"):
-            handle.write(json.dumps(row) + "\n")
-            handle.flush()
+
+    def kept(rows: Iterable[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+        for row in rows:
             done[row["path"]] = row
+            yield row
+
+    append_rows(log, kept(progress(_map(todo, workers, scheduler), len(todo), f"run {solver}")))
     return [done.get(str(p), {"session": p.name, "path": str(p), "status": "failed", "error": "not run"}) for p in paths]
 
 
@@ -472,12 +489,8 @@ class ReportCache:
         contents = {name: session_digest(session) for name, session in sessions if isinstance(session, Path)}
         self.keys = {(name, solver): run_key(content, solver, settings) for name, content in contents.items() for solver in solvers}
         """The key of each (session, solver) that can be kept: in-memory sessions (simulated) have none."""
-        self.held: dict[str, dict[str, Any]] = {}
-        for line in self.log.read_text().splitlines() if self.log.exists() else []:
-            with contextlib.suppress(json.JSONDecodeError):
-                entry = json.loads(line)
-                if not want_traces or (entry["row"]["status"] != "ok" or self._trace_path(entry["key"]).exists()):
-                    self.held[entry["key"]] = entry
+        self.held = {entry["key"]: entry for entry in read_rows(self.log)
+                     if not want_traces or entry["row"]["status"] != "ok" or self._trace_path(entry["key"]).exists()}
 
     def _trace_path(self, key: str) -> Path:
         return self.folder / "traces" / f"{key}.pkl"
@@ -490,22 +503,18 @@ class ReportCache:
         """Append the rows a worker made (the failed ones left out) and their traces."""
         import pickle
 
-        self.folder.mkdir(parents=True, exist_ok=True)
         by_solver = {trace.solver: trace for trace in traces}
-        torn = self.log.exists() and self.log.stat().st_size and not self.log.read_bytes().endswith(b"\n")
-        with self.log.open("a") as handle:
-            handle.write("\n" if torn else "")  # a line torn by a kill ends here; the next row starts its own
-            for solver, row in rows.items():
-                key = self.keys.get((name, solver))
-                if key is None or row["status"] == "failed":
-                    continue
-                if solver in by_solver:
-                    self._trace_path(key).parent.mkdir(exist_ok=True)
-                    self._trace_path(key).write_bytes(pickle.dumps(by_solver[solver]))
-                entry = {"key": key, "row": row, "duration_s": duration_s, "meta": meta}
-                handle.write(json.dumps(entry) + "\n")
-                handle.flush()
-                self.held[key] = entry
+        entries = []
+        for solver, row in rows.items():
+            key = self.keys.get((name, solver))
+            if key is None or row["status"] == "failed":
+                continue
+            if solver in by_solver:
+                self._trace_path(key).parent.mkdir(parents=True, exist_ok=True)
+                self._trace_path(key).write_bytes(pickle.dumps(by_solver[solver]))
+            entries.append({"key": key, "row": row, "duration_s": duration_s, "meta": meta})
+            self.held[key] = entries[-1]
+        append_rows(self.log, entries)
 
     def merged(self, name: str, ran: tuple[dict[str, dict[str, Any]], list[Any], float, dict[str, str]] | None
                ) -> tuple[dict[str, dict[str, Any]], list[Any], float, dict[str, str]]:
