@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from fusegraph.evaluation.nested import ALL, choose_nested, study_order
 
 
@@ -97,9 +99,12 @@ def test_a_cached_nested_run_runs_only_the_settings_it_has_not_run(tmp_path, mon
     import fusegraph.evaluation.nested as nested
 
     made: list[tuple[str, str]] = []
+    killed = {"06_c.mat"}
 
     def trial_runs(job: tuple[str, str, list[str]]) -> dict[str, tuple[float, float]]:
         path, _, keys = job
+        if Path(path).name in killed:
+            raise KeyboardInterrupt  # the run killed while this trial ran
         made.extend((path, key) for key in keys)
         salt = zlib.crc32(Path(path).read_bytes())
         return {key: (1.0 + (zlib.crc32(key.encode()) ^ salt) % 997 / 997.0, 0.5) for key in keys}
@@ -114,9 +119,16 @@ def test_a_cached_nested_run_runs_only_the_settings_it_has_not_run(tmp_path, mon
     def call(passes: int) -> dict[str, object]:
         return nested.nested_broad("batch", str(tmp_path / "trials"), passes=passes, say=lambda _: None, cache=cache)
 
+    with pytest.raises(KeyboardInterrupt):
+        call(1)
+    before_kill = set(made)
+    assert {Path(path).name for path, _ in before_kill} == {"01_a.mat", "04_b.mat"}
+    killed.clear()
+    made.clear()
     first = call(1)
-    ran_first = set(made)
-    assert ran_first and len(ran_first) == len(made)  # each (trial, settings) run once
+    assert made and not set(made) & before_kill  # what the trials had finished before the kill is not run again
+    ran_first = set(made) | before_kill
+    assert len(set(made)) == len(made)  # each (trial, settings) run once
     made.clear()
     assert call(1) == first and made == []
     second_pass = call(2)

@@ -77,13 +77,16 @@ def completed(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, sche
 
 
 def in_order(fn: Callable[[Any], Any], items: Sequence[Any], workers: int, scheduler: str | None = None,
-             cost: Callable[[Any], float] | None = None) -> list[Any]:
+             cost: Callable[[Any], float] | None = None, each: Callable[[Any, Any], None] | None = None) -> list[Any]:
     """``fn`` over ``items`` through ``completed`` (here, a local process pool, or Dask with ``scheduler``), the results in
-    item order. ``cost``: how long an item takes, roughly; the costliest start first, so the workers finish together."""
+    item order. ``cost``: how long an item takes, roughly; the costliest start first, so the workers finish together.
+    ``each(item, result)``: called as each item finishes (to keep it before the others are done)."""
     position = {id(item): i for i, item in enumerate(items)}  # completed() hands back the very item objects
     results: list[Any] = [None] * len(items)
     for item, future in completed(fn, costliest_first(items, cost, workers, scheduler), workers, scheduler):
         results[position[id(item)]] = future.result()
+        if each is not None:
+            each(item, results[position[id(item)]])
     return results
 
 

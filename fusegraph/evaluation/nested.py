@@ -71,9 +71,9 @@ def _peer_run(job: tuple[str, str]) -> tuple[float, float]:
 
 class RunStore:
     """Each trial's figures under each settings (and its peer's) kept in a folder (``runs.jsonl``, a run per line), under
-    the trial's content, the solver, the code (``runner.code_digest``) and the settings: a run killed halfway goes on from
-    its last kept study, and another rule or more passes on the same trials only runs the settings not run yet. A line a
-    kill tore is skipped (that run is made again)."""
+    the trial's content, the solver, the code (``runner.code_digest``) and the settings, each trial's as it finishes: a run
+    killed halfway goes on with what its trials had not run, and another rule or more passes on the same trials only runs
+    the settings not run yet. A line a kill tore is skipped (that run is made again)."""
 
     def __init__(self, folder: Path, paths: Sequence[str], solver: str):
         from .runner import code_digest, read_rows, session_digest
@@ -136,9 +136,13 @@ def nested_broad(solver: str = "online", directory: str | None = None, sessions:
             return
         jobs = [(p, solver, [k for k in todo if store is None or store.get(p, k) is None]) for p in paths]
         jobs = [job for job in jobs if job[2]]
-        per_trial = dict(zip([job[0] for job in jobs], in_order(_trial_runs, jobs, workers, scheduler, cost=lambda job: path_bytes(job[0])), strict=True))
-        if store is not None:
-            store.keep([(p, k, figures) for p, made_here in per_trial.items() for k, figures in made_here.items()])
+
+        def keep(job: tuple[str, str, list[str]], made_here: dict[str, tuple[float, float]]) -> None:
+            if store is not None:  # as each trial finishes: a kill loses only the trials still running
+                store.keep([(job[0], k, figures) for k, figures in made_here.items()])
+
+        per_trial = dict(zip([job[0] for job in jobs], in_order(_trial_runs, jobs, workers, scheduler, cost=lambda job: path_bytes(job[0]), each=keep),
+                             strict=True))
         for key in todo:
             runs[key] = {trial: per_trial[p][key] if key in per_trial.get(p, {}) else _held(store, p, key) for trial, p in zip(trials, paths, strict=True)}
 
