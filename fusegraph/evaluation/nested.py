@@ -79,13 +79,16 @@ class RunStore:
         from .runner import code_digest, read_rows, session_digest
 
         self.log = folder / "runs.jsonl"
-        code = code_digest()
-        self._prefix = {path: f"{session_digest(path)}-{solver}-{code}" for path in paths}
+        self._solver, self._code = solver, code_digest()
+        self._content = {path: session_digest(path) for path in paths}
         self.held: dict[str, list[float]] = {entry["key"]: entry["figures"] for entry in read_rows(self.log)}
 
     def key(self, path: str, what: str) -> str:
-        """The key of a trial's run under ``what``: a settings key, or ``peer``."""
-        return f"{self._prefix[path]}-{what}"
+        """The key of a trial's run under ``what`` (a settings key, or ``peer``): ``runner.run_key`` of its content and
+        solver, the code and ``what`` standing for its settings."""
+        from .runner import run_key
+
+        return run_key(self._content[path], self._solver, f"{self._code}-{what}")
 
     def get(self, path: str, what: str) -> tuple[float, float] | None:
         figures = self.held.get(self.key(path, what))
