@@ -222,8 +222,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "export folder (imudata.gz, gazedata.gz) -> a gaze session (no wall: target_depth_m; no truth). pupil: a Pupil Labs Pupil Invisible "
                          "or Neon export folder (imu.csv, gaze.csv; which device from its info.json or its quaternion columns, or --device) -> "
                          "a gaze session without a magnetometer, the device's fixations (and a Neon's own attitude) for scoring. csv: one stream of a "
-                         "vendor's CSV export mapped onto a kind (--kind, --columns, --units, --time-units), into a new session "
-                         "(--system) or added to one. xdf: a Lab Streaming Layer recording (LabRecorder), its streams mapped "
+                         "vendor's CSV export mapped onto a kind (--kind, --columns, --units, --time-units, --decimal), into a new session "
+                         "(--system) or added to one, read and written a block at a time (an export of any length in ~150 MB; "
+                         "--onto reads both streams whole). xdf: a Lab Streaming Layer recording (LabRecorder), its streams mapped "
                          "with --map onto session streams.",
                          epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
                          "  fusegraph import broad ../shared/data/broad --system head --out sessions/broad_head\n"
@@ -253,9 +254,11 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--units", metavar="UNIT", help="csv: the values' unit when not SI (the kind's accepted units, e.g. deg/s, g); "
                      "xdf: STREAM=UNIT, repeatable")
     imp.add_argument("--time-units", default="s", choices=["s", "ms", "us", "ns"], help="csv: the time column's unit (default s)")
+    imp.add_argument("--decimal", default=".", choices=[".", ","], help="csv: the numbers' decimal mark (default .; many European exports "
+                     "write 1,5 with ; between columns)")
     imp.add_argument("--onto", metavar="STREAM", help="csv, into an existing session: put the stream on the times of this stream of the "
                      "session (e.g. an accelerometer exported on its own clock onto the gyro's), interpolated linearly; what was "
-                     "bridged is said")
+                     "bridged is said (both streams are read whole)")
     imp.add_argument("--map", action="append", default=[], metavar="LSL_NAME=STREAM[:KIND]",
                      help="xdf: an LSL stream of the file as a session stream (KIND defaults to STREAM, e.g. HMD_gyro=gyro, "
                      "Polhemus=tracker:attitude); repeatable")
@@ -644,7 +647,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
         raise ValueError("--labelled applies to import uwb only")
     if args.format in ("csv", "xdf"):
         return _import_generic(args)
-    given = [flag for flag, value in (("--kind", args.kind), ("--columns", args.columns), ("--map", args.map)) if value]
+    given = [flag for flag, value in (("--kind", args.kind), ("--columns", args.columns), ("--map", args.map), ("--decimal", args.decimal != ".")) if value]
     if given:
         raise ValueError(f"{', '.join(given)}: for import csv / xdf")
     if args.calibration and args.format != "uwb":
@@ -656,14 +659,14 @@ def _cmd_import(args: argparse.Namespace) -> int:
 
 
 def _import_generic(args: argparse.Namespace) -> int:
-    from .datasets.generic import add_to_session, csv_stream, parse_columns, xdf_streams
+    from .datasets.generic import add_to_session, import_csv, parse_columns, xdf_streams
 
     if args.format == "csv":
         if not args.kind or not args.columns:
             raise ValueError("import csv needs --kind and --columns (e.g. --kind gyro --columns t=Timestamp,wx=GyrX,wy=GyrY,wz=GyrZ)")
-        stream = csv_stream(args.source, args.kind, parse_columns(args.columns, args.kind), args.name, args.units, args.time_units)
-        path = add_to_session(args.out, {stream.name: stream}, args.system, truth=args.truth, onto=args.onto)
-        print(f"wrote {path}/ (stream '{'truth' if args.truth else stream.name}': {len(stream.t)} samples of {args.kind})")
+        path, rows = import_csv(args.out, args.source, args.kind, parse_columns(args.columns, args.kind), args.name, args.units, args.time_units,
+                                args.system, truth=args.truth, onto=args.onto, decimal=args.decimal)
+        print(f"wrote {path}/ (stream '{'truth' if args.truth else args.name or args.kind}': {rows} samples of {args.kind})")
         return 0
     if not args.map:
         raise ValueError("import xdf needs --map LSL_NAME=STREAM[:KIND] for each stream to use (e.g. --map HMD_gyro=gyro)")

@@ -18,7 +18,7 @@ import csv
 import math
 import tomllib
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -750,6 +750,16 @@ def save_session(session: Session, directory: str | Path) -> Path:
     """Write a session directory that ``load_session`` reads back exactly (values to 17 digits)."""
     root = Path(directory)
     root.mkdir(parents=True, exist_ok=True)
+    for stream in session.streams.values():
+        write_stream_csv(root / f"{stream.name}.csv", stream.t, stream.values, stream.columns)
+    if session.truth is not None:
+        write_stream_csv(root / "truth.csv", session.truth.t, session.truth.values, session.truth.columns)
+    (root / "session.toml").write_text(session_toml(session))
+    return root
+
+
+def session_toml(session: Session) -> str:
+    """``session.toml``'s text for ``session`` (its streams' samples are not read: each table names its CSV)."""
     lines = ["[session]", f"system = {_toml_value(session.system)}"]
     header = dict(session.meta.get("session", {}))
     header.pop("system", None)
@@ -759,22 +769,35 @@ def save_session(session: Session, directory: str | Path) -> Path:
             continue
         lines += ["", f"[{table_name}]"] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
     for stream in session.streams.values():
-        lines += ["", f"[streams.{stream.name}]", f"kind = {_toml_value(stream.kind)}", f"file = \"{stream.name}.csv\""]
-        lines += [f"latency_s = {_toml_value(stream.latency_s)}"]
-        lines += [f"{k} = {_toml_value(v)}" for k, v in stream.meta.items()]
-        write_stream_csv(root / f"{stream.name}.csv", stream.t, stream.values, stream.columns)
+        lines += ["", *stream_toml(stream)]
     if session.truth is not None:
-        lines += ["", "[truth]", f"kind = {_toml_value(session.truth.kind)}", "file = \"truth.csv\""]
-        lines += [f"{k} = {_toml_value(v)}" for k, v in session.truth.meta.items()]
-        write_stream_csv(root / "truth.csv", session.truth.t, session.truth.values, session.truth.columns)
-    (root / "session.toml").write_text("\n".join(lines) + "\n")
-    return root
+        lines += ["", *stream_toml(session.truth, truth=True)]
+    return "\n".join(lines) + "\n"
+
+
+def stream_toml(stream: Stream, truth: bool = False) -> list[str]:
+    """A stream's table in ``session.toml`` (``[streams.<name>]``, or ``[truth]``), its CSV ``<name>.csv`` (``truth.csv``)."""
+    if truth:
+        return ["[truth]", f"kind = {_toml_value(stream.kind)}", "file = \"truth.csv\"", *(f"{k} = {_toml_value(v)}" for k, v in stream.meta.items())]
+    return [f"[streams.{stream.name}]", f"kind = {_toml_value(stream.kind)}", f"file = \"{stream.name}.csv\"", f"latency_s = {_toml_value(stream.latency_s)}",
+            *(f"{k} = {_toml_value(v)}" for k, v in stream.meta.items())]
 
 
 def write_stream_csv(path: Path, t: FloatArray, values: FloatArray, columns: tuple[str, ...]) -> None:
     """One stream as CSV: header ``t,<columns>``, full float precision."""
-    data = np.column_stack([t, values])
-    np.savetxt(path, data, delimiter=",", header=",".join(("t", *columns)), comments="", fmt="%.17g")
+    write_stream_csv_blocks(path, [(t, values)], columns)
+
+
+def write_stream_csv_blocks(path: Path, blocks: Iterable[tuple[FloatArray, FloatArray]], columns: tuple[str, ...]) -> int:
+    """``write_stream_csv`` a block of (times, values) at a time, as they come (a long stream is never held whole); returns
+    the rows written."""
+    rows = 0
+    with path.open("w") as handle:
+        handle.write(",".join(("t", *columns)) + "\n")
+        for t, values in blocks:
+            np.savetxt(handle, np.column_stack([t, values]), delimiter=",", fmt="%.17g")
+            rows += len(t)
+    return rows
 
 
 def _toml_value(value: Any) -> str:

@@ -198,3 +198,58 @@ def test_every_dataset_importer_takes_one_recording_too(tmp_path: Path) -> None:
     participant = next((SHARED_DATA / "mobgap" / "lab").glob("*/*"))
     assert main(["import", "mobgap", str(participant), "--out", str(tmp_path / "mobgap")]) == 0
     assert list((tmp_path / "mobgap").glob("*/session.toml"))
+
+
+def test_import_csv_reads_and_writes_a_block_at_a_time(tmp_path: Path) -> None:
+    """A long export is never held whole (``iter_csv_stream``, ``import_csv``): read in blocks of 64 rows, the checks hold
+    across the blocks' edges (a double write and a time going back straddling one are found at their lines), and the
+    session written block by block is the one the whole-file path writes. A decimal comma is read with ``decimal=","``
+    and named when it is not declared."""
+    import warnings
+
+    from fusegraph.datasets.generic import add_to_session, csv_stream, import_csv, iter_csv_stream
+    from fusegraph.session import SessionError
+
+    t = np.arange(300) * 10.0  # ms
+    values = np.random.default_rng(2).normal(0.0, 0.5, (300, 3)).round(6)
+    rows = np.insert(np.column_stack([t, values]), 64, np.column_stack([t, values])[63], axis=0)  # rows 64 and 65 the same, blocks of 64
+    lines = ["Time;GX;GY;GZ;Temp"] + [f"{r[0]:.0f};{r[1]:.6f};{r[2]:.6f};{r[3]:.6f};25.0" for r in rows]
+    (tmp_path / "dot.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "comma.csv").write_text("\n".join(line.replace(".", ",") for line in lines) + "\n")
+    columns = {"t": "Time", "wx": "GX", "wy": "GY", "wz": "GZ"}
+    with pytest.warns(UserWarning, match=r"1 row repeat the row before exactly \(first: line 66\)"):
+        blocks = list(iter_csv_stream(tmp_path / "dot.csv", "gyro", columns, "deg/s", "ms", block_rows=64))
+    assert [len(b[0]) for b in blocks] == [64, 63, 64, 64, 45]  # 301 rows; the repeat, the second block's first row, left out
+    np.testing.assert_array_equal(np.concatenate([b[0] for b in blocks]), t * 1e-3)  # ms times 1e-3, as --time-units ms
+    np.testing.assert_allclose(np.concatenate([b[1] for b in blocks]), np.radians(values), rtol=1e-15)
+    with pytest.raises(SessionError, match=r"line 2: column 'GX' is not a number \('-?\d+,\d+'\) \(a decimal comma\? pass --decimal ,\)"):
+        list(iter_csv_stream(tmp_path / "comma.csv", "gyro", columns, block_rows=64))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the double write, said above
+        whole = csv_stream(tmp_path / "dot.csv", "gyro", columns, units="deg/s", time_units="ms")
+        path, written = import_csv(tmp_path / "blocks", tmp_path / "comma.csv", "gyro", columns, units="deg/s", time_units="ms", system="attitude9",
+                                   decimal=",", block_rows=64)
+    add_to_session(tmp_path / "whole", {"gyro": whole}, "attitude9")
+    assert written == 300
+    by_blocks, at_once = load_session(path), load_session(tmp_path / "whole")
+    np.testing.assert_array_equal(by_blocks.stream("gyro").t, at_once.stream("gyro").t)
+    np.testing.assert_array_equal(by_blocks.stream("gyro").values, at_once.stream("gyro").values)
+    assert by_blocks.meta["session"] == at_once.meta["session"]
+    # a time going back across a block's edge: data row 128 (line 130), the third block's first, against the second's last
+    broken = lines.copy()
+    broken[129] = broken[129].replace(f"{rows[128, 0]:.0f};", "5;", 1)
+    (tmp_path / "back.csv").write_text("\n".join(broken) + "\n")
+    with pytest.raises(SessionError, match=r"line 130: time 5.0 goes back from 1260.0 on line 129"):
+        list(iter_csv_stream(tmp_path / "back.csv", "gyro", columns, block_rows=64))
+    with pytest.raises(SessionError, match="line 130: time 5.0 goes back"):
+        import_csv(tmp_path / "failed", tmp_path / "back.csv", "gyro", columns, system="attitude9", block_rows=64)
+    assert not (tmp_path / "failed").exists()  # nothing half written is left
+    broken = lines.copy()
+    broken[200] = f"{rows[199, 0]:.0f};{rows[199, 1]:.6f};;{rows[199, 3]:.6f};25.0"  # data row 199 (line 201): GY empty
+    (tmp_path / "hole.csv").write_text("\n".join(broken) + "\n")
+    with pytest.raises(SessionError, match="line 201: column 'GY' is empty"):
+        list(iter_csv_stream(tmp_path / "hole.csv", "gyro", columns, block_rows=64))
+    nan_row = f"{rows[149, 0]:.0f};nan;{rows[149, 2]:.6f};{rows[149, 3]:.6f};25.0"  # data row 149 (line 151): a logger's NaN
+    (tmp_path / "nan.csv").write_text("\n".join([*lines[:150], nan_row, *lines[151:]]) + "\n")
+    with pytest.raises(SessionError, match=r"line 151: column 'GX' is nan \(leave the row out for a dropout\)"):
+        list(iter_csv_stream(tmp_path / "nan.csv", "gyro", columns, block_rows=64))

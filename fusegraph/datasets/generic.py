@@ -15,13 +15,28 @@ name again is an error). ``--truth`` makes the stream the session's truth instea
 from __future__ import annotations
 
 import csv
+import re
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from ..geometry import FloatArray
 from ..sensors import sensor_catalogue
-from ..session import KIND_COLUMNS, Session, SessionError, Stream, load_session, save_session
+from ..session import (
+    CSV_BLOCK_ROWS,
+    KIND_COLUMNS,
+    Session,
+    SessionError,
+    Stream,
+    load_session,
+    read_session_spec,
+    save_session,
+    session_toml,
+    stream_toml,
+    write_stream_csv_blocks,
+)
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 """``--time-units`` -> seconds per unit."""
@@ -45,8 +60,34 @@ def parse_columns(text: str, kind: str) -> dict[str, str]:
 
 
 def csv_stream(path: str | Path, kind: str, columns: dict[str, str], name: str | None = None, units: str | None = None,
-               time_units: str = "s", delimiter: str | None = None) -> Stream:
-    """One stream of ``kind`` from a CSV with a header row, its columns picked by ``columns`` (kind column -> header)."""
+               time_units: str = "s", delimiter: str | None = None, decimal: str = ".") -> Stream:
+    """One stream of ``kind`` from a CSV with a header row, its columns picked by ``columns`` (kind column -> header): the
+    blocks of ``iter_csv_stream`` held whole."""
+    blocks = list(iter_csv_stream(path, kind, columns, units, time_units, delimiter, decimal))
+    t = np.concatenate([b[0] for b in blocks])
+    values = np.concatenate([b[1] for b in blocks])
+    return Stream(name or kind, kind, t, values, _entry(kind).columns, 0.0, {"description": csv_description(Path(path), columns, units)})
+
+
+def csv_description(path: Path, columns: dict[str, str], units: str | None) -> str:
+    """What an imported CSV stream says it was made from (its ``description``)."""
+    return f"imported from {path.name} ({', '.join(f'{k}={v}' for k, v in columns.items())}" + (f"; converted from {units}" if units else "") + ")"
+
+
+def iter_csv_stream(path: str | Path, kind: str, columns: dict[str, str], units: str | None = None, time_units: str = "s",
+                    delimiter: str | None = None, decimal: str = ".", block_rows: int = CSV_BLOCK_ROWS) -> Iterator[tuple[FloatArray, FloatArray]]:
+    """A vendor CSV's samples a block of ``block_rows`` rows at a time (a long export is never held whole): (times in seconds
+    on the file's clock, values in the kind's SI units). The delimiter is the header's (comma, semicolon or tab) unless
+    given; ``decimal``: the numbers' decimal mark (``,`` in many European exports). Parsed by pandas' C reader; every row is
+    checked across the blocks: a cell that is not a number, a time that goes back or repeats with other values is an error
+    naming its line (a data row's: the header is line 1), and a row that repeats the one before it exactly (a logger's double
+    write) is kept once, with one warning at the end."""
+    import warnings
+
+    import pandas as pd
+
+    from ..session import SessionWarning
+
     path = Path(path)
     entry = _entry(kind)
     factor = _unit_factor(kind, units)
@@ -54,62 +95,143 @@ def csv_stream(path: str | Path, kind: str, columns: dict[str, str], name: str |
         raise SessionError(f"--time-units {time_units!r}: one of {', '.join(TIME_UNITS)}")
     if not path.is_file():
         raise SessionError(f"{path}: not found")
-    text = path.read_text(encoding="utf-8-sig")
-    dialect_delimiter = delimiter or (csv.Sniffer().sniff(text.splitlines()[0], delimiters=",;\t").delimiter if text.strip() else ",")
-    reader = csv.reader(text.splitlines(), delimiter=dialect_delimiter)
-    try:
-        header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        raise SessionError(f"{path}: empty file (expected a header row)") from None
+    with path.open(newline="", encoding="utf-8-sig") as handle:
+        first = handle.readline()
+    if not first.strip():
+        raise SessionError(f"{path}: empty file (expected a header row)")
+    sep = delimiter or csv.Sniffer().sniff(first, delimiters=",;\t").delimiter
+    header = [h.strip() for h in next(csv.reader([first], delimiter=sep))]
     absent = [theirs for theirs in columns.values() if theirs not in header]
     if absent:
         raise SessionError(f"{path}: column{'s' if len(absent) > 1 else ''} {', '.join(repr(a) for a in absent)} not in the header "
                            f"(have: {', '.join(header)})")
     order = [header.index(columns[c]) for c in ("t", *entry.columns)]
-    rows: list[list[float]] = []
-    for line, row in enumerate(reader, start=2):
-        if not row or all(not cell.strip() for cell in row):
-            continue
-        try:
-            rows.append([float(row[i]) for i in order])
-        except (ValueError, IndexError):
-            bad = next((header[i] for i in order if i >= len(row) or not _is_number(row[i])), "?")
-            raise SessionError(f"{path}: line {line}: column {bad!r} is not a number") from None
-    if not rows:
+    named = ["t", *entry.columns]
+    before = 0  # data rows read so far
+    repeats, first_repeat = 0, 0
+    try:
+        reader = pd.read_csv(path, sep=sep, decimal=decimal, header=None, skiprows=1, names=list(range(len(header))), usecols=sorted(set(order)),
+                             dtype=float, chunksize=block_rows, skip_blank_lines=True, encoding="utf-8-sig")
+        previous: np.ndarray | None = None  # the last row kept
+        for chunk in reader:
+            table = chunk[order].to_numpy(dtype=float)
+            bad = np.flatnonzero(~np.isfinite(table).all(axis=1))
+            if len(bad):
+                i = int(bad[0])
+                column = named[int(np.flatnonzero(~np.isfinite(table[i]))[0])]
+                raise SessionError(f"{path}: line {before + i + 2}: column {columns[column]!r} is {table[i, named.index(column)]} (leave the row out "
+                                   "for a dropout)")
+            joined = table if previous is None else np.vstack([previous, table])
+            offset = 0 if previous is None else 1  # joined row j is data row before - offset + j
+            step = np.diff(joined[:, 0])
+            back = np.flatnonzero(step < 0)
+            if len(back):
+                j = int(back[0]) + 1
+                line = before - offset + j + 2
+                raise SessionError(f"{path}: line {line}: time {float(joined[j, 0])!r} goes back from {float(joined[j - 1, 0])!r} on line {line - 1} "
+                                   f"({len(back)} such row{'s' if len(back) > 1 else ''} in lines {before + 2}-{before + len(table) + 1}): "
+                                   "rows out of order, or two recordings in one file?")
+            same_time = np.flatnonzero(step == 0) + 1
+            exact = same_time[np.all(joined[same_time] == joined[same_time - 1], axis=1)]
+            other = np.setdiff1d(same_time, exact)
+            if len(other):
+                j = int(other[0])
+                line = before - offset + j + 2
+                raise SessionError(f"{path}: line {line}: time {float(joined[j, 0])!r} repeats line {line - 1} with other values ({len(other)} such "
+                                   f"row{'s' if len(other) > 1 else ''} in lines {before + 2}-{before + len(table) + 1}): a time column with too "
+                                   "few digits (--time-units?), or the wrong column?")
+            if len(exact):
+                first_repeat = first_repeat or before - offset + int(exact[0]) + 2
+                repeats += len(exact)
+            kept = np.delete(joined, exact, axis=0)[offset:]
+            before += len(table)
+            if len(kept):
+                previous = kept[-1:]
+                yield kept[:, 0] * TIME_UNITS[time_units], kept[:, 1:] * factor
+    except (ValueError, pd.errors.ParserError) as err:
+        raise SessionError(_unreadable(path, sep, header, order, decimal) or f"{path}: not a CSV pandas can read ({err})") from None
+    except pd.errors.EmptyDataError:
+        pass
+    if not before:
         raise SessionError(f"{path}: no samples after the header")
-    table = _without_repeats(path, np.asarray(rows, dtype=float))
-    t = table[:, 0] * TIME_UNITS[time_units]
-    meta: dict[str, object] = {"description": f"imported from {path.name} ({', '.join(f'{k}={v}' for k, v in columns.items())}"
-                                              + (f"; converted from {units}" if units else "") + ")"}
-    return Stream(name or kind, kind, t, table[:, 1:] * factor, entry.columns, 0.0, meta)
-
-
-def _without_repeats(path: Path, table: np.ndarray) -> np.ndarray:
-    """A vendor export's rows checked in time order: a row that repeats the one before it exactly (a logger's double write)
-    is kept once with a warning; a time that repeats with other values, or goes back, is an error naming the lines (as
-    data rows: the header is line 1). Said here, at import, not left for ``run``."""
-    import warnings
-
-    from ..session import SessionWarning
-
-    step = np.diff(table[:, 0])
-    back = np.flatnonzero(step < 0)
-    if len(back):
-        i = int(back[0]) + 1
-        raise SessionError(f"{path}: line {i + 2}: time {float(table[i, 0])!r} goes back from {float(table[i - 1, 0])!r} on line {i + 1} "
-                           f"({len(back)} such row{'s' if len(back) > 1 else ''}): rows out of order, or two recordings in one file?")
-    same_time = np.flatnonzero(step == 0) + 1
-    exact = same_time[np.all(table[same_time] == table[same_time - 1], axis=1)]
-    other = np.setdiff1d(same_time, exact)
-    if len(other):
-        i = int(other[0])
-        raise SessionError(f"{path}: line {i + 2}: time {float(table[i, 0])!r} repeats line {i + 1} with other values ({len(other)} such "
-                           f"row{'s' if len(other) > 1 else ''}): a time column with too few digits (--time-units?), or the wrong column?")
-    if len(exact):
-        warnings.warn(f"{path}: {len(exact)} row{'s' if len(exact) > 1 else ''} repeat the row before exactly (first: line {int(exact[0]) + 2}): "
+    if repeats:
+        warnings.warn(f"{path}: {repeats} row{'s' if repeats > 1 else ''} repeat the row before exactly (first: line {first_repeat}): "
                       "a logger's double write? kept once", SessionWarning, stacklevel=3)
-        table = np.delete(table, exact, axis=0)
-    return table
+
+
+def _unreadable(path: Path, sep: str, header: list[str], order: list[int], decimal: str) -> str | None:
+    """What the C reader could not parse, read again row by row (without holding the rows): the first cell of ``order``
+    that is not a number, or a row with more fields than the header, with its line; None if every row reads."""
+    with path.open(newline="", encoding="utf-8-sig") as handle:
+        reader = csv.reader(handle, delimiter=sep)
+        next(reader)
+        for line, row in enumerate(reader, start=2):
+            if not row or all(not cell.strip() for cell in row):
+                continue
+            if len(row) > len(header):
+                return f"{path}: line {line}: {len(row)} fields, the header has {len(header)}"
+            for i in order:
+                cell = row[i].strip() if i < len(row) else ""
+                if not _is_number(cell.replace(decimal, ".") if decimal != "." else cell):
+                    hint = " (a decimal comma? pass --decimal ,)" if decimal == "." and re.fullmatch(r"[-+]?\d+,\d+", cell) else ""
+                    return f"{path}: line {line}: column {header[i]!r} " + ("is empty" if not cell else f"is not a number ({cell!r}){hint}")
+    return None
+
+
+def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, str], name: str | None = None, units: str | None = None,
+               time_units: str = "s", system: str | None = None, truth: bool = False, onto: str | None = None, decimal: str = ".",
+               block_rows: int = CSV_BLOCK_ROWS) -> tuple[Path, int]:
+    """``import csv``: the CSV as a stream of a new session in ``out`` or added to the session there (as ``add_to_session``
+    says), read and written a block at a time: neither it nor the session's other streams are held whole (``onto`` holds
+    both: the interpolation reads them whole; ``block_rows``: ``iter_csv_stream``'s). Returns the session's folder and the samples
+    written."""
+    if onto is not None:
+        stream = csv_stream(path, kind, columns, name, units, time_units, decimal=decimal)
+        return add_to_session(out, {stream.name: stream}, system, truth=truth, onto=onto), len(stream.t)
+    root, path = Path(out), Path(path)
+    name = "truth" if truth else (name or kind)
+    toml = root / "session.toml"
+    origin: float | None = None  # a new session's times start at its first sample
+    if toml.is_file():
+        toml_path, spec, found = read_session_spec(root)
+        if system is not None and system != found:
+            raise SessionError(f"{toml_path}: a {found} session; --system {system} does not match")
+        if truth and "truth" in spec:
+            raise SessionError(f"{toml_path}: already has a truth (remove [truth] first to replace it)")
+        if not truth and name in spec["streams"]:
+            raise SessionError(f"{toml_path}: already has stream {name!r} (import it under another --name)")
+        origin = float(spec["session"].get("time_origin_s", 0.0))
+    elif system is None:
+        raise SessionError(f"--out {root}: a new session: say whose with --system (head, attitude9, gaze, bicycle, walking, ultrasonic)")
+    elif root.exists() and any(root.iterdir()):
+        raise SessionError(f"--out {root}: a folder with other files and no session.toml; give a new folder or a session to add to")
+
+    def moved() -> Iterator[tuple[FloatArray, FloatArray]]:
+        nonlocal origin
+        for t, values in iter_csv_stream(path, kind, columns, units, time_units, decimal=decimal, block_rows=block_rows):
+            origin = float(t[0]) if origin is None else origin
+            yield t - origin, values
+
+    columns_out = _entry(kind).columns
+    created = not root.exists()
+    root.mkdir(parents=True, exist_ok=True)
+    partial = root / f"{name}.csv.partial"
+    try:
+        rows = write_stream_csv_blocks(partial, moved(), columns_out)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        if created:
+            root.rmdir()
+        raise
+    partial.replace(root / f"{name}.csv")
+    stream = Stream(name, kind, np.zeros(0), np.zeros((0, len(columns_out))), columns_out, 0.0, {"description": csv_description(path, columns, units)})
+    if toml.is_file():
+        with toml.open("a") as handle:
+            handle.write("\n" + "\n".join(stream_toml(stream, truth=truth)) + "\n")
+    else:
+        header = {"system": system, "time_origin_s": origin, "description": "imported (times from time_origin_s on the source's clock)"}
+        toml.write_text(session_toml(Session(str(system), {} if truth else {name: stream}, stream if truth else None, {"session": header})))
+    return root, rows
 
 
 def resample_onto(stream: Stream, target: Stream) -> tuple[Stream, str]:
