@@ -120,3 +120,31 @@ def test_a_session_read_in_blocks_is_the_session_read_whole(tmp_path: Path, monk
         np.testing.assert_allclose(np.concatenate([b.stream(name).values for b in blocks]), stream.values, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(whole.stream("gyro").values, session.stream("gyro").values, atol=1e-9)
     np.testing.assert_allclose(whole.stream("mag").values, session.stream("mag").values, atol=1e-9)
+
+
+def test_a_long_session_is_checked_a_window_at_a_time(tmp_path: Path) -> None:
+    """``check`` reads a session longer than its window one window at a time (``runner.check_session``): on a right one every
+    window passes and the frames are told; with the magnetometer's x and y swapped, ``check`` and the streamed batch (``run
+    --stream``, which wrote an estimate and exited 0 on it) both stop with the frame error, naming the window."""
+    from fusegraph.evaluation.runner import check_session, run_streamed
+    from fusegraph.session import SessionError
+
+    session = SIMULATORS["attitude9"].simulate(2, 60.0)
+    root = save_session(session, tmp_path / "ok")
+    found = check_session(root, window_s=20.0)
+    frames = {f["stream"]: f for f in found["frames"]}
+    assert found["windows"] == 3 and frames["accel"]["told"] and frames["mag"]["told"]
+    assert frames["accel"]["turn_deg"] < 3.0 and frames["mag"]["turn_deg"] < 3.0  # deg: the simulated axes agree, a turn of noise only
+    assert check_session(root)["windows"] == 1  # shorter than the default window: read whole, as before
+    bad = save_session(session, tmp_path / "bad")
+    mag = session.stream("mag")
+    write_stream_csv(bad / "mag.csv", mag.t, mag.values[:, [1, 0, 2]], mag.columns)
+    with pytest.raises(SessionError, match=r"stream 'mag': .*another frame than the gyro's.* \(in the window 0-20 s\)"):
+        check_session(bad, window_s=20.0)
+    with pytest.raises(SessionError, match=r"stream 'mag': .*another frame than the gyro's.* \(in the window 0-60 s\)"):
+        run_streamed(bad, tmp_path / "estimate.csv")
+    dead = save_session(session, tmp_path / "dead")
+    write_stream_csv(dead / "mag.csv", mag.t, np.zeros_like(mag.values), mag.columns)
+    with pytest.warns(UserWarning, match="stream 'mag': .*solved without it"):
+        said = run_streamed(dead, tmp_path / "estimate.csv")  # the dead magnetometer left out, as a session read whole
+    assert f"({len(session.stream('gyro'))} rows" in said  # an attitude at every gyro sample

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -91,8 +92,10 @@ def run_session(path: str | Path, solver: str, out: str | Path | None = None, pl
 def run_streamed(path: str | Path, out: str | Path | None = None, block_s: float = 60.0,
                  progress: Callable[[str], None] | None = None) -> str:
     """The 9-axis batch over a session read a block at a time, its estimate written as each window is solved: a recording
-    of any length in memory that does not grow with it (``solvers.windowed``). Nothing is scored (the truth is not read:
-    run the session whole to score it). Returns what a terminal is told."""
+    of any length in memory that does not grow with it (``solvers.windowed``). Each window gets every check a session
+    gets before it is solved (``Session.validate``: a frame, unit or dead-stream mistake is an error naming the stream and
+    the window, as ``check`` names it). Nothing is scored (the truth is not read: run the session whole to score it).
+    Returns what a terminal is told."""
     from ..estimate import save_csv_pieces
     from ..session import iter_session_blocks, read_session_spec
     from ..systems.attitude9 import windowed_batch
@@ -114,9 +117,77 @@ def run_streamed(path: str | Path, out: str | Path | None = None, block_s: float
         if len(piece.t):
             say(f"smoothed to t = {piece.t[-1]:.0f} s ({rows} rows written)")
 
-    save_csv_pieces(windowed_batch(iter_session_blocks(path, block_s)), target, counted)
+    save_csv_pieces(windowed_batch(iter_session_blocks(path, block_s), check=checked_window), target, counted)
     seconds = time.perf_counter() - start
     return f"wrote {target} ({rows} rows, smoothed window by window in {seconds:.1f} s; not scored: the truth is not read when streaming)"
+
+
+CHECK_WINDOW_S = 600.0
+"""``check`` reads a session longer than this a window of this many seconds at a time (the 9-axis batch's window,
+``attitude9.BATCH_WINDOWS``: the memory a long run holds anyway)."""
+
+
+def check_session(path: str | Path, window_s: float = CHECK_WINDOW_S) -> dict[str, Any]:
+    """``fusegraph check``'s findings on one session directory: every check of ``load_session`` and ``Session.validate`` (an
+    error raises, naming the stream), the accelerometer's and magnetometer's frames against the gyro
+    (``consistency.frames_found``) and what makes a run on it suspect. A session longer than ``window_s`` is read and
+    checked a window at a time, in memory that does not grow with it: each window gets every check (an error names its
+    span), a frame is the one of the window that tells it best (the smallest largest 1-sigma), the suspect reasons are
+    every window's, and the truth is not read. Returns {"frames", "suspect", "windows"}."""
+    from ..consistency import frames_found, suspect_reasons
+    from ..session import iter_session_blocks
+
+    blocks = iter_session_blocks(path, window_s)
+    first = next(blocks)
+    second = next(blocks, None)
+    if second is None:  # one window holds it: read it whole, with its truth
+        session = load_session(path)
+        session.validate()
+        return {"frames": frames_found(session.streams), "suspect": suspect_reasons(session.streams), "windows": 1}
+    frames: dict[str, dict[str, Any]] = {}
+    suspect: list[str] = []
+    count = 0
+    for window in _tail_joined(itertools.chain([first, second], blocks), window_s):
+        count += 1
+        checked_window(window)
+        for frame in frames_found(window.streams):
+            held = frames.get(frame["stream"])
+            if held is None or (frame["told"] and (not held["told"] or max(frame["turn_sigma_deg"]) < max(held["turn_sigma_deg"]))):
+                frames[frame["stream"]] = frame
+        suspect += [reason for reason in suspect_reasons(window.streams) if reason not in suspect]
+    return {"frames": list(frames.values()), "suspect": suspect, "windows": count}
+
+
+def _tail_joined(windows: Iterable[Session], window_s: float) -> Iterator[Session]:
+    """The windows in order, one that spans less than half a window (the recording's last samples, or a stretch with a
+    dropout) joined to the one before: a few samples cannot be checked on their own."""
+    held: Session | None = None
+    for window in windows:
+        if held is not None:
+            gyro = next((s for s in window.streams.values() if s.kind == "gyro"), None)
+            short = gyro is not None and (len(gyro) < 2 or float(gyro.t[-1] - gyro.t[0]) < 0.5 * window_s)
+            if not short:
+                yield held
+            else:
+                joined = {name: s if s.own_recording else replace(s, t=np.concatenate([s.t, window.streams[name].t]),
+                                                                    values=np.concatenate([s.values, window.streams[name].values]))
+                          for name, s in held.streams.items()}
+                window = replace(held, streams=joined)
+        held = window
+    if held is not None:
+        yield held
+
+
+def checked_window(window: Session) -> Session:
+    """``window.validate()``, an error saying which span of the recording it is in; the window as a solver takes it
+    (``Session.usable``: a dead magnetometer left out, as a session read whole)."""
+    gyro = next((s for s in window.streams.values() if s.kind == "gyro" and len(s)), None)
+    try:
+        window.validate()
+    except SessionError as err:
+        span = f" (in the window {gyro.t[0]:.0f}-{gyro.t[-1]:.0f} s)" if gyro is not None else ""
+        raise type(err)(f"{err}{span}") from None
+    return window.usable()
 
 
 def describe(outcome: Outcome) -> str:

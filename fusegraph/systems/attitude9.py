@@ -224,19 +224,18 @@ def run_batch(session: Session, model: Attitude9Model | None = None, max_iterati
     return _run_batch_whole(session, model, max_iterations)[0]
 
 
-def windowed_batch(blocks: Iterable[Session], model: Attitude9Model | None = None, max_iterations: int = 30,
-                   windows: Windows = BATCH_WINDOWS, progress: Callable[[float], None] | None = None) -> Iterator[Estimate]:
-    """The batch over a recording given in blocks (Sessions in time order: ``session_blocks``, or read from disk a block at
-    a time) in overlapping windows, its pieces in time order as each window is solved: memory bounded by one window. Each
-    window starts from the one before's attitude and field there; without a magnetometer it is turned onto its heading."""
-    iterator = iter(blocks)
-    first = next(iterator, None)
-    if first is None:
+def windowed_batch(blocks: Iterable[Session], model: Attitude9Model | None = None, max_iterations: int = 30, windows: Windows = BATCH_WINDOWS,
+                   progress: Callable[[float], None] | None = None, check: Callable[[Session], Session] | None = None) -> Iterator[Estimate]:
+    """The batch over a recording given in blocks (Sessions in time order: ``session_blocks``, or read from disk) in overlapping windows, its
+    pieces in time order as each is solved: memory bounded by one window. Each window starts from the one before's attitude and field there;
+    without a magnetometer it is turned onto its heading. ``check(window)`` gives the window to solve (``runner.checked_window``)."""
+    if (first := next(iterator := iter(blocks), None)) is None:
         raise SessionError("attitude9 batch: no samples")
     align = "mag" not in first.streams or (model is not None and not model.use_mag)
     before: list[tuple[Estimate, Attitude9Builder]] = []  # the window before: its estimate and field at this one's start
 
     def solve(window: Session) -> Estimate:
+        window = check(window) if check is not None else window
         start_s = float(window.stream("gyro").t[0])
         reference, attitude = None, None
         if before:
