@@ -225,8 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "or Neon export folder (imu.csv, gaze.csv; which device from its info.json or its quaternion columns, or --device) -> "
                          "a gaze session without a magnetometer, the device's fixations (and a Neon's own attitude) for scoring. csv: one stream of a "
                          "vendor's CSV export mapped onto a kind (--kind, --columns, --units, --time-units, --decimal), into a new session "
-                         "(--system) or added to one, read and written a block at a time (an export of any length in ~150 MB; "
-                         "--onto reads both streams whole). xdf: a Lab Streaming Layer recording (LabRecorder), its streams mapped "
+                         "(--system) or added to one, read and written a block at a time (an export of any length in ~150 MB, "
+                         "--onto too). xdf: a Lab Streaming Layer recording (LabRecorder), its streams mapped "
                          "with --map onto session streams.",
                          epilog="examples:\n  fusegraph import broad ../shared/data/broad --out sessions/broad\n"
                          "  fusegraph import broad ../shared/data/broad --system head --out sessions/broad_head\n"
@@ -260,7 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
                      "write 1,5 with ; between columns)")
     imp.add_argument("--onto", metavar="STREAM", help="csv, into an existing session: put the stream on the times of this stream of the "
                      "session (e.g. an accelerometer exported on its own clock onto the gyro's), interpolated linearly; what was "
-                     "bridged is said (both streams are read whole)")
+                     "bridged is said")
     imp.add_argument("--map", action="append", default=[], metavar="LSL_NAME=STREAM[:KIND]",
                      help="xdf: an LSL stream of the file as a session stream (KIND defaults to STREAM, e.g. HMD_gyro=gyro, "
                      "Polhemus=tracker:attitude); repeatable")

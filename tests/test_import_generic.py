@@ -253,3 +253,39 @@ def test_import_csv_reads_and_writes_a_block_at_a_time(tmp_path: Path) -> None:
     (tmp_path / "nan.csv").write_text("\n".join([*lines[:150], nan_row, *lines[151:]]) + "\n")
     with pytest.raises(SessionError, match=r"line 151: column 'GX' is nan \(leave the row out for a dropout\)"):
         list(iter_csv_stream(tmp_path / "nan.csv", "gyro", columns, block_rows=64))
+
+
+def test_a_stream_put_on_another_s_times_block_by_block_is_the_one_put_on_them_whole(tmp_path: Path) -> None:
+    """``--onto`` reads both streams a block at a time (``onto_times``): an accelerometer on its own clock (80 Hz, starting
+    before the gyro and ending after it, one sample missing for 0.5 s) put on the gyro's times in blocks of 64 rows of
+    either is the one made in one block of each, to the byte, and says the same; a stream that does not overlap is an error
+    that leaves nothing behind."""
+    import warnings
+
+    from fusegraph.datasets.generic import import_csv
+    from fusegraph.session import SessionError
+
+    rng = np.random.default_rng(3)
+    t_gyro = np.arange(1.0, 9.0, 0.01) * 1000.0
+    t_own = np.delete(np.arange(0.003, 10.0, 0.0125), np.arange(300, 340)) * 1000.0
+    _vendor_csv(tmp_path / "gyr.csv", t_gyro, rng.normal(0.0, 0.01, (len(t_gyro), 3)), ("GyrX", "GyrY", "GyrZ"))
+    _vendor_csv(tmp_path / "acc.csv", t_own, rng.normal(0.0, 0.1, (len(t_own), 3)) + [0.0, 0.0, 1.0], ("AccX", "AccY", "AccZ"))
+    gyro_columns = {"t": "Timestamp", "wx": "GyrX", "wy": "GyrY", "wz": "GyrZ"}
+    accel_columns = {"t": "Timestamp", "ax": "AccX", "ay": "AccY", "az": "AccZ"}
+    said = {}
+    for rows in (64, 100_000):
+        out = tmp_path / f"blocks_{rows}"
+        import_csv(out, tmp_path / "gyr.csv", "gyro", gyro_columns, time_units="ms", system="attitude9", block_rows=rows)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            import_csv(out, tmp_path / "acc.csv", "accel", accel_columns, units="g", time_units="ms", onto="gyro", block_rows=rows)
+        said[rows] = [str(w.message).split(": ", 1)[1] for w in caught if "interpolated linearly" in str(w.message)]
+    assert said[64] == said[100_000] and "largest interval bridged 0.5125 s" in said[64][0], said  # the 0.5 s without a sample
+    assert (tmp_path / "blocks_64" / "accel.csv").read_bytes() == (tmp_path / "blocks_100000" / "accel.csv").read_bytes()
+    assert (tmp_path / "blocks_64" / "session.toml").read_text() == (tmp_path / "blocks_100000" / "session.toml").read_text()
+    accel = load_session(tmp_path / "blocks_64").stream("accel")
+    assert len(accel) == len(t_gyro)  # the gyro's every time lies inside the accelerometer's span
+    _vendor_csv(tmp_path / "late.csv", t_own + 60_000.0, rng.normal(0.0, 0.1, (len(t_own), 3)), ("AccX", "AccY", "AccZ"))
+    with pytest.raises(SessionError, match="does not overlap 'gyro'"):
+        import_csv(tmp_path / "blocks_64", tmp_path / "late.csv", "accel", accel_columns, name="late", time_units="ms", onto="gyro", block_rows=64)
+    assert not (tmp_path / "blocks_64" / "late.csv").exists() and not (tmp_path / "blocks_64" / "late.csv.partial").exists()

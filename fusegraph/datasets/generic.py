@@ -9,15 +9,19 @@ catalogue kinds and written as (or added to) a session directory.
   kind's column order. A stream of the XDF that no ``--map`` names is listed, never silently used.
 
 Into a new folder (``--system`` says whose session it is) or an existing session (the stream is added; the same
-name again is an error). ``--truth`` makes the stream the session's truth instead (kind attitude, position, ...).
+name again is an error). ``--truth`` makes the stream the session's truth instead (kind attitude, position, ...). A CSV is
+read and written a block at a time (``iter_csv_stream``, ``import_csv``; ``--onto`` too, ``onto_times``): an export of any
+length in memory that does not grow with it.
 """
 
 from __future__ import annotations
 
 import csv
+import math
 import re
-from collections.abc import Iterator
-from dataclasses import replace
+import warnings
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +33,9 @@ from ..session import (
     KIND_COLUMNS,
     Session,
     SessionError,
+    SessionWarning,
     Stream,
+    iter_stream_csv,
     load_session,
     read_session_spec,
     save_session,
@@ -82,11 +88,7 @@ def iter_csv_stream(path: str | Path, kind: str, columns: dict[str, str], units:
     checked across the blocks: a cell that is not a number, a time that goes back or repeats with other values is an error
     naming its line (a data row's: the header is line 1), and a row that repeats the one before it exactly (a logger's double
     write) is kept once, with one warning at the end."""
-    import warnings
-
     import pandas as pd
-
-    from ..session import SessionWarning
 
     path = Path(path)
     entry = _entry(kind)
@@ -182,12 +184,10 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
                time_units: str = "s", system: str | None = None, truth: bool = False, onto: str | None = None, decimal: str = ".",
                block_rows: int = CSV_BLOCK_ROWS) -> tuple[Path, int]:
     """``import csv``: the CSV as a stream of a new session in ``out`` or added to the session there (as ``add_to_session``
-    says), read and written a block at a time: neither it nor the session's other streams are held whole (``onto`` holds
-    both: the interpolation reads them whole; ``block_rows``: ``iter_csv_stream``'s). Returns the session's folder and the samples
+    says), read and written a block at a time: neither it nor the session's other streams are held whole (``block_rows``:
+    ``iter_csv_stream``'s). ``onto``: put on the times of that stream of the session (``onto_times``, read a block at a time
+    too; what was bridged said as a warning and in the stream's description). Returns the session's folder and the samples
     written."""
-    if onto is not None:
-        stream = csv_stream(path, kind, columns, name, units, time_units, decimal=decimal)
-        return add_to_session(out, {stream.name: stream}, system, truth=truth, onto=onto), len(stream.t)
     root, path = Path(out), Path(path)
     name = "truth" if truth else (name or kind)
     toml = root / "session.toml"
@@ -201,14 +201,30 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
         if not truth and name in spec["streams"]:
             raise SessionError(f"{toml_path}: already has stream {name!r} (import it under another --name)")
         origin = float(spec["session"].get("time_origin_s", 0.0))
+        if onto is not None and onto not in spec["streams"]:
+            raise SessionError(f"--onto {onto}: {toml_path} has no stream {onto!r} (has: {', '.join(spec['streams'])})")
+    elif onto is not None:
+        raise SessionError(f"--onto {onto}: --out {root} has no session yet; import the stream whose times to take first")
     elif system is None:
         raise SessionError(f"--out {root}: a new session: say whose with --system (head, attitude9, gaze, bicycle, walking, ultrasonic)")
     elif root.exists() and any(root.iterdir()):
         raise SessionError(f"--out {root}: a folder with other files and no session.toml; give a new folder or a session to add to")
 
+    if onto is not None and kind in NOT_INTERPOLATED:
+        raise SessionError(f"--onto {onto}: a {kind} stream is not interpolated (import it on its own times)")
+    source = iter_csv_stream(path, kind, columns, units, time_units, decimal=decimal, block_rows=block_rows)
+    resampling = Resampling(name, str(onto))
+    if onto is not None:
+        table = spec["streams"][onto]
+        entry = _entry(table.get("kind", ""))
+        target = iter_stream_csv(root / table.get("file", f"{onto}.csv"), entry.columns, onto, repeated_times=entry.repeated_times,
+                                 block_rows=block_rows)
+        shift = float(spec["session"].get("time_origin_s", 0.0))  # the target's times on the source's clock, as its stamps are
+        source = onto_times(source, (t + shift for t, _ in target), resampling)
+
     def moved() -> Iterator[tuple[FloatArray, FloatArray]]:
         nonlocal origin
-        for t, values in iter_csv_stream(path, kind, columns, units, time_units, decimal=decimal, block_rows=block_rows):
+        for t, values in source:
             origin = float(t[0]) if origin is None else origin
             yield t - origin, values
 
@@ -218,13 +234,17 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
     partial = root / f"{name}.csv.partial"
     try:
         rows = write_stream_csv_blocks(partial, moved(), columns_out)
+        said = resampling.said() if onto is not None else ""  # no target time inside its span: an error, nothing kept
     except BaseException:
         partial.unlink(missing_ok=True)
         if created:
             root.rmdir()
         raise
     partial.replace(root / f"{name}.csv")
-    stream = Stream(name, kind, np.zeros(0), np.zeros((0, len(columns_out))), columns_out, 0.0, {"description": csv_description(path, columns, units)})
+    if said:
+        warnings.warn(f"{root}: {said}", SessionWarning, stacklevel=2)
+    description = csv_description(path, columns, units) + (f"; {said}" if said else "")
+    stream = Stream(name, kind, np.zeros(0), np.zeros((0, len(columns_out))), columns_out, 0.0, {"description": description})
     if toml.is_file():
         with toml.open("a") as handle:
             handle.write("\n" + "\n".join(stream_toml(stream, truth=truth)) + "\n")
@@ -234,25 +254,85 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
     return root, rows
 
 
-def resample_onto(stream: Stream, target: Stream) -> tuple[Stream, str]:
-    """``stream`` (sampled on its own clock) at ``target``'s times: each column interpolated linearly between the two samples
-    around each target time, at the target times inside its span only. Returns it and a line saying how: the samples
-    made, the target times outside its span, the largest interval of its own an interpolated sample bridges."""
-    if stream.kind in ("attitude", "ranges", "tag_position", "beacon_ranges", "flag"):
-        raise SessionError(f"--onto {target.name}: a {stream.kind} stream is not interpolated (import it on its own times)")
-    inside = (target.t >= stream.t[0]) & (target.t <= stream.t[-1])
-    if not inside.any():
-        raise SessionError(f"--onto {target.name}: '{stream.name}' ({stream.t[0]:.3f} .. {stream.t[-1]:.3f} s) does not overlap '{target.name}' "
-                           f"({target.t[0]:.3f} .. {target.t[-1]:.3f} s): another clock or time unit?")
-    t = target.t[inside]
-    values = np.column_stack([np.interp(t, stream.t, stream.values[:, c]) for c in range(stream.values.shape[1])])
-    right = np.clip(np.searchsorted(stream.t, t), 1, len(stream.t) - 1)
-    bridged = float(np.max(stream.t[right] - stream.t[right - 1]))
-    said = (f"'{stream.name}' ({len(stream.t)} samples on its own clock) interpolated linearly onto the {len(t)} times of '{target.name}'"
-            + (f" ({int((~inside).sum())} of its times outside '{stream.name}''s span left out)" if (~inside).any() else "")
-            + f"; the largest interval bridged {bridged:.4g} s (its median {float(np.median(np.diff(stream.t))):.4g} s)")
-    meta = {**stream.meta, "description": f"{stream.meta.get('description', '')}; {said}".strip("; ")}
-    return Stream(stream.name, stream.kind, t, values, stream.columns, stream.latency_s, meta), said
+NOT_INTERPOLATED = ("attitude", "ranges", "tag_position", "beacon_ranges", "flag")
+"""Kinds ``--onto`` refuses: a quaternion, a set of ranges or a flag is not a linear quantity between two samples."""
+
+
+@dataclass
+class Resampling:
+    """What ``onto_times`` did, for the line that says so (filled as its blocks are drawn)."""
+
+    name: str
+    """The stream put on the other's times."""
+    target: str
+    """The stream whose times it is put on."""
+    samples: int = 0
+    """Its own samples read."""
+    made: int = 0
+    """Samples made at the target's times."""
+    outside: int = 0
+    """Target times outside its span, left out."""
+    bridged_s: float = 0.0
+    """The largest interval of its own an interpolated sample bridges, s."""
+    medians_s: list[float] = field(default_factory=list)
+    """The median interval of each block of its own samples, s."""
+    span_s: tuple[float, float] = (math.inf, -math.inf)
+    """Its first and last sample time, s."""
+    target_span_s: tuple[float, float] = (math.inf, -math.inf)
+    """The target's first and last time, s."""
+
+    def said(self) -> str:
+        """The line saying how (an error when no target time fell inside its span)."""
+        if not self.made:
+            raise SessionError(f"--onto {self.target}: '{self.name}' ({self.span_s[0]:.3f} .. {self.span_s[1]:.3f} s) does not overlap '{self.target}' "
+                               f"({self.target_span_s[0]:.3f} .. {self.target_span_s[1]:.3f} s): another clock or time unit?")
+        return (f"'{self.name}' ({self.samples} samples on its own clock) interpolated linearly onto the {self.made} times of '{self.target}'"
+                + (f" ({self.outside} of its times outside '{self.name}''s span left out)" if self.outside else "")
+                + f"; the largest interval bridged {self.bridged_s:.4g} s (its median {float(np.median(self.medians_s)):.4g} s)")
+
+
+def onto_times(source: Iterable[tuple[FloatArray, FloatArray]], targets: Iterable[FloatArray], kept: Resampling) -> Iterator[tuple[FloatArray, FloatArray]]:
+    """A stream given in blocks (times increasing, values) at the times of another given in blocks (on the same clock): each
+    column interpolated linearly between the two samples around each target time, at the target times inside its span
+    only, a block of target times at a time; the source is held only from the sample before the target's block on, so
+    neither is held whole, and read to its end. ``kept`` is filled as it goes (its median interval: the median of its
+    blocks' medians)."""
+    blocks = iter(source)
+    own_t, own_v = np.zeros(0), np.zeros((0, 0))
+    ended = False
+
+    def read(t: FloatArray) -> None:
+        kept.samples += len(t)
+        kept.span_s = (min(kept.span_s[0], float(t[0])), float(t[-1]))
+        if len(t) > 1:
+            kept.medians_s.append(float(np.median(np.diff(t))))
+
+    for times in targets:
+        if not len(times):
+            continue
+        kept.target_span_s = (min(kept.target_span_s[0], float(times[0])), max(kept.target_span_s[1], float(times[-1])))
+        while not ended and (not len(own_t) or own_t[-1] < times[-1]):
+            block = next(blocks, None)
+            if block is None:
+                ended = True
+                break
+            t, values = block
+            read(t)
+            own_t, own_v = np.concatenate([own_t, t]), (values if not len(own_v) else np.concatenate([own_v, values]))
+        if not len(own_t):
+            break
+        inside = (times >= kept.span_s[0]) & (times <= own_t[-1])
+        kept.outside += int((~inside).sum())
+        t = times[inside]
+        if len(t):
+            right = np.clip(np.searchsorted(own_t, t), 1, len(own_t) - 1)
+            kept.bridged_s = max(kept.bridged_s, float(np.max(own_t[right] - own_t[right - 1])))
+            kept.made += len(t)
+            yield t, np.column_stack([np.interp(t, own_t, own_v[:, c]) for c in range(own_v.shape[1])])
+        start = max(int(np.searchsorted(own_t, times[-1], side="right")) - 1, 0)  # the last sample at or before the block's end on
+        own_t, own_v = own_t[start:], own_v[start:]
+    for t, _ in blocks:  # the rest, past the target's end, read for its checks and its count alone
+        read(t)
 
 
 def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: dict[str, str] | None = None) -> tuple[dict[str, Stream], list[str]]:
@@ -318,28 +398,15 @@ def write_xdf(session: Session, path: str | Path) -> Path:
     return path
 
 
-def add_to_session(out: str | Path, streams: dict[str, Stream], system: str | None, truth: bool = False, onto: str | None = None) -> Path:
+def add_to_session(out: str | Path, streams: dict[str, Stream], system: str | None, truth: bool = False) -> Path:
     """Write ``streams`` as a new session in ``out`` (``system`` required) or add them to the session already there.
-    Times start at zero at the first sample of the new session (an added stream is moved by the same origin). ``onto``:
-    each stream is first put on the times of that stream of the session (``resample_onto``; said as a warning)."""
-    import warnings
-
-    from ..session import SessionWarning
-
+    Times start at zero at the first sample of the new session (an added stream is moved by the same origin)."""
     root = Path(out)
     if (root / "session.toml").is_file():
         session = load_session(root)
         if system is not None and system != session.system:
             raise SessionError(f"{root / 'session.toml'}: a {session.system} session; --system {system} does not match")
         origin = float(session.meta.get("session", {}).get("time_origin_s", 0.0))
-        if onto is not None:
-            target = session.stream(onto)
-            target = replace(target, t=target.t + origin)  # on the source's clock, as the new streams are
-            for name in list(streams):
-                streams[name], said = resample_onto(streams[name], target)
-                warnings.warn(f"{root}: {said}", SessionWarning, stacklevel=2)
-    elif onto is not None:
-        raise SessionError(f"--onto {onto}: --out {root} has no session yet; import the stream whose times to take first")
     else:
         if system is None:
             raise SessionError(f"--out {root}: a new session: say whose with --system (head, attitude9, gaze, bicycle, walking, ultrasonic)")
