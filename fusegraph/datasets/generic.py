@@ -23,6 +23,7 @@ import warnings
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -120,9 +121,8 @@ def iter_csv_stream(path: str | Path, kind: str, columns: dict[str, str], units:
             bad = np.flatnonzero(~np.isfinite(table).all(axis=1))
             if len(bad):
                 i = int(bad[0])
-                column = named[int(np.flatnonzero(~np.isfinite(table[i]))[0])]
-                raise SessionError(f"{path}: line {before + i + 2}: column {columns[column]!r} is {table[i, named.index(column)]} (leave the row out "
-                                   "for a dropout)")
+                j = int(np.flatnonzero(~np.isfinite(table[i]))[0])
+                raise SessionError(f"{path}: line {before + i + 2}: column {columns[named[j]]!r} is {table[i, j]} (leave the row out for a dropout)")
             joined = table if previous is None else np.vstack([previous, table])
             offset = 0 if previous is None else 1  # joined row j is data row before - offset + j
             step = np.diff(joined[:, 0])
@@ -191,24 +191,12 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
     root, path = Path(out), Path(path)
     name = "truth" if truth else (name or kind)
     toml = root / "session.toml"
-    origin: float | None = None  # a new session's times start at its first sample
-    if toml.is_file():
-        toml_path, spec, found = read_session_spec(root)
-        if system is not None and system != found:
-            raise SessionError(f"{toml_path}: a {found} session; --system {system} does not match")
-        if truth and "truth" in spec:
-            raise SessionError(f"{toml_path}: already has a truth (remove [truth] first to replace it)")
-        if not truth and name in spec["streams"]:
-            raise SessionError(f"{toml_path}: already has stream {name!r} (import it under another --name)")
-        origin = float(spec["session"].get("time_origin_s", 0.0))
-        if onto is not None and onto not in spec["streams"]:
-            raise SessionError(f"--onto {onto}: {toml_path} has no stream {onto!r} (has: {', '.join(spec['streams'])})")
-    elif onto is not None:
+    if onto is not None and not toml.is_file():
         raise SessionError(f"--onto {onto}: --out {root} has no session yet; import the stream whose times to take first")
-    elif system is None:
-        raise SessionError(f"--out {root}: a new session: say whose with --system (head, attitude9, gaze, bicycle, walking, ultrasonic)")
-    elif root.exists() and any(root.iterdir()):
-        raise SessionError(f"--out {root}: a folder with other files and no session.toml; give a new folder or a session to add to")
+    spec: Any = destination(root, system, [name], truth)
+    origin = None if spec is None else float(spec["session"].get("time_origin_s", 0.0))  # a new session's start at its first sample
+    if onto is not None and onto not in spec["streams"]:
+        raise SessionError(f"--onto {onto}: {toml} has no stream {onto!r} (has: {', '.join(spec['streams'])})")
 
     if onto is not None and kind in NOT_INTERPOLATED:
         raise SessionError(f"--onto {onto}: a {kind} stream is not interpolated (import it on its own times)")
@@ -249,7 +237,7 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
         with toml.open("a") as handle:
             handle.write("\n" + "\n".join(stream_toml(stream, truth=truth)) + "\n")
     else:
-        header = {"system": system, "time_origin_s": origin, "description": "imported (times from time_origin_s on the source's clock)"}
+        header = {"system": system, "time_origin_s": origin, "description": NEW_SESSION}
         toml.write_text(session_toml(Session(str(system), {} if truth else {name: stream}, stream if truth else None, {"session": header})))
     return root, rows
 
@@ -398,35 +386,49 @@ def write_xdf(session: Session, path: str | Path) -> Path:
     return path
 
 
-def add_to_session(out: str | Path, streams: dict[str, Stream], system: str | None, truth: bool = False) -> Path:
-    """Write ``streams`` as a new session in ``out`` (``system`` required) or add them to the session already there.
-    Times start at zero at the first sample of the new session (an added stream is moved by the same origin)."""
-    root = Path(out)
-    if (root / "session.toml").is_file():
-        session = load_session(root)
-        if system is not None and system != session.system:
-            raise SessionError(f"{root / 'session.toml'}: a {session.system} session; --system {system} does not match")
-        origin = float(session.meta.get("session", {}).get("time_origin_s", 0.0))
-    else:
+NEW_SESSION = "imported (times from time_origin_s on the source's clock)"
+"""The description a session made by an import says of itself."""
+
+
+def destination(root: Path, system: str | None, names: list[str], truth: bool) -> dict[str, object] | None:
+    """Where an import writes: the tables of the session already in ``root`` that the streams ``names`` (or with ``truth``,
+    the one stream) may be added to, or None for a new session there; an error naming the clash otherwise (another system,
+    a name or a truth it has already, a new session without ``--system`` or in a folder of other files)."""
+    toml = root / "session.toml"
+    if not toml.is_file():
         if system is None:
             raise SessionError(f"--out {root}: a new session: say whose with --system (head, attitude9, gaze, bicycle, walking, ultrasonic)")
         if root.exists() and any(root.iterdir()):
             raise SessionError(f"--out {root}: a folder with other files and no session.toml; give a new folder or a session to add to")
+        return None
+    _, spec, found = read_session_spec(root)
+    if system is not None and system != found:
+        raise SessionError(f"{toml}: a {found} session; --system {system} does not match")
+    if truth and "truth" in spec:
+        raise SessionError(f"{toml}: already has a truth (remove [truth] first to replace it)")
+    clash = [] if truth else [n for n in names if n in spec["streams"]]
+    if clash:
+        raise SessionError(f"{toml}: already has stream {', '.join(repr(c) for c in clash)} (import it under another --name)")
+    return spec
+
+
+def add_to_session(out: str | Path, streams: dict[str, Stream], system: str | None, truth: bool = False) -> Path:
+    """Write ``streams`` as a new session in ``out`` (``system`` required) or add them to the session already there.
+    Times start at zero at the first sample of the new session (an added stream is moved by the same origin)."""
+    root = Path(out)
+    if truth and len(streams) != 1:
+        raise SessionError("--truth: one stream at a time becomes the truth")
+    if destination(root, system, list(streams), truth) is not None:
+        session = load_session(root)
+        origin = float(session.meta.get("session", {}).get("time_origin_s", 0.0))
+    else:
         origin = min(float(s.t[0]) for s in streams.values())
-        session = Session(system, {}, None, {"session": {"system": system, "time_origin_s": origin,
-                                                         "description": "imported (times from time_origin_s on the source's clock)"}})
+        session = Session(str(system), {}, None, {"session": {"system": system, "time_origin_s": origin, "description": NEW_SESSION}})
     moved = {name: replace(s, t=s.t - origin) for name, s in streams.items()}
     if truth:
-        if len(moved) != 1:
-            raise SessionError("--truth: one stream at a time becomes the truth")
-        if session.truth is not None:
-            raise SessionError(f"{root / 'session.toml'}: already has a truth (remove [truth] first to replace it)")
         (stream,) = moved.values()
         session = replace(session, truth=replace(stream, name="truth"))
     else:
-        clash = [n for n in moved if n in session.streams]
-        if clash:
-            raise SessionError(f"{root / 'session.toml'}: already has stream {', '.join(repr(c) for c in clash)} (import it under another --name)")
         session = replace(session, streams={**session.streams, **moved})
     session = replace(session, path=None)
     for name, stream in session.streams.items():
