@@ -136,6 +136,7 @@ def test_a_long_session_is_checked_a_window_at_a_time(tmp_path: Path) -> None:
     assert found["windows"] == 3 and frames["accel"]["told"] and frames["mag"]["told"]
     assert frames["accel"]["turn_deg"] < 3.0 and frames["mag"]["turn_deg"] < 3.0  # deg: the simulated axes agree, a turn of noise only
     assert check_session(root)["windows"] == 1  # shorter than the default window: read whole, as before
+    assert check_session(root, window_s=50.0)["windows"] == 1  # a short last window (10 s) is joined: one window, read whole
     bad = save_session(session, tmp_path / "bad")
     mag = session.stream("mag")
     write_stream_csv(bad / "mag.csv", mag.t, mag.values[:, [1, 0, 2]], mag.columns)

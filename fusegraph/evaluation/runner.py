@@ -137,17 +137,17 @@ def check_session(path: str | Path, window_s: float = CHECK_WINDOW_S) -> dict[st
     from ..consistency import frames_found, suspect_reasons
     from ..session import iter_session_blocks
 
-    blocks = iter_session_blocks(path, window_s)
-    first = next(blocks)
-    second = next(blocks, None)
-    if second is None:  # one window holds it: read it whole, with its truth
+    windows = _tail_joined(iter_session_blocks(path, window_s), window_s)
+    first = next(windows)
+    second = next(windows, None)
+    if second is None:  # one window holds it (a short last one joined): read it whole, with its truth
         session = load_session(path)
         session.validate()
         return {"frames": frames_found(session.streams), "suspect": suspect_reasons(session.streams), "windows": 1}
     frames: dict[str, dict[str, Any]] = {}
     suspect: list[str] = []
     count = 0
-    for window in _tail_joined(itertools.chain([first, second], blocks), window_s):
+    for window in itertools.chain([first, second], windows):
         count += 1
         checked_window(window)
         for frame in frames_found(window.streams):
