@@ -222,6 +222,15 @@ def test_import_csv_reads_and_writes_a_block_at_a_time(tmp_path: Path) -> None:
     assert [len(b[0]) for b in blocks] == [64, 63, 64, 64, 45]  # 301 rows; the repeat, the second block's first row, left out
     np.testing.assert_array_equal(np.concatenate([b[0] for b in blocks]), t * 1e-3)  # ms times 1e-3, as --time-units ms
     np.testing.assert_allclose(np.concatenate([b[1] for b in blocks]), np.radians(values), rtol=1e-15)
+    (tmp_path / "spaces.txt").write_text("\n".join(line.replace(";", "  ") for line in lines) + "\n")  # columns between spaces
+    with pytest.warns(UserWarning, match="1 row repeat"):
+        spaced = list(iter_csv_stream(tmp_path / "spaces.txt", "gyro", columns, "deg/s", "ms", block_rows=64))
+    for ours, theirs in zip(spaced, blocks, strict=True):
+        np.testing.assert_array_equal(ours[0], theirs[0])
+        np.testing.assert_array_equal(ours[1], theirs[1])
+    (tmp_path / "one.csv").write_text("TimeGX\n1\n")
+    with pytest.raises(SessionError, match="line 1: no delimiter between the column names"):
+        list(iter_csv_stream(tmp_path / "one.csv", "gyro", columns))
     with pytest.raises(SessionError, match=r"line 2: column 'GX' is not a number \('-?\d+,\d+'\) \(a decimal comma\? pass --decimal ,\)"):
         list(iter_csv_stream(tmp_path / "comma.csv", "gyro", columns, block_rows=64))
     with warnings.catch_warnings():

@@ -84,8 +84,8 @@ def csv_description(path: Path, columns: dict[str, str], units: str | None) -> s
 def iter_csv_stream(path: str | Path, kind: str, columns: dict[str, str], units: str | None = None, time_units: str = "s",
                     delimiter: str | None = None, decimal: str = ".", block_rows: int = CSV_BLOCK_ROWS) -> Iterator[tuple[FloatArray, FloatArray]]:
     """A vendor CSV's samples a block of ``block_rows`` rows at a time (a long export is never held whole): (times in seconds
-    on the file's clock, values in the kind's SI units). The delimiter is the header's (comma, semicolon or tab) unless
-    given; ``decimal``: the numbers' decimal mark (``,`` in many European exports). Parsed by pandas' C reader; every row is
+    on the file's clock, values in the kind's SI units). The delimiter is the header's (comma, semicolon, tab, or spaces:
+    ``WHITESPACE``) unless given; ``decimal``: the numbers' decimal mark (``,`` in many European exports). Parsed by pandas' C reader; every row is
     checked across the blocks: a cell that is not a number, a time that goes back or repeats with other values is an error
     naming its line (a data row's: the header is line 1), and a row that repeats the one before it exactly (a logger's double
     write) is kept once, with one warning at the end."""
@@ -102,8 +102,8 @@ def iter_csv_stream(path: str | Path, kind: str, columns: dict[str, str], units:
         first = handle.readline()
     if not first.strip():
         raise SessionError(f"{path}: empty file (expected a header row)")
-    sep = delimiter or csv.Sniffer().sniff(first, delimiters=",;\t").delimiter
-    header = [h.strip() for h in next(csv.reader([first], delimiter=sep))]
+    sep = delimiter or _delimiter(path, first)
+    header = _fields(first, sep)
     absent = [theirs for theirs in columns.values() if theirs not in header]
     if absent:
         raise SessionError(f"{path}: column{'s' if len(absent) > 1 else ''} {', '.join(repr(a) for a in absent)} not in the header "
@@ -161,11 +161,32 @@ def iter_csv_stream(path: str | Path, kind: str, columns: dict[str, str], units:
                       "a logger's double write? kept once", SessionWarning, stacklevel=3)
 
 
+WHITESPACE = r"\s+"
+"""The delimiter of a file whose columns are separated by spaces (or tabs and spaces mixed), as pandas names it."""
+
+
+def _delimiter(path: Path, header: str) -> str:
+    """The header line's delimiter: a comma, semicolon or tab, else spaces where they separate several names."""
+    try:
+        return csv.Sniffer().sniff(header, delimiters=",;\t").delimiter
+    except csv.Error:
+        if len(header.split()) > 1:
+            return WHITESPACE
+        raise SessionError(f"{path}: line 1: no delimiter between the column names ({header.strip()[:60]!r}): a comma, semicolon, tab or "
+                           "spaces") from None
+
+
+def _fields(line: str, sep: str) -> list[str]:
+    """A line's fields, stripped."""
+    cells = line.split() if sep == WHITESPACE else next(csv.reader([line], delimiter=sep), [])
+    return [cell.strip() for cell in cells]
+
+
 def _unreadable(path: Path, sep: str, header: list[str], order: list[int], decimal: str) -> str | None:
     """What the C reader could not parse, read again row by row (without holding the rows): the first cell of ``order``
     that is not a number, or a row with more fields than the header, with its line; None if every row reads."""
     with path.open(newline="", encoding="utf-8-sig") as handle:
-        reader = csv.reader(handle, delimiter=sep)
+        reader = (_fields(text, sep) for text in handle) if sep == WHITESPACE else csv.reader(handle, delimiter=sep)
         next(reader)
         for line, row in enumerate(reader, start=2):
             if not row or all(not cell.strip() for cell in row):
