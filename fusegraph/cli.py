@@ -255,7 +255,9 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--columns", metavar="t=COL,wx=COL,...", help="csv: the file's column for t and for each column of the kind")
     imp.add_argument("--units", metavar="UNIT", help="csv: the values' unit when not SI (the kind's accepted units, e.g. deg/s, g); "
                      "xdf: STREAM=UNIT, repeatable")
-    imp.add_argument("--time-units", default="s", choices=["s", "ms", "us", "ns"], help="csv: the time column's unit (default s)")
+    imp.add_argument("--time-units", default="s", choices=["s", "ms", "us", "ns", "iso"], help="csv: the time column's unit (default s); "
+                     "iso: date-times such as 2024-05-01 12:00:00.010 (a T and a zone offset allowed; without a zone taken as UTC; "
+                     "held to 0.24 us)")
     imp.add_argument("--decimal", default=".", choices=[".", ","], help="csv: the numbers' decimal mark (default .; many European exports "
                      "write 1,5 with ; between columns)")
     imp.add_argument("--onto", metavar="STREAM", help="csv, into an existing session: put the stream on the times of this stream of the "

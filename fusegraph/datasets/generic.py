@@ -45,8 +45,9 @@ from ..session import (
     write_stream_csv_blocks,
 )
 
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-"""``--time-units`` -> seconds per unit."""
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "iso": 1.0}
+"""``--time-units`` -> seconds per unit; ``iso``: ISO 8601 date-times (``2024-05-01 12:00:00.010``, a ``T`` and a zone offset
+allowed), read as seconds since 1970-01-01 UTC (a time without a zone as if UTC: only differences matter within a session)."""
 
 
 def parse_columns(text: str, kind: str) -> dict[str, str]:
@@ -113,10 +114,15 @@ def iter_csv_stream(path: str | Path, kind: str, columns: dict[str, str], units:
     before = 0  # data rows read so far
     repeats, first_repeat = 0, 0
     try:
+        iso = time_units == "iso"
+        types = {i: str if iso and i == order[0] else float for i in set(order)}
         reader = pd.read_csv(path, sep=sep, decimal=decimal, header=None, skiprows=1, names=list(range(len(header))), usecols=sorted(set(order)),
-                             dtype=float, chunksize=block_rows, skip_blank_lines=True, encoding="utf-8-sig")
+                             dtype=types, chunksize=block_rows, skip_blank_lines=True, encoding="utf-8-sig")  # type: ignore[call-overload]
         previous: np.ndarray | None = None  # the last row kept
         for chunk in reader:
+            if iso:  # the date-times as seconds since 1970 UTC (NaN where a cell is empty)
+                stamps = pd.to_datetime(chunk[order[0]], format="ISO8601", utc=True)
+                chunk[order[0]] = np.where(stamps.isna(), np.nan, stamps.to_numpy(dtype="datetime64[ns]").astype(np.int64) / 1e9)
             table = chunk[order].to_numpy(dtype=float)
             bad = np.flatnonzero(~np.isfinite(table).all(axis=1))
             if len(bad):
@@ -151,7 +157,7 @@ def iter_csv_stream(path: str | Path, kind: str, columns: dict[str, str], units:
                 previous = kept[-1:]
                 yield kept[:, 0] * TIME_UNITS[time_units], kept[:, 1:] * factor
     except (ValueError, pd.errors.ParserError) as err:
-        raise SessionError(_unreadable(path, sep, header, order, decimal) or f"{path}: not a CSV pandas can read ({err})") from None
+        raise SessionError(_unreadable(path, sep, header, order, decimal, time_units == "iso") or f"{path}: not a CSV pandas can read ({err})") from None
     except pd.errors.EmptyDataError:
         pass
     if not before:
@@ -182,9 +188,12 @@ def _fields(line: str, sep: str) -> list[str]:
     return [cell.strip() for cell in cells]
 
 
-def _unreadable(path: Path, sep: str, header: list[str], order: list[int], decimal: str) -> str | None:
+def _unreadable(path: Path, sep: str, header: list[str], order: list[int], decimal: str, iso: bool = False) -> str | None:
     """What the C reader could not parse, read again row by row (without holding the rows): the first cell of ``order``
-    that is not a number, or a row with more fields than the header, with its line; None if every row reads."""
+    that is not a number (the time with ``iso``: not an ISO 8601 date-time), or a row with more fields than the header,
+    with its line; None if every row reads."""
+    from datetime import datetime
+
     with path.open(newline="", encoding="utf-8-sig") as handle:
         reader = (_fields(text, sep) for text in handle) if sep == WHITESPACE else csv.reader(handle, delimiter=sep)
         next(reader)
@@ -193,10 +202,16 @@ def _unreadable(path: Path, sep: str, header: list[str], order: list[int], decim
                 continue
             if len(row) > len(header):
                 return f"{path}: line {line}: {len(row)} fields, the header has {len(header)}"
-            for i in order:
+            for n, i in enumerate(order):
                 cell = row[i].strip() if i < len(row) else ""
-                if not _is_number(cell.replace(decimal, ".") if decimal != "." else cell):
-                    hint = " (a decimal comma? pass --decimal ,)" if decimal == "." and re.fullmatch(r"[-+]?\d+,\d+", cell) else ""
+                if iso and n == 0:
+                    try:
+                        datetime.fromisoformat(cell)
+                    except ValueError:
+                        return f"{path}: line {line}: column {header[i]!r} " + ("is empty" if not cell else f"is not an ISO 8601 date-time ({cell!r})")
+                elif not _is_number(cell.replace(decimal, ".") if decimal != "." else cell):
+                    hint = (" (a decimal comma? pass --decimal ,)" if decimal == "." and re.fullmatch(r"[-+]?\d+,\d+", cell)
+                            else " (a date-time? pass --time-units iso)" if n == 0 and re.match(r"\d{4}-\d\d-\d\d", cell) else "")
                     return f"{path}: line {line}: column {header[i]!r} " + ("is empty" if not cell else f"is not a number ({cell!r}){hint}")
     return None
 
