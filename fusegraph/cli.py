@@ -184,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "units (a gyro in deg/s, an accelerometer in g), clocks, quaternion conventions, dead or stuck streams, repeated "
                          "range rows, truth in another convention or clock. Then, for each accelerometer and magnetometer, how far its "
                          "axes as written are from the gyro's frame and the rotation between them fitted from the data (with its "
-                         "1-sigma per axis) where the motion tells it. A session longer than 10 minutes is read and checked 10 minutes at a time "
+                         "1-sigma per axis) where the motion tells it. A session of 15 minutes or more is read and checked 10 minutes at a time "
                          "(a week-long recording in the memory of one window; an error names its window, the truth is not read). Exit 2 "
                          "with the first error; warnings are printed.",
                          epilog="examples:\n  fusegraph check sessions/broad/01_undisturbed_slow_rotation_A\n  fusegraph check sessions/broad --json",

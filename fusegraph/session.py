@@ -427,6 +427,31 @@ def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any
     return replace(empty, t=t, values=values)
 
 
+def recording_span_s(directory: str | Path) -> float | None:
+    """How long a session directory's recording is, s (its streams' first to last sample, a calibration recording left
+    out), from each CSV's first and last lines alone: a long recording is not read to learn it. None where a line does not
+    read as a time (reading the session says why)."""
+    root = Path(directory)
+    _, spec, _ = read_session_spec(root)
+    starts, ends = [], []
+    for name, table in spec["streams"].items():
+        path = root / table.get("file", f"{name}.csv")
+        if table.get("role") == CALIBRATION_ROLE:
+            continue
+        if not path.is_file() or _csv_encoding(path) != "utf-8-sig":
+            return None
+        with path.open("rb") as handle:
+            lines = handle.read(4096).splitlines()[1:2]  # the first data row
+            handle.seek(max(0, path.stat().st_size - 4096))
+            lines += [line for line in handle.read().splitlines() if line.strip()][-1:]  # the last
+        try:
+            starts.append(float(lines[0].split(b",")[0]))
+            ends.append(float(lines[-1].split(b",")[0]))
+        except (IndexError, ValueError):
+            return None
+    return max(ends) - min(starts) if starts else None
+
+
 def iter_session_blocks(directory: str | Path, block_s: float = 60.0) -> Iterator[Session]:
     """A session directory read ``block_s`` seconds at a time, in time order (its CSVs streamed: a recording of any length
     in memory that does not grow with it), each block a Session of every stream's samples in [lo, lo + block_s). The

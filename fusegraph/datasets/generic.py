@@ -237,8 +237,9 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
     if onto is not None and kind in NOT_INTERPOLATED:
         raise SessionError(f"--onto {onto}: a {kind} stream is not interpolated (import it on its own times)")
     source = iter_csv_stream(path, kind, columns, units, time_units, decimal=decimal, block_rows=block_rows)
-    resampling = Resampling(name, str(onto))
+    resampling = None
     if onto is not None:
+        resampling = Resampling(name, onto)
         table = spec["streams"][onto]
         entry = _entry(table.get("kind", ""))
         target = iter_stream_csv(root / table.get("file", f"{onto}.csv"), entry.columns, onto, repeated_times=entry.repeated_times,
@@ -258,7 +259,7 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
     partial = root / f"{name}.csv.partial"
     try:
         rows = write_stream_csv_blocks(partial, moved(), columns_out)
-        said = resampling.said() if onto is not None else ""  # no target time inside its span: an error, nothing kept
+        said = resampling.said() if resampling is not None else ""  # no target time inside its span: an error, nothing kept
     except BaseException:
         partial.unlink(missing_ok=True)
         if created:
@@ -269,7 +270,7 @@ def import_csv(out: str | Path, path: str | Path, kind: str, columns: dict[str, 
         warnings.warn(f"{root}: {said}", SessionWarning, stacklevel=2)
     description = csv_description(path, columns, units) + (f"; {said}" if said else "")
     stream = Stream(name, kind, np.zeros(0), np.zeros((0, len(columns_out))), columns_out, 0.0, {"description": description})
-    if toml.is_file():
+    if spec is not None:
         with toml.open("a") as handle:
             handle.write("\n" + "\n".join(stream_toml(stream, truth=truth)) + "\n")
     else:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import itertools
 import json
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -123,31 +122,29 @@ def run_streamed(path: str | Path, out: str | Path | None = None, block_s: float
 
 
 CHECK_WINDOW_S = 600.0
-"""``check`` reads a session longer than this a window of this many seconds at a time (the 9-axis batch's window,
+"""``check`` reads a session of one and a half of these or more a window of this many seconds at a time (the 9-axis batch's window,
 ``attitude9.BATCH_WINDOWS``: the memory a long run holds anyway)."""
 
 
 def check_session(path: str | Path, window_s: float = CHECK_WINDOW_S) -> dict[str, Any]:
     """``fusegraph check``'s findings on one session directory: every check of ``load_session`` and ``Session.validate`` (an
     error raises, naming the stream), the accelerometer's and magnetometer's frames against the gyro
-    (``consistency.frames_found``) and what makes a run on it suspect. A session longer than ``window_s`` is read and
-    checked a window at a time, in memory that does not grow with it: each window gets every check (an error names its
+    (``consistency.frames_found``) and what makes a run on it suspect. A session of 1.5 ``window_s`` or more (``session.recording_span_s``) is read
+    and checked a window at a time, in memory that does not grow with it: each window gets every check (an error names its
     span), a frame is the one of the window that tells it best (the smallest largest 1-sigma), the suspect reasons are
     every window's, and the truth is not read. Returns {"frames", "suspect", "windows"}."""
     from ..consistency import frames_found, suspect_reasons
-    from ..session import iter_session_blocks
+    from ..session import iter_session_blocks, recording_span_s
 
-    windows = _tail_joined(iter_session_blocks(path, window_s), window_s)
-    first = next(windows)
-    second = next(windows, None)
-    if second is None:  # one window holds it (a short last one joined): read it whole, with its truth
+    span = recording_span_s(path)
+    if span is None or span < 1.5 * window_s:  # one window holds it (a short last one is joined): read it whole, with its truth
         session = load_session(path)
         session.validate()
         return {"frames": frames_found(session.streams), "suspect": suspect_reasons(session.streams), "windows": 1}
     frames: dict[str, dict[str, Any]] = {}
     suspect: list[str] = []
     count = 0
-    for window in itertools.chain([first, second], windows):
+    for window in _tail_joined(iter_session_blocks(path, window_s), window_s):
         count += 1
         checked_window(window)
         for frame in frames_found(window.streams):
