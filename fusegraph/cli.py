@@ -185,7 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "range rows, truth in another convention or clock. Then, for each accelerometer and magnetometer, how far its "
                          "axes as written are from the gyro's frame and the rotation between them fitted from the data (with its "
                          "1-sigma per axis) where the motion tells it. A session of 15 minutes or more is read and checked 10 minutes at a time "
-                         "(a week-long recording in the memory of one window; an error names its window, the truth is not read). Exit 2 "
+                         "(a week-long recording in the memory of one window, its truth checked in each; an error names its window). Exit 2 "
                          "with the first error; warnings are printed.",
                          epilog="examples:\n  fusegraph check sessions/broad/01_undisturbed_slow_rotation_A\n  fusegraph check sessions/broad --json",
                          formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -600,7 +600,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
         print(_dump(found))
         return 0
     for entry in found:
-        windows = f" (in {entry['windows']} windows of {CHECK_WINDOW_S:.0f} s, the truth not read)" if "windows" in entry else ""
+        windows = f" (in {entry['windows']} windows of {CHECK_WINDOW_S:.0f} s)" if "windows" in entry else ""
         print(f"{entry['session']}: every check passed{windows}" + (f"; suspect: {'; '.join(entry['suspect'])}" if entry["suspect"] else ""))
         for frame in entry["frames"]:
             if not frame["told"]:

@@ -300,9 +300,7 @@ def check_streams(streams: Mapping[str, Any], truth: Any | None = None) -> list[
     if truth is not None and len(truth) and streams:
         start, end = min(float(s.t[0]) for s in streams.values()), max(float(s.t[-1]) for s in streams.values())
         if truth.t[-1] < start or truth.t[0] > end:
-            raise ConsistencyError(f"truth ({truth.t[0]:.3f} .. {truth.t[-1]:.3f} s) does not overlap the streams ({start:.3f} .. {end:.3f} s): on "
-                                   f"another clock (about {float(np.median(truth.t)) - 0.5 * (start + end):+.4g} s off)? write it on the sensors' "
-                                   "clock; nothing could be scored")
+            raise truth_clock_error((float(truth.t[0]), float(truth.t[-1])), (start, end), float(np.median(truth.t)))
     for stream in (*gyros, *accels):
         level = saturation_level(stream.values)
         if level is not None:
@@ -749,6 +747,15 @@ def repairs(streams: Mapping[str, Any]) -> dict[str, tuple[str, np.ndarray | Non
             out[name] = (f"stream '{name}': {int((~keep).sum())} of {len(keep)} rows repeat a row of their epoch exactly (time, receiver, "
                          "range): the log written twice? each kept once", keep)
     return out
+
+
+def truth_clock_error(truth_s: tuple[float, float], streams_s: tuple[float, float], truth_middle_s: float | None = None) -> ConsistencyError:
+    """The error of a truth whose first and last times (``truth_s``) overlap none of the streams' (``streams_s``): on another
+    clock, by about the distance of its middle (``truth_middle_s``, default halfway) from theirs."""
+    middle = 0.5 * (truth_s[0] + truth_s[1]) if truth_middle_s is None else truth_middle_s
+    return ConsistencyError(f"truth ({truth_s[0]:.3f} .. {truth_s[1]:.3f} s) does not overlap the streams ({streams_s[0]:.3f} .. {streams_s[1]:.3f} s): "
+                            f"on another clock (about {middle - 0.5 * (streams_s[0] + streams_s[1]):+.4g} s off)? write it on the sensors' clock; "
+                            "nothing could be scored")
 
 
 def truth_against_gyro(gyro: Any, truth: Any) -> None:

@@ -382,18 +382,24 @@ def load_session(directory: str | Path) -> Session:
     for name, table in stream_specs.items():
         streams[name] = _load_stream(root, toml_path, name, table)
     check_overlap(streams, str(toml_path))
-    truth = None
-    if "truth" in spec:
-        table = dict(spec["truth"])
-        table.setdefault("kind", "attitude")
-        try:
-            check_keys(table, (k.name for k in TRUTH_KEYS), f"{toml_path}: [truth]")
-        except CatalogueError as err:
-            raise SessionError(str(err)) from None
-        # ground truth may have gaps (occluded markers), written as NaN rows; sensors may not
-        truth = _load_stream(root, toml_path, "truth", table, allow_nan=True)
+    table = _truth_table(toml_path, spec)
+    # ground truth may have gaps (occluded markers), written as NaN rows; sensors may not
+    truth = None if table is None else _load_stream(root, toml_path, "truth", table, allow_nan=True)
     meta = {k: v for k, v in spec.items() if k not in ("streams", "truth")}
     return Session(system, streams, truth, meta, root)
+
+
+def _truth_table(toml_path: Path, spec: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The session's ``[truth]`` table checked (its kind ``attitude`` unless it says otherwise), or None without one."""
+    if "truth" not in spec:
+        return None
+    table = dict(spec["truth"])
+    table.setdefault("kind", "attitude")
+    try:
+        check_keys(table, (k.name for k in TRUTH_KEYS), f"{toml_path}: [truth]")
+    except CatalogueError as err:
+        raise SessionError(str(err)) from None
+    return table
 
 
 def _stream_spec(root: Path, toml_path: Path, name: str, table: Mapping[str, Any]) -> tuple[Stream, Path]:
@@ -433,34 +439,49 @@ def recording_span_s(directory: str | Path) -> float | None:
     read as a time (reading the session says why)."""
     root = Path(directory)
     _, spec, _ = read_session_spec(root)
-    starts, ends = [], []
-    for name, table in spec["streams"].items():
-        path = root / table.get("file", f"{name}.csv")
-        if table.get("role") == CALIBRATION_ROLE:
-            continue
-        if not path.is_file() or _csv_encoding(path) != "utf-8-sig":
-            return None
-        with path.open("rb") as handle:
-            lines = handle.read(4096).splitlines()[1:2]  # the first data row
-            handle.seek(max(0, path.stat().st_size - 4096))
-            lines += [line for line in handle.read().splitlines() if line.strip()][-1:]  # the last
-        try:
-            starts.append(float(lines[0].split(b",")[0]))
-            ends.append(float(lines[-1].split(b",")[0]))
-        except (IndexError, ValueError):
-            return None
-    return max(ends) - min(starts) if starts else None
+    spans = [csv_time_span(root / table.get("file", f"{name}.csv")) for name, table in spec["streams"].items()
+             if table.get("role") != CALIBRATION_ROLE]
+    if not spans or any(span is None for span in spans):
+        return None
+    return max(span[1] for span in spans if span is not None) - min(span[0] for span in spans if span is not None)
 
 
-def iter_session_blocks(directory: str | Path, block_s: float = 60.0) -> Iterator[Session]:
+def csv_time_span(path: Path) -> tuple[float, float] | None:
+    """A stream CSV's first and last time, s, from its first and last lines alone; None where a line does not read as a
+    time (reading the file says why)."""
+    if not path.is_file() or _csv_encoding(path) != "utf-8-sig":
+        return None
+    with path.open("rb") as handle:
+        lines = handle.read(4096).splitlines()[1:2]  # the first data row
+        handle.seek(max(0, path.stat().st_size - 4096))
+        lines += [line for line in handle.read().splitlines() if line.strip()][-1:]  # the last
+    try:
+        return float(lines[0].split(b",")[0]), float(lines[-1].split(b",")[0])
+    except (IndexError, ValueError):
+        return None
+
+
+_TRUTH_SOURCE = "\0truth"
+"""``iter_session_blocks``'s key for the truth among the streams it reads (no stream's name)."""
+
+
+def iter_session_blocks(directory: str | Path, block_s: float = 60.0, truth: bool = False) -> Iterator[Session]:
     """A session directory read ``block_s`` seconds at a time, in time order (its CSVs streamed: a recording of any length
-    in memory that does not grow with it), each block a Session of every stream's samples in [lo, lo + block_s). The
-    truth is not read; a calibration recording (``role``) comes whole in every block. The first CSV block of each stream
-    gets every check of ``load_session`` (units, magnitudes, rate), the rest its unit and frame conversion; the clocks'
-    overlap is not checked (it needs every stream's end)."""
+    in memory that does not grow with it), each block a Session of every stream's samples in [lo, lo + block_s). With
+    ``truth``, each block's truth is the truth's samples within its streams' first and last (None where it has none; the
+    truth follows the streams' blocks and is read no further than they go), else the truth is not read. A calibration
+    recording (``role``) comes whole in every block. The first CSV block of each stream gets every check of
+    ``load_session`` (units, magnitudes, rate), the rest its unit and frame conversion; the clocks' overlap is not checked
+    (it needs every stream's end)."""
     root = Path(directory)
     toml_path, spec, system = read_session_spec(root)
     catalogue = sensor_catalogue()
+    truth_table = _truth_table(toml_path, spec) if truth else None
+    follower: tuple[Stream, Iterator[tuple[FloatArray, FloatArray]]] | None = None
+    if truth_table is not None:
+        truth_empty, truth_path = _stream_spec(root, toml_path, "truth", truth_table)
+        truth_entry = catalogue[truth_empty.kind]
+        follower = (truth_empty, iter_stream_csv(truth_path, truth_entry.columns, "truth", allow_nan=True, repeated_times=truth_entry.repeated_times))
     whole: dict[str, Stream] = {}
     readers: dict[str, tuple[Stream, Iterator[tuple[FloatArray, FloatArray]]]] = {}
     for name, table in spec["streams"].items():
@@ -481,10 +502,12 @@ def iter_session_blocks(directory: str | Path, block_s: float = 60.0) -> Iterato
     pending: dict[str, tuple[FloatArray, FloatArray]] = {}
     done: set[str] = set()
 
+    sources = {**readers, **({_TRUTH_SOURCE: follower} if follower is not None else {})}
+
     def pull(name: str, until_s: float) -> None:  # read the stream on until a sample at or after until_s (or its end)
-        t, values = pending.get(name, (np.zeros(0), np.zeros((0, len(readers[name][0].columns)))))
+        t, values = pending.get(name, (np.zeros(0), np.zeros((0, len(sources[name][0].columns)))))
         while name not in done and (len(t) == 0 or t[-1] < until_s):
-            nxt = next(readers[name][1], None)
+            nxt = next(sources[name][1], None)
             if nxt is None:
                 done.add(name)
                 break
@@ -494,7 +517,7 @@ def iter_session_blocks(directory: str | Path, block_s: float = 60.0) -> Iterato
     for name in readers:
         pull(name, -np.inf)
     lo = min((float(t[0]) for t, _ in pending.values() if len(t)), default=np.inf)
-    while any(len(t) for t, _ in pending.values()):
+    while any(len(t) for name, (t, _) in pending.items() if name != _TRUTH_SOURCE):
         hi = lo + block_s
         streams = dict(whole)
         for name, (empty, _) in readers.items():
@@ -503,7 +526,18 @@ def iter_session_blocks(directory: str | Path, block_s: float = 60.0) -> Iterato
             n = int(np.searchsorted(t, hi, side="left"))
             streams[name] = replace(empty, t=t[:n], values=values[:n])
             pending[name] = (t[n:], values[n:])
-        yield Session(system, streams, None, meta, root)
+        block_truth = None
+        if follower is not None:
+            pull(_TRUTH_SOURCE, hi)
+            t, values = pending[_TRUTH_SOURCE]
+            n = int(np.searchsorted(t, hi, side="left"))
+            pending[_TRUTH_SOURCE] = (t[n:], values[n:])
+            heard = [s.t for name, s in streams.items() if name in readers and len(s)]
+            if heard:
+                inside = (t[:n] >= min(float(h[0]) for h in heard)) & (t[:n] <= max(float(h[-1]) for h in heard))
+                if inside.any():
+                    block_truth = replace(follower[0], t=t[:n][inside], values=values[:n][inside])
+        yield Session(system, streams, block_truth, meta, root)
         lo = hi
 
 

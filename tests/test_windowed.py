@@ -149,3 +149,30 @@ def test_a_long_session_is_checked_a_window_at_a_time(tmp_path: Path) -> None:
     with pytest.warns(UserWarning, match="stream 'mag': .*solved without it"):
         said = run_streamed(dead, tmp_path / "estimate.csv")  # the dead magnetometer left out, as a session read whole
     assert f"({len(session.stream('gyro'))} rows" in said  # an attitude at every gyro sample
+
+
+def test_a_long_session_s_truth_is_checked_a_window_at_a_time(tmp_path: Path) -> None:
+    """The truth of a session checked window by window is checked in each window as in a whole read: written body_R_world
+    (the conjugate) it is named, with its window; on another clock (no window holds a sample of it) it is the whole read's
+    clock error; a right one passes, and each window's truth is the truth's samples within its streams' span."""
+    from fusegraph.evaluation.runner import check_session
+    from fusegraph.session import SessionError
+
+    session = SIMULATORS["attitude9"].simulate(2, 60.0)
+    truth = session.truth
+    assert truth is not None
+    root = save_session(session, tmp_path / "ok")
+    assert check_session(root, window_s=20.0)["windows"] == 3
+    blocks = list(iter_session_blocks(root, 20.0, truth=True))
+    assert all(b.truth is not None for b in blocks) and sum(len(b.truth) for b in blocks if b.truth is not None) == len(truth)
+    assert all(b.truth is None for b in iter_session_blocks(root, 20.0))  # not asked: not read
+    conjugated = save_session(session, tmp_path / "conjugated")
+    write_stream_csv(conjugated / "truth.csv", truth.t, quat_conjugate(truth.values), truth.columns)
+    with pytest.raises(SessionError, match=r"truth: .*written as body_R_world.* \(in the window 0-20 s\)"):
+        check_session(conjugated, window_s=20.0)
+    elsewhere = save_session(session, tmp_path / "elsewhere")
+    write_stream_csv(elsewhere / "truth.csv", truth.t + 1000.0, truth.values, truth.columns)
+    with pytest.raises(SessionError, match=r"toml: truth \(1000.000 .. 1060.000 s\) does not overlap the streams \(0.000 .. 60.000 s\): on another clock"):
+        check_session(elsewhere, window_s=20.0)
+    with pytest.raises(SessionError, match=r"session.toml: truth \(1000.000 .. 1060.000 s\) does not overlap 'gyro' \(0.000 .. 60.000 s\): on another clock"):
+        load_session(elsewhere).validate()  # a whole read says it of the gyro

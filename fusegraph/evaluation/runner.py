@@ -19,7 +19,7 @@ import numpy as np
 from ..estimate import Estimate, PointEstimate, Result
 from ..provenance import choices_that_saw
 from ..results import flatten
-from ..session import NotApplicableError, Session, SessionError, load_session
+from ..session import NotApplicableError, Session, SessionError, Stream, load_session
 from ..systems.presets import PRESETS, Preset, preset_for
 
 
@@ -130,11 +130,12 @@ def check_session(path: str | Path, window_s: float = CHECK_WINDOW_S) -> dict[st
     """``fusegraph check``'s findings on one session directory: every check of ``load_session`` and ``Session.validate`` (an
     error raises, naming the stream), the accelerometer's and magnetometer's frames against the gyro
     (``consistency.frames_found``) and what makes a run on it suspect. A session of 1.5 ``window_s`` or more (``session.recording_span_s``) is read
-    and checked a window at a time, in memory that does not grow with it: each window gets every check (an error names its
-    span), a frame is the one of the window that tells it best (the smallest largest 1-sigma), the suspect reasons are
-    every window's, and the truth is not read. Returns {"frames", "suspect", "windows"}."""
-    from ..consistency import frames_found, suspect_reasons
-    from ..session import iter_session_blocks, recording_span_s
+    and checked a window at a time, in memory that does not grow with it: each window gets every check, its truth's
+    among them (an error names its span), a truth that overlaps no window is the error a whole read gives, a frame is the
+    one of the window that tells it best (the smallest largest 1-sigma), and the suspect reasons are every window's.
+    Returns {"frames", "suspect", "windows"}."""
+    from ..consistency import frames_found, suspect_reasons, truth_clock_error
+    from ..session import csv_time_span, iter_session_blocks, read_session_spec, recording_span_s
 
     span = recording_span_s(path)
     if span is None or span < 1.5 * window_s:  # one window holds it (a short last one is joined): read it whole, with its truth
@@ -143,15 +144,24 @@ def check_session(path: str | Path, window_s: float = CHECK_WINDOW_S) -> dict[st
         return {"frames": frames_found(session.streams), "suspect": suspect_reasons(session.streams), "windows": 1}
     frames: dict[str, dict[str, Any]] = {}
     suspect: list[str] = []
-    count = 0
-    for window in _tail_joined(iter_session_blocks(path, window_s), window_s):
+    count, truth_heard, streams_s = 0, False, (np.inf, -np.inf)
+    for window in _tail_joined(iter_session_blocks(path, window_s, truth=True), window_s):
         count += 1
         checked_window(window)
+        truth_heard |= window.truth is not None
+        heard = [s.t for s in window.streams.values() if len(s) and not s.own_recording]
+        if heard:
+            streams_s = (min(streams_s[0], *(float(t[0]) for t in heard)), max(streams_s[1], *(float(t[-1]) for t in heard)))
         for frame in frames_found(window.streams):
             held = frames.get(frame["stream"])
             if held is None or (frame["told"] and (not held["told"] or max(frame["turn_sigma_deg"]) < max(held["turn_sigma_deg"]))):
                 frames[frame["stream"]] = frame
         suspect += [reason for reason in suspect_reasons(window.streams) if reason not in suspect]
+    _, spec, _ = read_session_spec(Path(path))
+    if "truth" in spec and not truth_heard:  # on another clock: no window held a sample of it
+        truth_s = csv_time_span(Path(path) / spec["truth"].get("file", "truth.csv"))
+        if truth_s is not None:
+            raise SessionError(f"{Path(path) / 'session.toml'}: {truth_clock_error(truth_s, streams_s)}")  # as a whole read names it
     return {"frames": list(frames.values()), "suspect": suspect, "windows": count}
 
 
@@ -166,13 +176,17 @@ def _tail_joined(windows: Iterable[Session], window_s: float) -> Iterator[Sessio
             if not short:
                 yield held
             else:
-                joined = {name: s if s.own_recording else replace(s, t=np.concatenate([s.t, window.streams[name].t]),
-                                                                    values=np.concatenate([s.values, window.streams[name].values]))
-                          for name, s in held.streams.items()}
-                window = replace(held, streams=joined)
+                joined = {name: s if s.own_recording else _joined(s, window.streams[name]) for name, s in held.streams.items()}
+                truth = window.truth if held.truth is None else held.truth if window.truth is None else _joined(held.truth, window.truth)
+                window = replace(held, streams=joined, truth=truth)
         held = window
     if held is not None:
         yield held
+
+
+def _joined(first: Stream, then: Stream) -> Stream:
+    """A stream's samples of two windows in one."""
+    return replace(first, t=np.concatenate([first.t, then.t]), values=np.concatenate([first.values, then.values]))
 
 
 def checked_window(window: Session) -> Session:
