@@ -369,13 +369,17 @@ def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: di
     if not path.is_file():
         raise SessionError(f"{path}: not found")
     try:
-        found, _ = pyxdf.load_xdf(str(path))
+        ids = {name: sid for sid, name in xdf_stream_names(path).items()}  # a name given twice: its last stream, as before
+        unknown = [n for n in mapping if n not in ids]
+        if unknown:
+            raise SessionError(f"{path}: no LSL stream {', '.join(repr(n) for n in unknown)} (the file has: {', '.join(ids) or 'none'})")
+        # only the mapped streams are read into memory: an EEG or a video stream beside the IMU's is skipped chunk by chunk
+        found, _ = pyxdf.load_xdf(str(path), select_streams=sorted({ids[n] for n in mapping}))
+    except SessionError:
+        raise
     except Exception as exc:  # noqa: BLE001 - pyxdf's own errors are many kinds; name the file
         raise SessionError(f"{path}: not a readable XDF file ({type(exc).__name__}: {exc})") from None
     by_name = {str(s["info"]["name"][0]): s for s in found}
-    unknown = [n for n in mapping if n not in by_name]
-    if unknown:
-        raise SessionError(f"{path}: no LSL stream {', '.join(repr(n) for n in unknown)} (the file has: {', '.join(by_name) or 'none'})")
     out: dict[str, Stream] = {}
     for lsl_name, (name, kind) in mapping.items():
         entry = _entry(kind)
@@ -390,7 +394,31 @@ def xdf_streams(path: str | Path, mapping: dict[str, tuple[str, str]], units: di
         unit = (units or {}).get(name)
         out[name] = Stream(name, kind, t, values * _unit_factor(kind, unit), entry.columns, 0.0,
                            {"description": f"LSL stream {lsl_name!r} of {path.name}" + (f"; converted from {unit}" if unit else "")})
-    return out, [n for n in by_name if n not in mapping]
+    return out, [n for n in ids if n not in mapping]
+
+
+def xdf_stream_names(path: Path) -> dict[int, str]:
+    """An XDF file's streams, id -> name, from their header chunks alone (every other chunk skipped unread: the names of a
+    recording of any size, read before any sample is). The format: the magic ``XDF:``, then chunks of [a byte saying how
+    many bytes hold the length: 1, 4 or 8][the length][a 2-byte tag][the content]; a stream header (tag 2) holds the
+    stream's 4-byte id and its XML ``<info><name>``."""
+    from xml.etree import ElementTree
+
+    from pyxdf.pyxdf import open_xdf  # pyxdf's opener: a .xdfz is gzip; checks the magic
+
+    names: dict[int, str] = {}
+    with open_xdf(str(path)) as handle:
+        while size := handle.read(1):
+            if size[0] not in (1, 4, 8):
+                raise ValueError(f"a chunk's length takes {size[0]} bytes at byte {handle.tell() - 1} (1, 4 or 8 in XDF)")
+            length = int.from_bytes(handle.read(size[0]), "little")
+            tag = int.from_bytes(handle.read(2), "little")
+            if tag == 2:
+                sid = int.from_bytes(handle.read(4), "little")
+                names[sid] = str(ElementTree.fromstring(handle.read(length - 6)).findtext("name", default=""))
+            else:
+                handle.seek(length - 2, 1)
+    return names
 
 
 def write_xdf(session: Session, path: str | Path) -> Path:
