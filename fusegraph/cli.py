@@ -85,9 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
                      "recording); with several sessions, a folder")
     run.add_argument("--plot", type=Path, help="also write a PNG of the estimate (against the truth if known)")
     run.add_argument("--json", action="store_true", help='print one JSON object and nothing else: {"system", "solver", "metrics"}')
-    run.add_argument("--stream", action="store_true", help="attitude9 batch: read the session a minute at a time and write the estimate as "
-                     "each 10-minute window is smoothed (overlapping windows, blended at their seams): a recording of any length (a day at "
-                     "285 Hz) in memory that does not grow with it; nothing is scored")
+    run.add_argument("--stream", action="store_true", help="read the session a minute at a time and write the estimate as each 10-minute "
+                     "window is solved, a recording of any length in memory that does not grow with it; nothing is scored. attitude9 "
+                     "--solver batch (overlapping windows blended at their seams: a day at 285 Hz) or walking --solver gait (steps and "
+                     "strides found with a minute either side of each window: a week of a Mobilise-D waist sensor)")
     run.add_argument("--workers", type=int, default=None, help="several sessions: parallel processes (default: all cores)")
     run.add_argument("--scheduler", default=None, help="several sessions: 'local' starts a Dask LocalCluster; tcp://host:port uses an existing one")
 
@@ -618,9 +619,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     paths = session_dirs(args.session)
     if args.stream:
-        if len(paths) != 1 or args.solver != "batch" or args.plot or args.json:
-            raise ValueError("--stream: one session, --solver batch, no --plot or --json (the estimate is written as it is smoothed)")
-        print(run_streamed(paths[0], args.out, progress=_on_terminal))
+        if len(paths) != 1 or args.solver not in ("batch", "gait") or args.plot or args.json:
+            raise ValueError("--stream: one session, --solver batch (attitude9) or gait (walking), no --plot or --json (the estimate is "
+                             "written as it is solved)")
+        print(run_streamed(paths[0], args.out, progress=_on_terminal, solver=args.solver))
         return 0
     if len(paths) == 1 and (Path(args.session[0]) / "session.toml").is_file():
         outcome = run_session(paths[0], args.solver, args.out, args.plot)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -71,7 +71,11 @@ class Estimate:
         return cls(method or path.stem, t, quat, cov)
 
 
-def save_csv_pieces(pieces: Iterable[Estimate], path: str | Path, each: Callable[[Estimate], None] | None = None) -> Path:
+R = TypeVar("R", "Estimate", "PointEstimate")
+"""An attitude or a point estimate (``save_csv_pieces`` writes either)."""
+
+
+def save_csv_pieces(pieces: Iterable[R], path: str | Path, each: Callable[[R], None] | None = None) -> Path:
     """Consecutive pieces of one estimate (a windowed smoother's, as they come) written as one ``save_csv`` file, each
     piece appended and let go; ``each(piece)`` after each is written."""
     path = Path(path)
@@ -111,10 +115,11 @@ class PointEstimate:
 
     def save_csv(self, path: str | Path) -> Path:
         """CSV with ``t`` and every point's coordinates."""
-        path = Path(path)
+        return save_csv_pieces([self], path)
+
+    def _write_rows(self, handle: Any, header: bool) -> None:
         data = np.column_stack([self.t, self.points.reshape(len(self.t), -1)])
-        np.savetxt(path, data, delimiter=",", header=",".join(("t", *self.columns)), comments="", fmt="%.10g")
-        return path
+        np.savetxt(handle, data, delimiter=",", header=",".join(("t", *self.columns)) if header else "", comments="", fmt="%.10g")
 
 
 Result = Estimate | PointEstimate

@@ -201,6 +201,42 @@ def smooth_in_windows(
     yield from solve_window(end, last=True)
 
 
+Events = list[tuple[FloatArray, FloatArray]]
+"""What an event detector finds in a stretch of recording: one (times (N,), rows (N, ...)) pair per kind of event."""
+
+
+def events_in_windows(blocks: Iterable[Session], detect: Callable[[Session], Events], windows: Windows,
+                      progress: Callable[[float], None] | None = None) -> Iterator[Events]:
+    """The events of a recording given as ``blocks`` (Sessions in time order), window by window: ``detect`` runs on each
+    window's kept ``window_s`` plus ``margin_s`` on each side (an event near a window's end is found with the samples
+    around it, as in the whole recording), and each window gives the events whose times fall in its kept part, so every
+    event comes from exactly one window, in time order. Only one window's samples are held. ``progress(t_s)`` after each."""
+    buffer = _Buffer()
+    kept_from: float | None = None
+
+    def window(lo: float, hi: float, last: bool) -> Events:
+        assert kept_from is not None
+        found = detect(buffer.between(lo - windows.margin_s, hi if last else hi + windows.margin_s))
+        if progress is not None:
+            progress(hi)
+        return [(t[keep], rows[keep]) for t, rows in found for keep in [(t >= lo) & ((t < hi) | last)]]
+
+    for block in blocks:
+        buffer.add(block)
+        if kept_from is None and np.isfinite(buffer.start_s):
+            kept_from = buffer.start_s
+        while kept_from is not None and buffer.end_s >= kept_from + 2.0 * windows.window_s + windows.margin_s:
+            yield window(kept_from, kept_from + windows.window_s, last=False)
+            kept_from += windows.window_s
+            buffer.drop_before(kept_from - windows.margin_s)
+    if kept_from is None:
+        raise ValueError("events_in_windows: no samples")
+    if buffer.end_s > kept_from + windows.window_s + windows.margin_s:  # one more full window before the last
+        yield window(kept_from, kept_from + windows.window_s, last=False)
+        kept_from += windows.window_s
+    yield window(kept_from, buffer.end_s, last=True)
+
+
 def joined(pieces: Iterable[Estimate], ranked: Mapping[str, Sequence[str]] | None = None) -> Estimate:
     """The pieces of ``smooth_in_windows`` as one estimate: runtime summed over the windows, and their extras merged (counts
     summed, other numbers their largest, lists joined, a text ``ranked`` by its key's order from best to worst: the
