@@ -433,17 +433,17 @@ def _load_stream(root: Path, toml_path: Path, name: str, table: Mapping[str, Any
     return replace(empty, t=t, values=values)
 
 
-def recording_span_s(directory: str | Path) -> float | None:
-    """How long a session directory's recording is, s (its streams' first to last sample, a calibration recording left
-    out), from each CSV's first and last lines alone: a long recording is not read to learn it. None where a line does not
-    read as a time (reading the session says why)."""
+def recording_times_s(directory: str | Path) -> tuple[float, float] | None:
+    """A session directory's recording's first and last sample times, s (over its streams, a calibration recording left
+    out), from each CSV's first and last lines alone: a long recording is not read to learn them. None where a line does
+    not read as a time (reading the session says why)."""
     root = Path(directory)
     _, spec, _ = read_session_spec(root)
     spans = [csv_time_span(root / table.get("file", f"{name}.csv")) for name, table in spec["streams"].items()
              if table.get("role") != CALIBRATION_ROLE]
     if not spans or any(span is None for span in spans):
         return None
-    return max(span[1] for span in spans if span is not None) - min(span[0] for span in spans if span is not None)
+    return min(span[0] for span in spans if span is not None), max(span[1] for span in spans if span is not None)
 
 
 def csv_time_span(path: Path) -> tuple[float, float] | None:
