@@ -88,7 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--stream", action="store_true", help="read the session a minute at a time and write the estimate as each 10-minute "
                      "window is solved, a recording of any length in memory that does not grow with it; nothing is scored. attitude9 "
                      "--solver batch (overlapping windows blended at their seams: a day at 285 Hz) or walking --solver gait (steps and "
-                     "strides found with a minute either side of each window: a week of a Mobilise-D waist sensor)")
+                     "strides found with two minutes either side of each window: a week of a Mobilise-D waist sensor)")
     run.add_argument("--workers", type=int, default=None, help="several sessions: parallel processes (default: all cores)")
     run.add_argument("--scheduler", default=None, help="several sessions: 'local' starts a Dask LocalCluster; tcp://host:port uses an existing one")
 

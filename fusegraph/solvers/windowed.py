@@ -141,6 +141,29 @@ def blended(before: Estimate, after: Estimate) -> Estimate:
     return replace(after, quat_wxyz=quat, cov=cov)
 
 
+def _windows_of(blocks: Iterable[Session], buffer: _Buffer, windows: Windows) -> Iterator[tuple[float, float, bool]]:
+    """The windows of a recording given as ``blocks`` (Sessions in time order), each as (where its kept part starts, where
+    it ends, whether it is the last) once ``buffer`` holds it and its right margin: a window is given when the one after it
+    would not be the recording's last, and the recording's end goes to the last (one window more when over ``window_s``
+    plus both margins remain). When the caller comes back, the buffer lets go of what the next window does not need."""
+    kept_from: float | None = None
+    for block in blocks:
+        buffer.add(block)
+        if kept_from is None and np.isfinite(buffer.start_s):
+            kept_from = buffer.start_s
+        while kept_from is not None and buffer.end_s >= kept_from + 2.0 * windows.window_s + windows.margin_s:
+            yield kept_from, kept_from + windows.window_s, False
+            kept_from += windows.window_s
+            buffer.drop_before(kept_from - windows.margin_s)
+    if kept_from is None:
+        raise ValueError("a windowed run: no samples")
+    if buffer.end_s > kept_from + windows.window_s + 2.0 * windows.margin_s:  # one more full window before the last
+        yield kept_from, kept_from + windows.window_s, False
+        kept_from += windows.window_s
+        buffer.drop_before(kept_from - windows.margin_s)
+    yield kept_from, buffer.end_s, True
+
+
 def smooth_in_windows(
     blocks: Iterable[Session],
     solve: Callable[[Session], Estimate],
@@ -153,16 +176,11 @@ def smooth_in_windows(
     their seam. ``progress(t_s)`` after each window. Pieces share the method name and carry the window's extras."""
     buffer = _Buffer()
     half = 0.5 * windows.margin_s
-    kept_from: float | None = None  # the next window's kept part starts here
     tail: Estimate | None = None  # the previous window over [seam - half, seam + half]
     first = True
-
-    def solve_window(end_s: float, last: bool) -> Iterator[Estimate]:
-        nonlocal kept_from, tail, first
-        assert kept_from is not None
-        seam_hi = kept_from + windows.window_s
+    for kept_from, seam_hi, last in _windows_of(blocks, buffer, windows):
         lo = kept_from - (0.0 if first else windows.margin_s)
-        hi = end_s if last else seam_hi + windows.margin_s
+        hi = seam_hi if last else seam_hi + windows.margin_s
         estimate = solve(buffer.between(lo, hi))
         if tail is not None:
             this = _slice(estimate, tail.t[0], tail.t[-1], right_closed=True)
@@ -175,30 +193,14 @@ def smooth_in_windows(
             start = lo
         if last:
             yield _slice(estimate, start, np.inf)
-            tail = None
         else:
             yield _slice(estimate, start, seam_hi - half)
             tail = _slice(estimate, seam_hi - half, seam_hi + half, right_closed=True)
             if len(tail.t) == 0:
                 tail = None
-            kept_from, first = seam_hi, False
-            buffer.drop_before(kept_from - windows.margin_s)
+            first = False
         if progress is not None:
             progress(hi)
-
-    for block in blocks:
-        buffer.add(block)
-        if kept_from is None and np.isfinite(buffer.start_s):
-            kept_from = buffer.start_s
-        # a window is solved once its right margin has come and the one after it would not be the recording's last
-        while kept_from is not None and buffer.end_s >= kept_from + 2.0 * windows.window_s + windows.margin_s:
-            yield from solve_window(kept_from + windows.window_s + windows.margin_s, last=False)
-    if kept_from is None:
-        raise ValueError("smooth_in_windows: no samples")
-    end = buffer.end_s
-    if end > kept_from + windows.window_s + 2.0 * windows.margin_s:  # one more full window before the last
-        yield from solve_window(end, last=False)
-    yield from solve_window(end, last=True)
 
 
 Events = list[tuple[FloatArray, FloatArray]]
@@ -208,33 +210,15 @@ Events = list[tuple[FloatArray, FloatArray]]
 def events_in_windows(blocks: Iterable[Session], detect: Callable[[Session], Events], windows: Windows,
                       progress: Callable[[float], None] | None = None) -> Iterator[Events]:
     """The events of a recording given as ``blocks`` (Sessions in time order), window by window: ``detect`` runs on each
-    window's kept ``window_s`` plus ``margin_s`` on each side (an event near a window's end is found with the samples
-    around it, as in the whole recording), and each window gives the events whose times fall in its kept part, so every
-    event comes from exactly one window, in time order. Only one window's samples are held. ``progress(t_s)`` after each."""
+    window's kept part plus ``margin_s`` on each side (an event near a window's end is found with the samples around it,
+    as in the whole recording), and each window gives the events whose times fall in its kept part, so every event comes
+    from exactly one window, in time order. Only one window's samples are held. ``progress(t_s)`` after each."""
     buffer = _Buffer()
-    kept_from: float | None = None
-
-    def window(lo: float, hi: float, last: bool) -> Events:
-        assert kept_from is not None
+    for lo, hi, last in _windows_of(blocks, buffer, windows):
         found = detect(buffer.between(lo - windows.margin_s, hi if last else hi + windows.margin_s))
         if progress is not None:
             progress(hi)
-        return [(t[keep], rows[keep]) for t, rows in found for keep in [(t >= lo) & ((t < hi) | last)]]
-
-    for block in blocks:
-        buffer.add(block)
-        if kept_from is None and np.isfinite(buffer.start_s):
-            kept_from = buffer.start_s
-        while kept_from is not None and buffer.end_s >= kept_from + 2.0 * windows.window_s + windows.margin_s:
-            yield window(kept_from, kept_from + windows.window_s, last=False)
-            kept_from += windows.window_s
-            buffer.drop_before(kept_from - windows.margin_s)
-    if kept_from is None:
-        raise ValueError("events_in_windows: no samples")
-    if buffer.end_s > kept_from + windows.window_s + windows.margin_s:  # one more full window before the last
-        yield window(kept_from, kept_from + windows.window_s, last=False)
-        kept_from += windows.window_s
-    yield window(kept_from, buffer.end_s, last=True)
+        yield [(t[keep], rows[keep]) for t, rows in found for keep in [(t >= lo) & ((t < hi) | last)]]
 
 
 def joined(pieces: Iterable[Estimate], ranked: Mapping[str, Sequence[str]] | None = None) -> Estimate:
