@@ -146,6 +146,10 @@ def _windows_of(blocks: Iterable[Session], buffer: _Buffer, windows: Windows) ->
     it ends, whether it is the last) once ``buffer`` holds it and its right margin: a window is given when the one after it
     would not be the recording's last, and the recording's end goes to the last (one window more when over ``window_s``
     plus both margins remain). When the caller comes back, the buffer lets go of what the next window does not need."""
+    def after(kept_from: float) -> float:  # the next window's kept part starts here; what it does not need is let go
+        buffer.drop_before(kept_from + windows.window_s - windows.margin_s)
+        return kept_from + windows.window_s
+
     kept_from: float | None = None
     for block in blocks:
         buffer.add(block)
@@ -153,14 +157,12 @@ def _windows_of(blocks: Iterable[Session], buffer: _Buffer, windows: Windows) ->
             kept_from = buffer.start_s
         while kept_from is not None and buffer.end_s >= kept_from + 2.0 * windows.window_s + windows.margin_s:
             yield kept_from, kept_from + windows.window_s, False
-            kept_from += windows.window_s
-            buffer.drop_before(kept_from - windows.margin_s)
+            kept_from = after(kept_from)
     if kept_from is None:
         raise ValueError("a windowed run: no samples")
-    if buffer.end_s > kept_from + windows.window_s + 2.0 * windows.margin_s:  # one more full window before the last
+    while buffer.end_s > kept_from + windows.window_s + 2.0 * windows.margin_s:  # one more full window before the last
         yield kept_from, kept_from + windows.window_s, False
-        kept_from += windows.window_s
-        buffer.drop_before(kept_from - windows.margin_s)
+        kept_from = after(kept_from)
     yield kept_from, buffer.end_s, True
 
 
@@ -177,9 +179,8 @@ def smooth_in_windows(
     buffer = _Buffer()
     half = 0.5 * windows.margin_s
     tail: Estimate | None = None  # the previous window over [seam - half, seam + half]
-    first = True
     for kept_from, seam_hi, last in _windows_of(blocks, buffer, windows):
-        lo = kept_from - (0.0 if first else windows.margin_s)
+        lo = kept_from - windows.margin_s  # the first window: nothing lies before its start
         hi = seam_hi if last else seam_hi + windows.margin_s
         estimate = solve(buffer.between(lo, hi))
         if tail is not None:
@@ -198,7 +199,6 @@ def smooth_in_windows(
             tail = _slice(estimate, seam_hi - half, seam_hi + half, right_closed=True)
             if len(tail.t) == 0:
                 tail = None
-            first = False
         if progress is not None:
             progress(hi)
 
