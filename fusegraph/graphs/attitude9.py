@@ -461,6 +461,16 @@ class Attitude9Builder:
         self.posterior_gyro_bias[k] = gyro_bias
         return rotation, gyro_bias
 
+    def solved_keyframes(self) -> tuple[np.ndarray, FloatArray, FloatArray]:
+        """The keyframes an update solved as it came: (sample index, attitude (w, x, y, z), gyro bias) of each, what a
+        causal estimate carries on by the gyro (``fill_samples``). An online solver that updates every few keyframes
+        (``OnlineConfig.update_every``) solves only those; the samples after another come from the last solved one, as
+        they did live."""
+        quat = np.array(self.posterior_quat, dtype=float).reshape(-1, 4)
+        solved = np.isfinite(quat[:, 0])
+        index = np.array(self.keyframe_index[: len(quat)], dtype=int)
+        return index[solved], quat[solved], np.array(self.posterior_gyro_bias, dtype=float).reshape(-1, 3)[solved]
+
     def set_latest(self, world_R_body: gtsam.Rot3, bias: FloatArray) -> None:
         """Part of the solver protocol; ``read_latest`` already took the full state."""
 

@@ -166,7 +166,7 @@ def run_online(session: Session, model: Attitude9Model | None = None, config: On
     if tracker is not None:  # samples after the last keyframe: the tracker's that arrived by the end
         builder.feed_tracker(tracker, float(data.t[-1]))
         solver.update()
-    quats = fill_samples(data.t, data.gyro, np.array(builder.keyframe_index), np.array(builder.posterior_quat), np.array(builder.posterior_gyro_bias), False)
+    quats = fill_samples(data.t, data.gyro, *builder.solved_keyframes(), False)
     runtime = time.perf_counter() - start
     say_notes(session.where, builder.notes())
     extras = {"keyframes": len(builder.keyframe_t), "reanchors": solver.reanchors, "in_place": solver.in_place_marginalisations, **builder.extras()}

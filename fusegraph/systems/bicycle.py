@@ -95,7 +95,7 @@ def run_online(s: BicycleSession, model: BicycleModel | None = None) -> FloatArr
         builder.add_samples(s.t[i : i + block], thigh, frame)
         solver.update()
     th = builder.thigh
-    return fill_samples(s.t, s.thigh_gyro, np.array(th.keyframe_index), np.array(th.posterior_quat), np.array(th.posterior_gyro_bias), False)
+    return fill_samples(s.t, s.thigh_gyro, *th.solved_keyframes(), False)
 
 
 def run_batch(s: BicycleSession, model: BicycleModel | None = None) -> FloatArray:
