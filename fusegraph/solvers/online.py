@@ -17,7 +17,8 @@ size of the window.
 from __future__ import annotations
 
 import bisect
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import gtsam
@@ -88,6 +89,16 @@ class OnlineConfig:
     Each update then re-eliminates every keyframe back to the one its late samples reach, so the gain shrinks with the
     latency: realistic head session (seed 7, 60 s, best of 3), tracker 0.1 s late 36.4x real time against 19.7x, 0.2 s
     32.4x against 30.8x, 0.3 s 31.7x against 34.8x."""
+
+    def declared(self, meta: Mapping[str, Any], where: str) -> OnlineConfig:
+        """This config with the update interval a session declares (``[online] update_every``: a whole number of
+        keyframes, 0 or more); a ValueError naming the file and the key otherwise."""
+        every = meta.get("online", {}).get("update_every")
+        if every is None:
+            return self
+        if isinstance(every, bool) or not isinstance(every, int) or every < 0:
+            raise ValueError(f"{where}: [online] update_every = {every!r}: a whole number of keyframes, 0 or more (0: an update at every keyframe)")
+        return replace(self, update_every=every)
 
 
 #: Sigma of the prior a rebuilt solver puts on every variable (tangent-space units: rad, rad/s, ...).
@@ -202,8 +213,11 @@ class OnlineSmoother:
 
     def update(self, force: bool = False) -> bool:
         """Take the builder's new factors into iSAM2; False when there was nothing new (or not yet due)."""
-        if not force and self.builder.latest_keyframe - self._known_keyframe < self.config.update_every:
-            return False  # factors wait in the builder; the estimate is carried on by the gyro
+        # factors wait in the builder and the gyro carries the estimate on; the first keyframe is solved as it comes (no
+        # estimate is carried before it)
+        due = self.config.update_every if self._known_keyframe >= 0 else min(self.config.update_every, 1)
+        if not force and self.builder.latest_keyframe - self._known_keyframe < due:
+            return False
         increment = self.builder.take()
         if not increment:
             return False

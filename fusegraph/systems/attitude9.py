@@ -149,7 +149,7 @@ def run_online(session: Session, model: Attitude9Model | None = None, config: On
     """fusegraph online: samples pushed keyframe by keyframe, iSAM2 after each; causal attitude per sample."""
     data = imu9(session)
     builder = Attitude9Builder(model_for(session, model))
-    solver = OnlineSmoother(builder, config or ONLINE_CONFIG)
+    solver = OnlineSmoother(builder, config or ONLINE_CONFIG.declared(session.meta, session.where))
     start = time.perf_counter()
     tracker = attitude_tracker(session)
     expected = int((data.t[-1] - data.t[0]) / builder.model.keyframe_period_s) + 1
