@@ -67,8 +67,9 @@ class OnlineConfig:
     relinearize: bool = True
     """Let iSAM2 relinearise; re-anchoring relinearises the kept factors at the estimate anyway."""
     update_every: int = 0
-    """Run iSAM2 once this many new keyframes have closed (the gyro carries the estimate in between; a late sample that
-    arrives between keyframes waits for the next due update); 0: whenever new factors come, a late sample too."""
+    """Run iSAM2 once this many new keyframes have closed, the first keyframe as it comes (the gyro carries the estimate
+    in between; a late sample that arrives between keyframes waits for the next due update); 0: whenever new factors
+    come, a late sample too. A 9-axis session declares it (``declared``)."""
     relinearize_skip: int = 1
     """Check for relinearisation every this many updates."""
     wildfire_threshold: float = 0.001
