@@ -381,7 +381,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "speed regression "
                          "and mobgap's own Mobilise-D pipeline.\n"
                          "speed: in one run, every system's solvers in x real time against the peer run beside them (9-axis online and "
-                         "batch against VQF and offline VQF on the BROAD trials in DIR; the head tracker's iSAM2 and batch on BROAD's motion and "
+                         "batch against VQF and offline VQF on the BROAD trials in DIR, and the online with iSAM2 every second keyframe, "
+                         "[online] update_every = 2, with its error beside; the head tracker's iSAM2 and batch on BROAD's motion and "
                          "online on simulations against Method II), the live head tracker's time per gyro sample (median, p99, worst), the "
                          "9-axis windowed batch's peak memory on a 1 h and a 24 h recording, and a cohort's recordings per hour per core; "
                          "without DIR (default ../shared/data/broad) the BROAD rows run on simulations and say so. Timings, never asserted.",

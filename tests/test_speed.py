@@ -22,12 +22,16 @@ def test_a_recording_repeated_to_a_length_keeps_its_rate_and_streams() -> None:
 def test_the_live_tracker_is_timed_per_gyro_sample_and_the_table_reads() -> None:
     live = live_sample_times(duration_s=5.0)
     assert live["samples"] > 400 and live["max_ms"] >= live["p99_ms"] >= live["median_ms"] > 0.0
-    found = {"systems": {"attitude9": {"online": {"x_realtime": 400.0, "peer": "vqf", "ratio_to_peer": 0.04}, "vqf": {"x_realtime": 10000.0}}},
+    found = {"systems": {"attitude9": {"online": {"x_realtime": 400.0, "peer": "vqf", "ratio_to_peer": 0.04}, "vqf": {"x_realtime": 10000.0},
+                                       "online_every2": {"x_realtime": 480.0, "peer": "vqf", "ratio_to_peer": 0.048, "total_deg": 1.945,
+                                                         "total_deg_every_keyframe": 1.932}}},
              "live": live, "memory": {"batch_peak_mb_1h": 300.0, "batch_peak_mb_24h": None, "runs": {
                  "batch_peak_mb_1h": {"peak_mb": 300.0, "samples": 1026000.0, "missing": 0.0, "seconds": 9.0, "hours": 1.0}, "batch_peak_mb_24h": None}},
              "cohort": {"recordings_per_hour_per_core_online": 9000.0, "mean_recording_s": 190.0}, "data": {"attitude9": "simulated"}}
     text = format_speed(found)
     assert "attitude9      online              400.0          vqf   0.040" in text
+    assert "attitude9      online_every2       480.0          vqf   0.048" in text
+    assert "update_every = 2 (iSAM2 every second keyframe): mean total 1.945 deg against 1.932 at every keyframe (simulated test seeds)" in text
     assert "peak RSS on 1 h (1026000 samples, 0 without an estimate): 300 MB, 400x real time" in text
 
 
