@@ -514,29 +514,29 @@ def iter_session_blocks(directory: str | Path, block_s: float = 60.0, truth: boo
             t, values = np.concatenate([t, nxt[0]]), np.concatenate([values, nxt[1]])
         pending[name] = (t, values)
 
+    def take(name: str, hi: float) -> Stream:  # the source's samples before hi (read on as far as needed); the rest stays
+        pull(name, hi)
+        t, values = pending[name]
+        n = int(np.searchsorted(t, hi, side="left"))
+        pending[name] = (t[n:], values[n:])
+        return replace(sources[name][0], t=t[:n], values=values[:n])
+
     for name in readers:
         pull(name, -np.inf)
     lo = min((float(t[0]) for t, _ in pending.values() if len(t)), default=np.inf)
     while any(len(t) for name, (t, _) in pending.items() if name != _TRUTH_SOURCE):
         hi = lo + block_s
         streams = dict(whole)
-        for name, (empty, _) in readers.items():
-            pull(name, hi)
-            t, values = pending[name]
-            n = int(np.searchsorted(t, hi, side="left"))
-            streams[name] = replace(empty, t=t[:n], values=values[:n])
-            pending[name] = (t[n:], values[n:])
+        for name in readers:
+            streams[name] = take(name, hi)
         block_truth = None
         if follower is not None:
-            pull(_TRUTH_SOURCE, hi)
-            t, values = pending[_TRUTH_SOURCE]
-            n = int(np.searchsorted(t, hi, side="left"))
-            pending[_TRUTH_SOURCE] = (t[n:], values[n:])
+            part = take(_TRUTH_SOURCE, hi)
             heard = [s.t for name, s in streams.items() if name in readers and len(s)]
             if heard:
-                inside = (t[:n] >= min(float(h[0]) for h in heard)) & (t[:n] <= max(float(h[-1]) for h in heard))
+                inside = (part.t >= min(float(h[0]) for h in heard)) & (part.t <= max(float(h[-1]) for h in heard))
                 if inside.any():
-                    block_truth = replace(follower[0], t=t[:n][inside], values=values[:n][inside])
+                    block_truth = replace(part, t=part.t[inside], values=part.values[inside])
         yield Session(system, streams, block_truth, meta, root)
         lo = hi
 
